@@ -1,0 +1,184 @@
+"""Periodic simulation cell: an immutable lattice ``h`` (d x d, lattice vectors as columns).
+
+The cell is upper triangular, as in HOOMD-blue: ``a1 = (Lx, 0, 0)``, ``a2 = (xy Ly, Ly, 0)``,
+``a3 = (xz Lz, yz Lz, Lz)``. Fractional coordinates ``s = h^-1 x`` of wrapped positions lie in
+``[-1/2, 1/2)`` (the cell is centred on the origin, HOOMD's convention). Lengths are in the
+user's length unit (the seed's unit cell: ``Lx = Ly = 1``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from itertools import product
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._validate import float_array
+from .errors import InputError
+
+_TRIANGLE_TOL = 1e-14
+
+
+@dataclass(frozen=True, eq=False)
+class Cell:
+    """Periodic cell with lattice matrix ``h`` of shape ``(d, d)``, d = 2 or 3.
+
+    Examples
+    --------
+    >>> cell = Cell.box([1.0, 1.0])
+    >>> cell.deform(simple_shear(0.1)).h.tolist()
+    [[1.0, 0.1], [0.0, 1.0]]
+    """
+
+    h: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        h = np.array(float_array(self.h, "cell", (None, None)))
+        d = h.shape[0]
+        if h.shape != (d, d) or d not in (2, 3):
+            raise InputError(f"cell: expected a 2x2 or 3x3 matrix, got shape {h.shape}")
+        lower = np.tril(h, -1)
+        if np.any(np.abs(lower) > _TRIANGLE_TOL * np.abs(h).max()):
+            raise InputError("cell: must be upper triangular (lattice vectors as columns)")
+        h[np.tril_indices(d, -1)] = 0.0
+        if np.any(np.diag(h) <= 0.0):
+            raise InputError(f"cell: singular or inverted, diagonal {np.diag(h).tolist()} must be > 0")
+        h.setflags(write=False)
+        object.__setattr__(self, "h", h)
+
+    @classmethod
+    def box(cls, lengths: ArrayLike) -> Cell:
+        """Orthogonal cell with the given side lengths ``(d,)``."""
+        sides = float_array(lengths, "lengths", (None,))
+        return cls(np.diag(sides))
+
+    @classmethod
+    def from_hoomd(cls, box: ArrayLike, dim: int) -> Cell:
+        """Cell from a HOOMD box ``[Lx, Ly, Lz, xy, xz, yz]`` in ``dim`` dimensions."""
+        lx, ly, lz, xy, xz, yz = float_array(box, "box", (6,))
+        if dim == 2:
+            return cls(np.array([[lx, xy * ly], [0.0, ly]]))
+        if dim == 3:
+            return cls(np.array([[lx, xy * ly, xz * lz], [0.0, ly, yz * lz], [0.0, 0.0, lz]]))
+        raise InputError(f"dimensions: must be 2 or 3, got {dim}")
+
+    def to_hoomd(self) -> NDArray[np.float64]:
+        """HOOMD box ``[Lx, Ly, Lz, xy, xz, yz]`` (``Lz = 1``, ``xz = yz = 0`` in 2D)."""
+        h = self.h
+        if self.dim == 2:
+            return np.array([h[0, 0], h[1, 1], 1.0, h[0, 1] / h[1, 1], 0.0, 0.0])
+        return np.array(
+            [h[0, 0], h[1, 1], h[2, 2], h[0, 1] / h[1, 1], h[0, 2] / h[2, 2], h[1, 2] / h[2, 2]]
+        )
+
+    @property
+    def dim(self) -> int:
+        """Number of dimensions d."""
+        return int(self.h.shape[0])
+
+    @property
+    def volume(self) -> float:
+        """Area (2D) or volume (3D) of the cell."""
+        return float(np.prod(np.diag(self.h)))
+
+    @cached_property
+    def inverse(self) -> NDArray[np.float64]:
+        """``h^-1``, shape ``(d, d)``; its rows are the reciprocal vectors."""
+        inv = np.linalg.inv(self.h)
+        inv.setflags(write=False)
+        return inv
+
+    @cached_property
+    def widths(self) -> NDArray[np.float64]:
+        """Distances between opposite faces ``(d,)``: ``1 / |row k of h^-1|``."""
+        w = 1.0 / np.linalg.norm(self.inverse, axis=1)
+        w.setflags(write=False)
+        return w
+
+    def fractional(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Fractional coordinates ``h^-1 x`` of positions or vectors ``(N, d)``."""
+        return np.asarray(x) @ self.inverse.T
+
+    def cartesian(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Cartesian coordinates ``h s`` of fractional ``(N, d)``."""
+        return np.asarray(s) @ self.h.T
+
+    def wrap(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Positions ``(N, d)`` mapped into the cell: fractional coordinates in ``[-1/2, 1/2)``."""
+        s = self.fractional(x)
+        s -= np.floor(s + 0.5)
+        return self.cartesian(s)
+
+    def minimum_image(self, dx: NDArray[np.float64]) -> NDArray[np.float64]:
+        """Shortest periodic image of separation vectors ``(M, d)``, exact in any cell.
+
+        Fractional rounding alone fails in tilted cells, so it is done in the reduced basis of
+        the same lattice and the neighbouring images of the rounded vector are searched too.
+        """
+        dx = np.atleast_2d(np.asarray(dx, dtype=np.float64))
+        cell = self.reduced()
+        s = cell.fractional(dx)
+        base = cell.cartesian(s - np.round(s))
+        best = base.copy()
+        best_len = np.einsum("ij,ij->i", base, base)
+        for shift in product((-1, 0, 1), repeat=self.dim):
+            if not any(shift):
+                continue
+            trial = base + cell.h @ np.array(shift, dtype=np.float64)
+            length = np.einsum("ij,ij->i", trial, trial)
+            closer = length < best_len
+            best[closer] = trial[closer]
+            best_len[closer] = length[closer]
+        return best
+
+    def deform(self, deformation: ArrayLike) -> Cell:
+        """Cell ``D h`` after the affine deformation ``D`` ``(d, d)`` (must keep h upper triangular)."""
+        d_mat = float_array(deformation, "deformation", (self.dim, self.dim))
+        if np.linalg.det(d_mat) <= 0.0:
+            raise InputError("deformation: determinant must be > 0")
+        return Cell(d_mat @ self.h)
+
+    def reduced(self) -> Cell:
+        """The same lattice with every tilt at most half the box length it leans along.
+
+        Simple shear accumulated past half a box (Lees-Edwards) is mapped back by adding integer
+        multiples of lower lattice vectors to higher ones; the periodic system is unchanged.
+        """
+        h = np.array(self.h)
+        for col in range(1, self.dim):
+            for row in range(col - 1, -1, -1):
+                n = np.round(h[row, col] / h[row, row])
+                h[:, col] -= n * h[:, row]
+        return Cell(h)
+
+    def packing_fraction(self, radii: NDArray[np.float64]) -> float:
+        """Sum of disk areas (2D) or sphere volumes (3D) over the cell volume."""
+        return float(particle_volumes(radii, self.dim).sum() / self.volume)
+
+
+def particle_volumes(radii: NDArray[np.float64], dim: int) -> NDArray[np.float64]:
+    """Area ``pi r^2`` (2D) or volume ``4/3 pi r^3`` (3D) of each particle ``(N,)``."""
+    r = np.asarray(radii)
+    return np.pi * r**2 if dim == 2 else (4.0 / 3.0) * np.pi * r**3
+
+
+def isotropic(scale: float, dim: int = 2) -> NDArray[np.float64]:
+    """Deformation ``scale * I``: isotropic compression for ``scale < 1``."""
+    return float(scale) * np.eye(dim)
+
+
+def simple_shear(gamma: float, dim: int = 2) -> NDArray[np.float64]:
+    """Simple shear ``x += gamma y`` (Lees-Edwards): ``D = [[1, gamma], [0, 1]]`` (padded in 3D)."""
+    d_mat = np.eye(dim)
+    d_mat[0, 1] = gamma
+    return d_mat
+
+
+def pure_shear(gamma: float, dim: int = 2) -> NDArray[np.float64]:
+    """Volume-preserving pure shear ``D = diag(1 + gamma, 1 / (1 + gamma))`` (``z`` kept in 3D)."""
+    d_mat = np.eye(dim)
+    d_mat[0, 0] = 1.0 + gamma
+    d_mat[1, 1] = 1.0 / (1.0 + gamma)
+    return d_mat

@@ -1,0 +1,9 @@
+"""Exceptions raised by athermal at its public doors."""
+
+
+class InputError(ValueError):
+    """Bad input: the message names the offending argument and what is wrong with it."""
+
+
+class FileFormatError(InputError):
+    """A file that cannot be read as an athermal/HOOMD GSD configuration."""

@@ -1,0 +1,165 @@
+"""Verlet pair lists in any periodic cell: an O(N) cell-list build and a brute-force twin.
+
+A :class:`NeighborList` holds every pair ``(i, j)`` closer than ``r_i + r_j + skin`` once, as
+flat arrays sorted by ``i`` with ``j >= i`` (``j == i`` only for a particle's own image in a cell
+narrower than the cut-off), each with an image code. The separation of a pair is
+``x_i - x_j + shift[code]`` where ``shift = images @ h.T`` are lattice translations, so the list
+stays exact for unwrapped positions, any tilt and deformation of the cell (shifts follow ``h``).
+It stays complete while no particle has moved more than ``skin / 2`` since the build.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from itertools import product
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import _kernels
+from .cell import Cell
+from .errors import InputError
+
+DEFAULT_SKIN_FACTOR = 0.2
+_MAX_IMAGE_CODES = np.iinfo(np.int16).max
+
+
+def default_skin(radii: NDArray[np.float64]) -> float:
+    """Verlet skin used when none is given: 0.2 times the mean radius (length units)."""
+    return DEFAULT_SKIN_FACTOR * float(np.mean(radii))
+
+
+@dataclass(frozen=True, eq=False)
+class NeighborList:
+    """Pairs within ``r_i + r_j + skin`` (half list with lattice image codes).
+
+    Attributes
+    ----------
+    first : ``(P,)`` int32, the ``i`` of each pair (non-decreasing).
+    second : ``(P,)`` int32, the ``j`` of each pair (``j >= i``).
+    code : ``(P,)`` int16, index into ``images``.
+    images : ``(C, d)`` float64, integer lattice vectors ``n``; shift = ``h n``.
+    skin : Verlet skin (length units).
+    reference : ``(N, d)`` positions at the build.
+    """
+
+    first: NDArray[np.int32]
+    second: NDArray[np.int32]
+    code: NDArray[np.int16]
+    images: NDArray[np.float64]
+    skin: float
+    reference: NDArray[np.float64]
+
+    @property
+    def n_pairs(self) -> int:
+        """Number of listed pairs P."""
+        return int(self.second.size)
+
+    def shifts(self, cell: Cell) -> NDArray[np.float64]:
+        """Lattice translations ``(C, d)`` of the image codes in ``cell``."""
+        return np.ascontiguousarray(self.images @ cell.h.T)
+
+    def separations(self, positions: NDArray[np.float64], cell: Cell) -> NDArray[np.float64]:
+        """Separation vectors ``x_i - x_j + shift`` ``(P, d)`` of all listed pairs."""
+        x = np.asarray(positions)
+        return x[self.first] - x[self.second] + self.shifts(cell)[self.code]
+
+    def is_current(self, positions: NDArray[np.float64]) -> bool:
+        """True while no particle has moved more than ``skin / 2`` since the build."""
+        moved = _kernels.max_displacement_sq(np.asarray(positions), self.reference)
+        return bool(moved <= 0.25 * self.skin * self.skin)
+
+
+def _bin_layout(cell: Cell, cutoff: float, n: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    widths = cell.widths
+    nbins = np.maximum(1, np.floor(widths / cutoff)).astype(np.int64)
+    while np.prod(nbins) > 4 * n + 64:
+        nbins = np.maximum(1, nbins // 2)
+    reach = np.floor(cutoff * nbins / widths).astype(np.int64) + 1
+    return nbins, reach
+
+
+def _encode_images(image: NDArray[np.int32], dim: int) -> tuple[NDArray[np.int16], NDArray[np.float64]]:
+    m = int(np.abs(image).max()) if image.size else 0
+    side = 2 * m + 1
+    if side**dim > _MAX_IMAGE_CODES:
+        raise InputError("positions: particles lie too many cells outside the box; wrap them first")
+    weights = side ** np.arange(dim)
+    code = ((image + m) @ weights).astype(np.int16)
+    table = np.array(list(product(range(-m, m + 1), repeat=dim)), dtype=np.float64)[:, ::-1]
+    return code, np.ascontiguousarray(table)
+
+
+def build_neighbor_list(
+    positions: NDArray[np.float64],
+    radii: NDArray[np.float64],
+    cell: Cell,
+    skin: float | None = None,
+) -> NeighborList:
+    """Cell-list build of all pairs with ``|x_i - x_j + h n| < r_i + r_j + skin``, O(N).
+
+    Parameters
+    ----------
+    positions : ``(N, d)`` float64, wrapped or not.
+    radii : ``(N,)`` float64.
+    cell : the periodic cell (any tilt).
+    skin : Verlet skin in length units; default :func:`default_skin`.
+    """
+    x = np.ascontiguousarray(positions, dtype=np.float64)
+    r = np.ascontiguousarray(radii, dtype=np.float64)
+    skin = default_skin(r) if skin is None else float(skin)
+    if not skin >= 0.0:
+        raise InputError(f"skin: must be >= 0, got {skin}")
+    cutoff = 2.0 * float(r.max()) + skin
+    nbins, reach = _bin_layout(cell, cutoff, r.size)
+    first, second, image = _kernels.cell_list_pairs(
+        x, r, np.ascontiguousarray(cell.h), np.ascontiguousarray(cell.inverse), skin, nbins, reach
+    )
+    code, table = _encode_images(image, cell.dim)
+    return NeighborList(first, second, code, table, skin, x.copy())
+
+
+def brute_force_pairs(
+    positions: NDArray[np.float64], radii: NDArray[np.float64], cell: Cell, skin: float
+) -> set[tuple[int, int, tuple[int, ...]]]:
+    """Every pair ``(i, j, n)`` with ``i <= j`` and ``|x_i - x_j + h n| < r_i + r_j + skin``.
+
+    O(N^2 x images), for testing :func:`build_neighbor_list`; a particle's own images count
+    once (``n`` with its last non-zero component positive).
+    """
+    x = np.asarray(positions, dtype=np.float64)
+    r = np.asarray(radii, dtype=np.float64)
+    reach = np.ceil((2 * r.max() + skin) / cell.widths).astype(int) + 1
+    fl = np.floor(cell.fractional(x))
+    found: set[tuple[int, int, tuple[int, ...]]] = set()
+    ranges = [range(-int(k), int(k) + 1) for k in reach]
+    for n_rel in product(*ranges):
+        rel = np.array(n_rel, dtype=np.float64)
+        for i in range(r.size):
+            # images relative to the wrapped copies, made absolute below
+            n_abs = fl - fl[i] + rel
+            sep = x[i] - x + n_abs @ cell.h.T
+            dist = np.sqrt(np.einsum("ij,ij->i", sep, sep))
+            close = np.nonzero(dist < r[i] + r + skin)[0]
+            for j in close:
+                n = tuple(int(v) for v in n_abs[j])
+                if j < i or (j == i and not _positive(n)):
+                    continue
+                found.add((i, int(j), n))
+    return found
+
+
+def _positive(n: tuple[int, ...]) -> bool:
+    for v in reversed(n):
+        if v:
+            return v > 0
+    return False
+
+
+def pair_set(nlist: NeighborList) -> set[tuple[int, int, tuple[int, ...]]]:
+    """The listed pairs as ``(i, j, n)`` tuples, for comparison with :func:`brute_force_pairs`."""
+    img = nlist.images[nlist.code].astype(int)
+    return {
+        (int(i), int(j), tuple(int(v) for v in n))
+        for i, j, n in zip(nlist.first, nlist.second, img, strict=True)
+    }

@@ -1,0 +1,151 @@
+"""Macroscopic observables of a packing (seed section 2.4): stress, pressure, fabric, contacts,
+rattlers and the coordination number.
+
+Sign convention: ``sigma = (1/V) sum_c l_c (x) f_c`` with ``l_c = x_i - x_j`` and ``f_c`` the
+(repulsive) force on ``i`` from ``j``, so the pressure ``trace(sigma) / d`` is positive under
+compression and the shear stress is ``-sigma[0, 1]``. Stress in units of ``k`` x length^(alpha-d).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .cell import Cell, particle_volumes
+from .contact import ContactModel, Contacts, find_contacts, gradient, total_energy
+from .packing import Packing
+
+
+def stress(contacts: Contacts, cell: Cell) -> NDArray[np.float64]:
+    """Stress tensor ``(1/V) sum_c l_c (x) f_c`` ``(d, d)`` (symmetric)."""
+    return np.einsum("ca,cb->ab", contacts.branch, contacts.force) / cell.volume
+
+
+def pressure(sigma: NDArray[np.float64]) -> float:
+    """``trace(sigma) / d``."""
+    return float(np.trace(sigma) / sigma.shape[0])
+
+
+def shear_stress(sigma: NDArray[np.float64]) -> float:
+    """``-sigma[0, 1]``, the seed's shear stress for simple shear ``x += gamma y``."""
+    return float(-sigma[0, 1])
+
+
+def fabric(contacts: Contacts, radii: NDArray[np.float64], cell: Cell) -> NDArray[np.float64]:
+    """Fabric tensor ``(1/V) sum_c (v_i + v_j) n_c (x) n_c`` ``(d, d)``, dimensionless.
+
+    ``v`` is the particle area ``pi r^2`` in 2D (the seed's formula) and volume in 3D.
+    """
+    vol = particle_volumes(radii, cell.dim)
+    weight = vol[contacts.i] + vol[contacts.j]
+    n = contacts.normal
+    return np.einsum("c,ca,cb->ab", weight, n, n) / cell.volume
+
+
+def isotropic_part(tensor: NDArray[np.float64]) -> float:
+    """Mean eigenvalue of a symmetric tensor: ``(lambda_1 + lambda_2) / 2`` in 2D."""
+    return float(np.mean(np.linalg.eigvalsh(tensor)))
+
+
+def deviatoric_part(tensor: NDArray[np.float64]) -> float:
+    """``(lambda_max - lambda_min) / 2``: the seed's ``|lambda_1 - lambda_2| / 2`` in 2D."""
+    eig = np.linalg.eigvalsh(tensor)
+    return float((eig[-1] - eig[0]) / 2.0)
+
+
+def contact_counts(contacts: Contacts, n: int) -> NDArray[np.int64]:
+    """Number of contacts of each particle ``(N,)`` (contacts with its own image excluded)."""
+    other = contacts.i != contacts.j
+    return np.bincount(contacts.i[other], minlength=n) + np.bincount(contacts.j[other], minlength=n)
+
+
+def rattlers(contacts: Contacts, n: int, dim: int) -> NDArray[np.bool_]:
+    """Mask ``(N,)`` of rattlers: particles with fewer than ``d + 1`` contacts, removed
+    iteratively (removing one can turn a neighbour into a rattler)."""
+    keep = contacts.i != contacts.j
+    i, j = contacts.i[keep], contacts.j[keep]
+    rattler = np.zeros(n, dtype=bool)
+    while True:
+        live = ~(rattler[i] | rattler[j])
+        counts = np.bincount(i[live], minlength=n) + np.bincount(j[live], minlength=n)
+        new = (counts < dim + 1) & ~rattler
+        if not new.any():
+            return rattler
+        rattler |= new
+
+
+def coordination(contacts: Contacts, rattler: NDArray[np.bool_]) -> tuple[float, int]:
+    """Coordination ``z = 2 C' / N'`` over non-rattlers and the contact count ``C'`` among them.
+
+    ``z`` is 0 when every particle is a rattler (an unjammed packing).
+    """
+    live = ~(rattler[contacts.i] | rattler[contacts.j]) & (contacts.i != contacts.j)
+    n_live = int((~rattler).sum())
+    c_live = int(live.sum())
+    return (2.0 * c_live / n_live if n_live else 0.0), c_live
+
+
+@dataclass(frozen=True)
+class Observables:
+    """Everything :func:`measure` reports. Tensors are ``(d, d)`` arrays."""
+
+    n: int
+    dim: int
+    phi: float
+    energy: float
+    pressure: float
+    shear_stress: float
+    stress: NDArray[np.float64]
+    fabric: NDArray[np.float64]
+    stress_iso: float
+    stress_dev: float
+    fabric_iso: float
+    fabric_dev: float
+    contacts: int
+    contacts_nonrattler: int
+    z: float
+    n_rattlers: int
+    max_gradient: float
+    mean_contact_force: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dictionary (tensors as nested lists)."""
+        out = asdict(self)
+        for key, value in out.items():
+            if isinstance(value, np.ndarray):
+                out[key] = value.tolist()
+        return out
+
+
+def measure(packing: Packing, model: ContactModel) -> Observables:
+    """All observables of ``packing`` under the contact ``model``."""
+    contacts = find_contacts(packing, model)
+    sigma = stress(contacts, packing.cell)
+    fab = fabric(contacts, packing.radii, packing.cell)
+    rattler = rattlers(contacts, packing.n, packing.dim)
+    z, c_live = coordination(contacts, rattler)
+    grad = gradient(contacts, packing.n)
+    forces = contacts.force_magnitude
+    return Observables(
+        n=packing.n,
+        dim=packing.dim,
+        phi=packing.phi,
+        energy=total_energy(contacts),
+        pressure=pressure(sigma),
+        shear_stress=shear_stress(sigma),
+        stress=sigma,
+        fabric=fab,
+        stress_iso=isotropic_part(sigma),
+        stress_dev=deviatoric_part(sigma),
+        fabric_iso=isotropic_part(fab),
+        fabric_dev=deviatoric_part(fab),
+        contacts=int(contacts.i.size),
+        contacts_nonrattler=c_live,
+        z=z,
+        n_rattlers=int(rattler.sum()),
+        max_gradient=float(np.sqrt((grad**2).sum(axis=1)).max()),
+        mean_contact_force=float(forces.mean()) if forces.size else 0.0,
+    )

@@ -1,0 +1,81 @@
+import numpy as np
+import pytest
+
+from athermal.cell import Cell, isotropic, pure_shear, simple_shear
+from athermal.neighbors import brute_force_pairs, build_neighbor_list, pair_set
+from athermal.packing import random_packing
+
+
+def deformations(dim):
+    yield "none", np.eye(dim)
+    yield "shear 0.3", simple_shear(0.3, dim)
+    yield "shear past one box", simple_shear(1.35, dim)
+    yield "shear -2.6", simple_shear(-2.6, dim)
+    yield "pure shear", pure_shear(0.2, dim)
+    yield "compressed", isotropic(0.9, dim) @ simple_shear(0.4, dim)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("seed", range(6))
+def test_cell_list_equals_brute_force(dim, seed):
+    base = random_packing(150 if dim == 2 else 120, 0.75 if dim == 2 else 0.5, dim=dim, seed=seed)
+    rng = np.random.default_rng(seed)
+    for name, d_mat in deformations(dim):
+        p = base.deform(d_mat)
+        skin = rng.uniform(0.0, 1.0) * p.radii.mean()
+        nl = build_neighbor_list(p.positions, p.radii, p.cell, skin)
+        assert pair_set(nl) == brute_force_pairs(p.positions, p.radii, p.cell, skin), name
+        assert np.all(np.diff(nl.first) >= 0) and np.all(nl.second >= nl.first)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_unwrapped_positions_give_the_same_physical_pairs(dim):
+    p = random_packing(200, 0.7, dim=dim, seed=9).deform(simple_shear(0.7, dim))
+    jumps = np.random.default_rng(1).integers(-2, 3, size=(p.n, dim)).astype(float)
+    moved = p.positions + jumps @ p.cell.h.T
+    a = build_neighbor_list(p.positions, p.radii, p.cell, 0.01)
+    b = build_neighbor_list(moved, p.radii, p.cell, 0.01)
+    assert pair_set(b) == brute_force_pairs(moved, p.radii, p.cell, 0.01)
+
+    def key(nl, x):
+        sep = nl.separations(x, p.cell)
+        return sorted(zip(nl.first.tolist(), nl.second.tolist(), np.round(sep, 12).tolist(),
+                          strict=True))
+
+    assert key(a, p.positions) == key(b, moved)
+
+
+def test_tiny_cell_finds_every_periodic_image():
+    cell = Cell(np.array([[0.5, 0.2], [0.0, 0.45]]))
+    x = np.array([[0.0, 0.0], [0.1, 0.2]])
+    r = np.array([0.2, 0.2])
+    skin = 0.3
+    nl = build_neighbor_list(x, r, cell, skin)
+    expect = brute_force_pairs(x, r, cell, skin)
+    assert pair_set(nl) == expect
+    assert any(i == j for i, j, _ in expect)  # a particle sees its own images
+    assert len({n for i, j, n in expect if (i, j) == (0, 1)}) > 1
+
+
+def test_rebuild_rule_on_maximal_displacement():
+    p = random_packing(100, 0.6, seed=2)
+    nl = build_neighbor_list(p.positions, p.radii, p.cell, skin=0.02)
+    x = np.array(p.positions)
+    x[5, 0] += 0.0099
+    assert nl.is_current(x)
+    x[5, 0] += 0.0002
+    assert not nl.is_current(x)
+
+
+def test_list_built_with_skin_stays_complete_within_half_skin():
+    p = random_packing(400, 0.8, seed=4)
+    skin = 0.2 * p.radii.mean()
+    nl = build_neighbor_list(p.positions, p.radii, p.cell, skin)
+    rng = np.random.default_rng(0)
+    step = rng.normal(size=p.positions.shape)
+    step *= 0.499 * skin / np.linalg.norm(step, axis=1).max()
+    moved = p.positions + step
+    assert nl.is_current(moved)
+    listed = {(i, j, n) for i, j, n in pair_set(nl)}
+    touching = brute_force_pairs(moved, p.radii, p.cell, 0.0)
+    assert touching <= listed
