@@ -39,8 +39,9 @@ def test_unwrapped_positions_give_the_same_physical_pairs(dim):
 
     def key(nl, x):
         sep = nl.separations(x, p.cell)
-        return sorted(zip(nl.first.tolist(), nl.second.tolist(), np.round(sep, 12).tolist(),
-                          strict=True))
+        return sorted(
+            zip(nl.first.tolist(), nl.second.tolist(), np.round(sep, 12).tolist(), strict=True)
+        )
 
     assert key(a, p.positions) == key(b, moved)
 

@@ -44,7 +44,9 @@ class Cell:
             raise InputError("cell: must be upper triangular (lattice vectors as columns)")
         h[np.tril_indices(d, -1)] = 0.0
         if np.any(np.diag(h) <= 0.0):
-            raise InputError(f"cell: singular or inverted, diagonal {np.diag(h).tolist()} must be > 0")
+            raise InputError(
+                f"cell: singular or inverted, diagonal {np.diag(h).tolist()} must be > 0"
+            )
         h.setflags(write=False)
         object.__setattr__(self, "h", h)
 
@@ -86,7 +88,7 @@ class Cell:
     @cached_property
     def inverse(self) -> NDArray[np.float64]:
         """``h^-1``, shape ``(d, d)``; its rows are the reciprocal vectors."""
-        inv = np.linalg.inv(self.h)
+        inv = np.asarray(np.linalg.inv(self.h), dtype=np.float64)
         inv.setflags(write=False)
         return inv
 
@@ -134,7 +136,8 @@ class Cell:
         return best
 
     def deform(self, deformation: ArrayLike) -> Cell:
-        """Cell ``D h`` after the affine deformation ``D`` ``(d, d)`` (must keep h upper triangular)."""
+        """Cell ``D h`` after the affine deformation ``D`` ``(d, d)``; ``D h`` must stay upper
+        triangular."""
         d_mat = float_array(deformation, "deformation", (self.dim, self.dim))
         if np.linalg.det(d_mat) <= 0.0:
             raise InputError("deformation: determinant must be > 0")
@@ -160,8 +163,9 @@ class Cell:
 
 def particle_volumes(radii: NDArray[np.float64], dim: int) -> NDArray[np.float64]:
     """Area ``pi r^2`` (2D) or volume ``4/3 pi r^3`` (3D) of each particle ``(N,)``."""
-    r = np.asarray(radii)
-    return np.pi * r**2 if dim == 2 else (4.0 / 3.0) * np.pi * r**3
+    r = np.asarray(radii, dtype=np.float64)
+    out: NDArray[np.float64] = np.pi * r**2 if dim == 2 else (4.0 / 3.0) * np.pi * r**3
+    return out
 
 
 def isotropic(scale: float, dim: int = 2) -> NDArray[np.float64]:

@@ -1,8 +1,9 @@
-"""Repulsive contact potential ``E_ij = k_ij delta^alpha / alpha`` for ``delta = r_i + r_j - l > 0``.
+"""Repulsive contact potential ``E_ij = k_ij delta^alpha / alpha`` for overlaps ``delta > 0``.
 
-``l = |x_i - x_j|`` (periodic image), ``alpha >= 2`` (2 = Hooke, 2.5 = Hertz). The force on ``i``
-from ``j`` is ``f = k delta^(alpha-1) n`` with ``n = (x_i - x_j) / l`` (seed eqs. for E_c and its
-derivatives). Energy in units of ``k`` x length^alpha; forces in ``k`` x length^(alpha-1).
+``delta = r_i + r_j - l`` with ``l = |x_i - x_j|`` (periodic image) and ``alpha >= 2``
+(2 = Hooke, 2.5 = Hertz). The force on ``i`` from ``j`` is ``f = k delta^(alpha-1) n`` with
+``n = (x_i - x_j) / l`` (seed eqs. for E_c and its derivatives). Energy in units of ``k`` x
+length^alpha; forces in ``k`` x length^(alpha-1).
 """
 
 from __future__ import annotations
@@ -31,11 +32,15 @@ class ContactModel:
     def __post_init__(self) -> None:
         alpha = float(self.alpha)
         if not np.isfinite(alpha) or alpha < 2.0:
-            raise InputError(f"alpha: contact exponent must be a finite number >= 2, got {self.alpha!r}")
+            raise InputError(
+                f"alpha: contact exponent must be a finite number >= 2, got {self.alpha!r}"
+            )
         object.__setattr__(self, "alpha", alpha)
         kmat = np.atleast_2d(np.asarray(self.stiffness, dtype=np.float64))
         if kmat.ndim != 2 or kmat.shape[0] != kmat.shape[1]:
-            raise InputError(f"stiffness: expected a scalar or a square matrix, got shape {kmat.shape}")
+            raise InputError(
+                f"stiffness: expected a scalar or a square matrix, got shape {kmat.shape}"
+            )
         if not np.all(np.isfinite(kmat)) or np.any(kmat <= 0.0) or not np.allclose(kmat, kmat.T):
             raise InputError("stiffness: must be finite, > 0 and symmetric")
         kmat = np.ascontiguousarray(kmat)
@@ -72,8 +77,18 @@ def energy_gradient(
     """
     kernel = _kernels.energy_gradient_2d if positions.shape[1] == 2 else _kernels.energy_gradient_3d
     return float(
-        kernel(positions, radii, nlist.first, nlist.second, nlist.code, shifts, typeid,
-               model.kmat, model.alpha, grad)
+        kernel(
+            positions,
+            radii,
+            nlist.first,
+            nlist.second,
+            nlist.code,
+            shifts,
+            typeid,
+            model.kmat,
+            model.alpha,
+            grad,
+        )
     )
 
 
@@ -128,8 +143,9 @@ def find_contacts(
     hit = overlap > 0.0
     typeid = model.typeid(packing)
     i, j = nlist.first[hit].astype(np.int64), nlist.second[hit].astype(np.int64)
-    return Contacts(i, j, sep[hit], dist[hit], overlap[hit], model.kmat[typeid[i], typeid[j]],
-                    model.alpha)
+    return Contacts(
+        i, j, sep[hit], dist[hit], overlap[hit], model.kmat[typeid[i], typeid[j]], model.alpha
+    )
 
 
 def total_energy(contacts: Contacts) -> float:
@@ -142,7 +158,9 @@ def gradient(contacts: Contacts, n: int) -> NDArray[np.float64]:
     f = contacts.force
     grad = np.zeros((n, f.shape[1]))
     for axis in range(f.shape[1]):
-        grad[:, axis] = np.bincount(contacts.j, f[:, axis], n) - np.bincount(contacts.i, f[:, axis], n)
+        grad[:, axis] = np.bincount(contacts.j, f[:, axis], n) - np.bincount(
+            contacts.i, f[:, axis], n
+        )
     return grad
 
 
@@ -165,7 +183,7 @@ def contact_blocks(contacts: Contacts) -> NDArray[np.float64]:
 def assemble_blocks(
     i: NDArray[np.int64], j: NDArray[np.int64], blocks: NDArray[np.float64], n: int
 ) -> sp.csr_matrix:
-    """Symmetric ``(N d, N d)`` matrix with ``+K`` on the (i,i) and (j,j) blocks, ``-K`` on (i,j), (j,i).
+    """Symmetric ``(N d, N d)`` matrix: ``+K`` on blocks (i,i), (j,j) and ``-K`` on (i,j), (j,i).
 
     Pairs of a particle with its own image (``i == j``) contribute nothing, as for the Hessian.
     """
@@ -176,16 +194,26 @@ def assemble_blocks(
     row_off = np.repeat(a, d)
     col_off = np.tile(a, d)
     flat = blocks.reshape(-1, d * d)
-    rows = np.concatenate([
-        (i[:, None] * d + row_off), (j[:, None] * d + row_off),
-        (i[:, None] * d + row_off), (j[:, None] * d + row_off),
-    ]).ravel()
-    cols = np.concatenate([
-        (i[:, None] * d + col_off), (j[:, None] * d + col_off),
-        (j[:, None] * d + col_off), (i[:, None] * d + col_off),
-    ]).ravel()
+    rows = np.concatenate(
+        [
+            (i[:, None] * d + row_off),
+            (j[:, None] * d + row_off),
+            (i[:, None] * d + row_off),
+            (j[:, None] * d + row_off),
+        ]
+    ).ravel()
+    cols = np.concatenate(
+        [
+            (i[:, None] * d + col_off),
+            (j[:, None] * d + col_off),
+            (j[:, None] * d + col_off),
+            (i[:, None] * d + col_off),
+        ]
+    ).ravel()
     vals = np.concatenate([flat, flat, -flat, -flat]).ravel()
-    return sp.coo_matrix((vals, (rows, cols)), shape=(n * d, n * d)).tocsr()
+    matrix = sp.coo_matrix((vals, (rows, cols)), shape=(n * d, n * d)).tocsr()
+    # duplicates are summed in an order that differs between (a, b) and (b, a): symmetrize exactly
+    return ((matrix + matrix.T) * 0.5).tocsr()
 
 
 def hessian(contacts: Contacts, n: int) -> sp.csr_matrix:

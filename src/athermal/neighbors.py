@@ -79,7 +79,9 @@ def _bin_layout(cell: Cell, cutoff: float, n: int) -> tuple[NDArray[np.int64], N
     return nbins, reach
 
 
-def _encode_images(image: NDArray[np.int32], dim: int) -> tuple[NDArray[np.int16], NDArray[np.float64]]:
+def _encode_images(
+    image: NDArray[np.int32], dim: int
+) -> tuple[NDArray[np.int16], NDArray[np.float64]]:
     m = int(np.abs(image).max()) if image.size else 0
     side = 2 * m + 1
     if side**dim > _MAX_IMAGE_CODES:

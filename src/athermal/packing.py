@@ -70,8 +70,9 @@ class Packing:
             count = values.size
         else:
             edges = np.linspace(values[0], values[-1], _MAX_RADIUS_TYPES + 1)
-            typeid = np.clip(np.searchsorted(edges, self.radii, side="right") - 1, 0,
-                             _MAX_RADIUS_TYPES - 1).astype(np.int32)
+            typeid = np.clip(
+                np.searchsorted(edges, self.radii, side="right") - 1, 0, _MAX_RADIUS_TYPES - 1
+            ).astype(np.int32)
             count = _MAX_RADIUS_TYPES
         return typeid, [chr(ord("A") + t) for t in range(count)]
 
@@ -99,7 +100,7 @@ class Packing:
         return self.scale_radii((target / self.phi) ** (1.0 / self.dim))
 
     def permuted(self, order: NDArray[np.intp]) -> Packing:
-        """Particles reordered: particle ``k`` of the result is particle ``order[k]`` of this one."""
+        """Reordered: particle ``k`` of the result is particle ``order[k]`` of this one."""
         return Packing(self.positions[order], self.radii[order], self.cell)
 
     def spatial_order(self) -> NDArray[np.intp]:
@@ -139,7 +140,7 @@ def bidisperse_radii(
     ratio = positive_scalar(size_ratio, "size_ratio")
     if not 0.0 <= large_fraction <= 1.0:
         raise InputError(f"large_fraction: must lie in [0, 1], got {large_fraction}")
-    n_large = int(round(large_fraction * n))
+    n_large = round(large_fraction * n)
     return np.concatenate([np.ones(n - n_large), np.full(n_large, ratio)])
 
 

@@ -1,0 +1,177 @@
+"""The ``athermal`` command (see CONTRACT.md): ``random`` and ``measure`` so far."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .contact import ContactModel
+from .errors import InputError
+from .io import read_gsd, write_gsd
+from .observables import Observables, measure
+from .packing import random_packing
+
+_CONTRACT_KEYS = (
+    "n",
+    "dim",
+    "phi",
+    "energy",
+    "pressure",
+    "stress",
+    "fabric",
+    "contacts",
+    "z",
+    "n_rattlers",
+)
+
+
+def _add_model_options(parser: argparse.ArgumentParser, default: float | None) -> None:
+    parser.add_argument(
+        "--alpha",
+        type=float,
+        default=default,
+        help="contact exponent alpha >= 2 (2 = Hooke, 2.5 = Hertz)"
+        + ("" if default is not None else "; default: the file's, else 2"),
+    )
+    parser.add_argument(
+        "--stiffness",
+        type=float,
+        default=None,
+        help="contact stiffness k (default: the file's, else 1)",
+    )
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object on stdout and nothing else"
+    )
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="athermal",
+        description="Quasi-static simulation of athermal soft-particle packings.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    rnd = sub.add_parser(
+        "random",
+        help="random bidisperse packing and its observables",
+        description="Place N particles at random (number ratio 1:1, size ratio "
+        "--size-ratio) in the unit cell at packing fraction --phi, write them to "
+        "a GSD file and print their observables.",
+    )
+    rnd.add_argument("--n", type=int, default=1024, help="number of particles (default 1024)")
+    rnd.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions (default 2)")
+    rnd.add_argument("--phi", type=float, default=0.84, help="packing fraction (default 0.84)")
+    rnd.add_argument("--size-ratio", type=float, default=1.4, help="large/small radius (1.4)")
+    rnd.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    rnd.add_argument("-o", "--output", required=True, help="GSD file to write")
+    _add_model_options(rnd, 2.0)
+
+    mea = sub.add_parser(
+        "measure",
+        help="observables of a configuration",
+        description="Print the observables of the last frame of a GSD file.",
+    )
+    mea.add_argument("input", help="GSD file (athermal's, or any HOOMD-schema file)")
+    mea.add_argument("--frame", type=int, default=-1, help="frame index (default: last)")
+    _add_model_options(mea, None)
+    return parser
+
+
+def _model(
+    alpha: float | None, stiffness: float | None, fallback: ContactModel | None
+) -> ContactModel:
+    base = fallback if fallback is not None else ContactModel()
+    return ContactModel(
+        alpha=base.alpha if alpha is None else alpha,
+        stiffness=base.stiffness if stiffness is None else stiffness,
+    )
+
+
+def _report(obs: Observables, extra: dict[str, Any], as_json: bool) -> None:
+    data = {**obs.to_dict(), **extra}
+    if as_json:
+        print(json.dumps(data))
+        return
+    rows = [
+        ("particles", f"{obs.n} in {obs.dim}D"),
+        ("packing fraction", f"{obs.phi:.6f}"),
+        ("energy", f"{obs.energy:.6e}"),
+        ("pressure", f"{obs.pressure:.6e}"),
+        ("shear stress", f"{obs.shear_stress:.6e}"),
+        ("stress iso / dev", f"{obs.stress_iso:.6e} / {obs.stress_dev:.6e}"),
+        ("fabric iso / dev", f"{obs.fabric_iso:.6f} / {obs.fabric_dev:.6f}"),
+        ("contacts", f"{obs.contacts}"),
+        ("rattlers", f"{obs.n_rattlers}"),
+        ("z (rattlers removed)", f"{obs.z:.6f}"),
+        ("max |grad_i|", f"{obs.max_gradient:.3e}"),
+    ]
+    rows += [(key, str(value)) for key, value in extra.items()]
+    width = max(len(k) for k, _ in rows)
+    for key, value in rows:
+        print(f"{key:<{width}}  {value}")
+
+
+def _run(args: argparse.Namespace) -> None:
+    if args.command == "random":
+        model = _model(args.alpha, args.stiffness, None)
+        start = time.perf_counter()
+        packing = random_packing(
+            args.n, args.phi, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
+        )
+        obs = measure(packing, model)
+        write_gsd(
+            args.output, packing, model=model, seed=args.seed, observables=_file_observables(obs)
+        )
+        _report(
+            obs,
+            {
+                "seed": args.seed,
+                "output": args.output,
+                "seconds": round(time.perf_counter() - start, 4),
+            },
+            args.json,
+        )
+    elif args.command == "measure":
+        frame = read_gsd(args.input, frame=args.frame)
+        model = _model(args.alpha, args.stiffness, frame.model)
+        _report(measure(frame.packing, model), {"alpha": model.alpha}, args.json)
+
+
+def _file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
+    return {
+        "energy": obs.energy,
+        "pressure": obs.pressure,
+        "stress": obs.stress,
+        "fabric": obs.fabric,
+        "phi": obs.phi,
+        "z": obs.z,
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``athermal`` command; returns the exit code."""
+    args = _parser().parse_args(argv)
+    try:
+        _run(args)
+    except InputError as exc:
+        print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(
+            f"athermal {args.command}: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(
+                ": "
+            ),
+            file=sys.stderr,
+        )
+        return 1
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,376 @@
+"""GSD files in the HOOMD schema, with the exact float64 state kept under ``log/athermal/``.
+
+Each configuration is one frame that OVITO, freud, HOOMD-blue and ``gsd.hoomd`` can read:
+``configuration.box`` / ``dimensions``, ``particles.position`` (wrapped into the cell centred on
+the origin, float32, ``z = 0`` in 2D), ``particles.diameter`` = 2 r, ``particles.typeid`` /
+``types`` from :meth:`Packing.types`. Because those chunks are float32, the packing is also stored
+exactly in ``log/athermal/``: ``position`` ``(N, d)`` (as given, not wrapped), ``radius``
+``(N,)``, ``cell`` ``(d, d)``; then ``alpha`` and ``stiffness`` ``(T, T)`` of the contact model,
+``seed`` (uint64) and the observables of the frame. Reading prefers that copy, so a round trip
+is bit-identical; a file written by another tool is read from the HOOMD chunks.
+
+Every failure raises :class:`~athermal.errors.FileFormatError` (bad arguments:
+:class:`~athermal.errors.InputError`) with a one-line message that names the file.
+"""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Mapping
+from dataclasses import dataclass
+from math import isqrt
+from pathlib import Path
+
+import gsd.hoomd
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._validate import float_array
+from .cell import Cell
+from .contact import ContactModel
+from .errors import FileFormatError, InputError
+from .packing import Packing
+
+PathLike = str | os.PathLike[str]
+
+_LOG = "athermal/"
+_STATE = ("position", "radius", "cell")
+_RESERVED = (*_STATE, "alpha", "stiffness", "seed")
+# Wrapped positions are kept this far (in fractional units) inside the faces of the cell, so
+# that float32 rounding of positions and box never puts a particle on or outside a face.
+_FACE_MARGIN = 2.0**-20
+# What gsd raises for unreadable, corrupt or non-HOOMD files.
+_GSD_ERRORS = (RuntimeError, ValueError, OSError)
+
+
+@dataclass(frozen=True, eq=False)
+class Frame:
+    """One configuration read from a GSD file.
+
+    Attributes
+    ----------
+    packing : positions ``(N, d)``, radii ``(N,)`` and cell, float64.
+    model : contact model from ``log/athermal/alpha`` and ``stiffness``; None when absent.
+    seed : the seed written with the frame; None when absent.
+    log : every other ``log/athermal/<name>`` quantity of the frame (``energy``, ``pressure``,
+        ``stress``, ``phi``, ...) as read-only float64 arrays of the shape written (scalars as
+        0-d arrays).
+    """
+
+    packing: Packing
+    model: ContactModel | None
+    seed: int | None
+    log: dict[str, NDArray[np.float64]]
+
+
+def write_gsd(
+    path: PathLike,
+    packing: Packing,
+    *,
+    model: ContactModel | None = None,
+    seed: int | None = None,
+    observables: Mapping[str, ArrayLike] | None = None,
+) -> None:
+    """Write ``packing`` as a one-frame GSD file, atomically.
+
+    The frame goes to a temporary file in the same directory, which is flushed to disk and then
+    renamed onto ``path``; on any error the temporary file is removed and a file already at
+    ``path`` is left untouched.
+
+    Parameters
+    ----------
+    path : file to create or replace.
+    packing : the configuration (lengths in the packing's units).
+    model : contact model, stored as ``alpha`` and ``stiffness`` (its ``kmat``, ``(T, T)``).
+    seed : integer in ``[0, 2**64)``, stored as uint64.
+    observables : name -> float or array (at most 2D), stored as float64 under
+        ``log/athermal/<name>`` (scalars as shape ``(1,)``).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from athermal.packing import random_packing
+    >>> p = random_packing(16, 0.5, seed=1)
+    >>> name = pathlib.Path(tempfile.mkdtemp()) / "p.gsd"
+    >>> write_gsd(name, p, seed=1, observables={"energy": 0.0})
+    >>> np.array_equal(read_gsd(name).packing.positions, p.positions)
+    True
+    """
+    target = Path(path)
+    frame = _hoomd_frame(packing, model, seed, observables, step=0)
+    _write_atomic(target, frame)
+
+
+def append_gsd(
+    path: PathLike,
+    packing: Packing,
+    *,
+    model: ContactModel | None = None,
+    seed: int | None = None,
+    observables: Mapping[str, ArrayLike] | None = None,
+) -> int:
+    """Append ``packing`` as one frame to a trajectory; returns the number of frames now in it.
+
+    A missing file is created (atomically, as by :func:`write_gsd`). An existing file that is not
+    a readable GSD file in the HOOMD schema raises :class:`FileFormatError` and is not modified.
+    ``configuration.step`` is set to the frame's index. Arguments as in :func:`write_gsd`.
+    """
+    target = Path(path)
+    if not target.exists():
+        _write_atomic(target, _hoomd_frame(packing, model, seed, observables, step=0))
+        return 1
+    with _open_read(target) as traj:
+        count = len(traj)
+    frame = _hoomd_frame(packing, model, seed, observables, step=count)
+    try:
+        with gsd.hoomd.open(str(target), "r+") as traj:
+            traj.append(frame)
+            traj.flush()
+            count = len(traj)
+        _fsync(target)
+    except OSError as exc:
+        raise FileFormatError(f"{target}: cannot append a frame ({_one_line(exc)})") from exc
+    return count
+
+
+def read_gsd(path: PathLike, frame: int = -1) -> Frame:
+    """Read frame ``frame`` (negative counts from the end) of a GSD file in the HOOMD schema.
+
+    The float64 state in ``log/athermal/`` is used when present (bit-identical round trip);
+    otherwise the cell comes from ``configuration.box``, positions from ``particles.position``
+    ``[:, :d]`` and radii from ``particles.diameter / 2``, with no model and no seed.
+    """
+    source = Path(path)
+    with _open_read(source) as traj:
+        index = _frame_index(source, frame, len(traj))
+        try:
+            snapshot = traj[index]
+            names = traj.file.find_matching_chunk_names("log/" + _LOG)
+            stored = {
+                name[len("log/" + _LOG) :]: np.asarray(traj.file.read_chunk(frame=index, name=name))
+                for name in names
+                if traj.file.chunk_exists(frame=index, name=name)
+            }
+        except _GSD_ERRORS as exc:
+            raise FileFormatError(
+                f"{source}: frame {index} cannot be read ({_one_line(exc)})"
+            ) from None
+    where = f"{source}: frame {index}"
+    packing = _packing(where, snapshot, stored)
+    return Frame(
+        packing=packing,
+        model=_model(where, stored),
+        seed=_seed(where, stored),
+        log={name: _observable(value) for name, value in stored.items() if name not in _RESERVED},
+    )
+
+
+def count_frames(path: PathLike) -> int:
+    """Number of frames in a GSD file in the HOOMD schema."""
+    with _open_read(Path(path)) as traj:
+        return len(traj)
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _open_read(source: Path) -> gsd.hoomd.HOOMDTrajectory:
+    if not source.exists():
+        raise FileFormatError(f"{source}: no such file")
+    if not source.is_file():
+        raise FileFormatError(f"{source}: not a regular file")
+    try:
+        return gsd.hoomd.open(str(source), "r")
+    except _GSD_ERRORS as exc:
+        raise FileFormatError(
+            f"{source}: not a readable GSD file in the HOOMD schema ({_one_line(exc)})"
+        ) from None
+
+
+def _frame_index(source: Path, frame: int, count: int) -> int:
+    if isinstance(frame, bool) or not isinstance(frame, int | np.integer):
+        raise InputError(f"frame: expected an integer index, got {frame!r}")
+    if count == 0:
+        raise FileFormatError(f"{source}: the file has no frames")
+    if not -count <= frame < count:
+        raise FileFormatError(f"{source}: frame {frame} out of range (the file has {count})")
+    return int(frame) % count
+
+
+def _fsync(target: Path) -> None:
+    with open(target, "rb+") as handle:
+        os.fsync(handle.fileno())
+
+
+def _write_atomic(target: Path, frame: gsd.hoomd.Frame) -> None:
+    temporary = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
+    try:
+        with gsd.hoomd.open(str(temporary), "x") as traj:
+            traj.append(frame)
+        _fsync(temporary)
+        os.replace(temporary, target)
+        if os.name == "posix":  # make the rename itself durable
+            directory = os.open(target.parent, os.O_RDONLY)
+            try:
+                os.fsync(directory)
+            finally:
+                os.close(directory)
+    except BaseException as exc:
+        temporary.unlink(missing_ok=True)
+        if isinstance(exc, OSError):
+            raise FileFormatError(f"{target}: cannot write ({_one_line(exc)})") from exc
+        raise
+
+
+def _hoomd_frame(
+    packing: Packing,
+    model: ContactModel | None,
+    seed: int | None,
+    observables: Mapping[str, ArrayLike] | None,
+    step: int,
+) -> gsd.hoomd.Frame:
+    """HOOMD-schema frame with the exact state in ``log/athermal/`` (arguments validated here)."""
+    if not isinstance(packing, Packing):
+        raise InputError(f"packing: expected a Packing, got {type(packing).__name__}")
+    log: dict[str, NDArray[np.generic]] = {
+        _LOG + "position": packing.positions,
+        _LOG + "radius": packing.radii,
+        _LOG + "cell": packing.cell.h,
+    }
+    if model is not None:
+        if not isinstance(model, ContactModel):
+            raise InputError(f"model: expected a ContactModel, got {type(model).__name__}")
+        model.typeid(packing)  # the stiffness matrix must match the packing's species
+        log[_LOG + "alpha"] = np.array([model.alpha])
+        log[_LOG + "stiffness"] = model.kmat
+    if seed is not None:
+        if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
+            raise InputError(f"seed: expected an integer, got {seed!r}")
+        if not 0 <= int(seed) < 2**64:
+            raise InputError(f"seed: must lie in [0, 2**64), got {seed}")
+        log[_LOG + "seed"] = np.array([int(seed)], dtype=np.uint64)
+    for name, value in (observables or {}).items():
+        log[_LOG + _observable_name(name)] = _observable_array(name, value)
+
+    typeid, types = packing.types()
+    frame = gsd.hoomd.Frame()
+    frame.configuration.step = step
+    frame.configuration.dimensions = packing.dim
+    frame.configuration.box = packing.cell.to_hoomd()
+    frame.particles.N = packing.n
+    frame.particles.position = _hoomd_positions(packing)
+    frame.particles.diameter = 2.0 * packing.radii
+    frame.particles.typeid = typeid
+    frame.particles.types = types
+    frame.log = log
+    return frame
+
+
+def _observable_name(name: str) -> str:
+    if not isinstance(name, str) or not name or "/" in name:
+        raise InputError(f"observables: name {name!r} must be a non-empty string without '/'")
+    if name in _RESERVED:
+        raise InputError(
+            f"observables: name {name!r} is reserved ({', '.join(_RESERVED)} are written from "
+            "the packing, model and seed)"
+        )
+    return name
+
+
+def _observable_array(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """``value`` as float64 in a shape that GSD stores and gives back unchanged."""
+    shape = np.shape(value)
+    arr = float_array(value, f"observables[{name!r}]", (None,) * len(shape))
+    if arr.ndim == 0:
+        return arr.reshape(1)
+    if arr.size == 0 or arr.ndim > 2 or arr.shape[-1] == 1:
+        raise InputError(
+            f"observables[{name!r}]: shape {arr.shape} cannot be stored faithfully in GSD "
+            "(use a scalar, a 1D array of length >= 2 or a 2D array with >= 2 columns)"
+        )
+    return arr
+
+
+def _hoomd_positions(packing: Packing) -> NDArray[np.float32]:
+    """Positions ``(N, 3)`` float32 wrapped into the centred cell (``z = 0`` in 2D)."""
+    cell = packing.cell
+    s = cell.fractional(packing.positions)
+    s -= np.floor(s + 0.5)
+    np.clip(s, -0.5 + _FACE_MARGIN, 0.5 - _FACE_MARGIN, out=s)
+    out = np.zeros((packing.n, 3), dtype=np.float32)
+    out[:, : packing.dim] = cell.cartesian(s)
+    return out
+
+
+def _expect_shape(where: str, name: str, arr: NDArray[np.generic], shape: tuple[int, ...]) -> None:
+    if arr.shape != shape:
+        raise FileFormatError(f"{where}: {name} has shape {arr.shape}, expected {shape}")
+
+
+def _packing(
+    where: str, snapshot: gsd.hoomd.Frame, stored: dict[str, NDArray[np.generic]]
+) -> Packing:
+    dim = int(snapshot.configuration.dimensions)
+    n = int(snapshot.particles.N)
+    if dim not in (2, 3):
+        raise FileFormatError(f"{where}: configuration/dimensions is {dim}, expected 2 or 3")
+    present = [name for name in _STATE if name in stored]
+    try:
+        if len(present) == len(_STATE):
+            positions, radii, h = (np.asarray(stored[name], dtype=np.float64) for name in _STATE)
+            _expect_shape(where, "log/athermal/position", positions, (n, dim))
+            _expect_shape(where, "log/athermal/radius", radii, (n,))
+            _expect_shape(where, "log/athermal/cell", h, (dim, dim))
+            cell = Cell(h)
+        elif present:
+            missing = ", ".join(name for name in _STATE if name not in stored)
+            raise FileFormatError(f"{where}: incomplete log/athermal state (missing {missing})")
+        else:
+            position = np.asarray(snapshot.particles.position)
+            diameter = np.asarray(snapshot.particles.diameter)
+            _expect_shape(where, "particles/position", position, (n, 3))
+            _expect_shape(where, "particles/diameter", diameter, (n,))
+            cell = Cell.from_hoomd(np.asarray(snapshot.configuration.box, dtype=np.float64), dim)
+            positions = position[:, :dim].astype(np.float64)
+            radii = diameter.astype(np.float64) / 2.0
+        return Packing(positions, radii, cell)
+    except FileFormatError:
+        raise
+    except InputError as exc:
+        raise FileFormatError(f"{where}: {exc}") from None
+
+
+def _model(where: str, stored: dict[str, NDArray[np.generic]]) -> ContactModel | None:
+    if "alpha" not in stored and "stiffness" not in stored:
+        return None
+    if "alpha" not in stored or "stiffness" not in stored:
+        raise FileFormatError(f"{where}: log/athermal has only one of alpha and stiffness")
+    alpha, stiffness = stored["alpha"], stored["stiffness"]
+    types = isqrt(stiffness.size)
+    if alpha.size != 1 or types == 0 or types * types != stiffness.size:
+        raise FileFormatError(
+            f"{where}: log/athermal alpha {alpha.shape} / stiffness {stiffness.shape} are not "
+            "a scalar and a square matrix"
+        )
+    try:
+        kmat = np.asarray(stiffness, dtype=np.float64).reshape(types, types)
+        return ContactModel(float(alpha.reshape(())), kmat)
+    except InputError as exc:
+        raise FileFormatError(f"{where}: {exc}") from None
+
+
+def _seed(where: str, stored: dict[str, NDArray[np.generic]]) -> int | None:
+    if "seed" not in stored:
+        return None
+    seed = stored["seed"]
+    if seed.shape != (1,) or not np.issubdtype(seed.dtype, np.integer):
+        raise FileFormatError(f"{where}: log/athermal/seed is not one integer ({seed.dtype})")
+    return int(seed[0])
+
+
+def _observable(value: NDArray[np.generic]) -> NDArray[np.float64]:
+    out = np.array(value.reshape(()) if value.shape == (1,) else value, dtype=np.float64)
+    out.setflags(write=False)
+    return out

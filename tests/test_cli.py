@@ -1,0 +1,119 @@
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from athermal.cli import main
+from athermal.io import read_gsd, write_gsd
+from athermal.packing import random_packing
+
+CONTRACT_MEASURE_KEYS = {
+    "n",
+    "dim",
+    "phi",
+    "energy",
+    "pressure",
+    "stress",
+    "fabric",
+    "contacts",
+    "z",
+    "n_rattlers",
+}
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_random_then_measure_json(tmp_path, capsys):
+    out_file = tmp_path / "p.gsd"
+    code, out, _ = run(
+        capsys,
+        "random",
+        "--n",
+        "256",
+        "--phi",
+        "0.86",
+        "--seed",
+        "3",
+        "--alpha",
+        "2.5",
+        "-o",
+        str(out_file),
+        "--json",
+    )
+    assert code == 0
+    made = json.loads(out)
+    assert made["output"] == str(out_file) and made["seed"] == 3
+    frame = read_gsd(out_file)
+    assert frame.seed == 3 and frame.model.alpha == 2.5
+    assert float(frame.log["energy"]) == made["energy"]
+    code, out, _ = run(capsys, "measure", str(out_file), "--json")
+    assert code == 0
+    data = json.loads(out)
+    assert CONTRACT_MEASURE_KEYS <= set(data)
+    assert data["n"] == 256 and data["dim"] == 2
+    assert data["phi"] == pytest.approx(0.86)
+    assert data["energy"] == made["energy"] and data["alpha"] == 2.5
+    assert np.asarray(data["stress"]).shape == (2, 2)
+
+
+def test_measure_human_output_and_model_override(tmp_path, capsys):
+    path = tmp_path / "q.gsd"
+    write_gsd(path, random_packing(100, 0.88, seed=1))
+    code, out, _ = run(capsys, "measure", str(path))
+    assert code == 0 and "pressure" in out and "z (rattlers removed)" in out
+    _, a2, _ = run(capsys, "measure", str(path), "--json")
+    _, a3, _ = run(capsys, "measure", str(path), "--json", "--alpha", "3")
+    assert json.loads(a2)["energy"] != json.loads(a3)["energy"]
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["random", "--phi", "1.0", "-o", "{tmp}/x.gsd"], "phi"),
+        (["random", "--n", "0", "-o", "{tmp}/x.gsd"], "n:"),
+        (["random", "--alpha", "1.5", "-o", "{tmp}/x.gsd"], "alpha"),
+        (["measure", "{tmp}/missing.gsd"], "no such file"),
+        (["measure", "{tmp}/text.gsd"], "not a readable GSD"),
+        (["measure", "{tmp}/nan.gsd"], "NaN"),
+    ],
+)
+def test_bad_input_gives_one_line_error_and_writes_nothing(tmp_path, capsys, argv, message):
+    (tmp_path / "text.gsd").write_text("not a gsd file\n")
+    good = tmp_path / "good.gsd"
+    write_gsd(good, random_packing(10, 0.5, seed=0))
+    _write_nan_file(tmp_path / "nan.gsd")
+    before = sorted(p.name for p in tmp_path.iterdir())
+    code, out, err = run(capsys, *[a.format(tmp=tmp_path) for a in argv])
+    assert code != 0
+    assert out == ""
+    assert len(err.strip().splitlines()) == 1 and message in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+
+
+def _write_nan_file(path):
+    import gsd.hoomd
+
+    frame = gsd.hoomd.Frame()
+    frame.configuration.dimensions = 2
+    frame.configuration.box = [1, 1, 1, 0, 0, 0]
+    frame.particles.N = 2
+    frame.particles.position = np.array([[0, 0, 0], [np.nan, 0, 0]], dtype=np.float32)
+    frame.particles.diameter = np.array([0.1, 0.1], dtype=np.float32)
+    with gsd.hoomd.open(str(path), "w") as traj:
+        traj.append(frame)
+
+
+def test_command_line_entry_point_and_help():
+    done = subprocess.run(
+        [sys.executable, "-m", "athermal.cli", "measure", "--help"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert "--json" in done.stdout
