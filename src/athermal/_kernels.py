@@ -1,6 +1,6 @@
 """Compiled (numba) kernels: the cell-list pair search and the energy+gradient loops.
 
-Pair convention everywhere: pair ``p`` joins ``first[p] <= second[p]`` (sorted by ``first``)
+Pair convention everywhere: pair ``p`` joins ``first[p] <= second[p]``
 with the image table index ``code[p]``; the separation is ``x[first] - x[second] + shift[code]``
 where ``shift = images @ h.T``.
 """
@@ -25,7 +25,8 @@ _jit_fast = nb.njit(
 def cell_list_pairs(x, radii, h, hinv, skin, nbins, reach):  # type: ignore[no-untyped-def]
     """Half list of pairs closer than ``r_i + r_j + skin`` by a cell list in any periodic cell.
 
-    Returns ``first (P,)``, ``second (P,)`` int32 (sorted by ``first``) and ``image (P, d)``
+    Returns ``first (P,)``, ``second (P,)`` int32 (sorted by ``first``; this general search
+    also handles cells narrower than three cut-offs) and ``image (P, d)``
     int32 lattice images.
     ``reach[k]`` bins are searched on each side along axis k (> 1 only for tiny cells).
     """
@@ -127,6 +128,130 @@ def cell_list_pairs(x, radii, h, hinv, skin, nbins, reach):  # type: ignore[no-u
     for i in range(n):
         first[start[i] : start[i + 1]] = i
     return first, partner[:count].copy(), image[:count].copy()
+
+
+@_jit
+def bin_particles(x, h, hinv, nbins, radii):  # type: ignore[no-untyped-def]
+    """Sort particles into the bins of a cell list (three components; 2D padded with ``z = 0``).
+
+    Returns ``bin_start (B+1,)``, ``member (N,)`` (particle of each slot, bin by bin), and per
+    slot the wrapped coordinates ``xs (N, 3)``, radius ``rs (N,)`` and the lattice cell
+    ``fs (N, 3)`` int64 the particle was wrapped from (``x = h (s + fs)``).
+    """
+    n = x.shape[0]
+    nb0, nb1, nb2 = nbins[0], nbins[1], nbins[2]
+    bin_of = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        s2 = hinv[2, 2] * x[i, 2]
+        s1 = hinv[1, 1] * x[i, 1] + hinv[1, 2] * x[i, 2]
+        s0 = hinv[0, 0] * x[i, 0] + hinv[0, 1] * x[i, 1] + hinv[0, 2] * x[i, 2]
+        k0 = min(np.int64((s0 - np.floor(s0)) * nb0), nb0 - 1)
+        k1 = min(np.int64((s1 - np.floor(s1)) * nb1), nb1 - 1)
+        k2 = min(np.int64((s2 - np.floor(s2)) * nb2), nb2 - 1)
+        bin_of[i] = (k2 * nb1 + k1) * nb0 + k0
+    total_bins = nb0 * nb1 * nb2
+    bin_start = np.zeros(total_bins + 1, dtype=np.int64)
+    for i in range(n):
+        bin_start[bin_of[i] + 1] += 1
+    for b in range(total_bins):
+        bin_start[b + 1] += bin_start[b]
+    fill = bin_start[:-1].copy()
+    member = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        member[fill[bin_of[i]]] = i
+        fill[bin_of[i]] += 1
+    xs = np.empty((n, 3))
+    fs = np.empty((n, 3), dtype=np.int64)
+    rs = np.empty(n)
+    for m in range(n):
+        i = member[m]
+        s2 = hinv[2, 2] * x[i, 2]
+        s1 = hinv[1, 1] * x[i, 1] + hinv[1, 2] * x[i, 2]
+        s0 = hinv[0, 0] * x[i, 0] + hinv[0, 1] * x[i, 1] + hinv[0, 2] * x[i, 2]
+        f0, f1, f2 = np.floor(s0), np.floor(s1), np.floor(s2)
+        fs[m, 0], fs[m, 1], fs[m, 2] = np.int64(f0), np.int64(f1), np.int64(f2)
+        s0 -= f0
+        s1 -= f1
+        s2 -= f2
+        xs[m, 0] = h[0, 0] * s0 + h[0, 1] * s1 + h[0, 2] * s2
+        xs[m, 1] = h[1, 1] * s1 + h[1, 2] * s2
+        xs[m, 2] = h[2, 2] * s2
+        rs[m] = radii[i]
+    return bin_start, member, xs, rs, fs
+
+
+@_jit
+def collect_pairs(  # type: ignore[no-untyped-def]
+    bin_start,
+    member,
+    xs,
+    rs,
+    fs,
+    h,
+    nbins,
+    offsets,
+    skin,
+    weights,
+    m,
+    first,
+    second,
+    code,
+    bin_from,
+    count,
+):
+    """Half-stencil pair search over bins ``bin_from, ...`` for cells >= 3 bins wide per axis.
+
+    ``offsets (S, 3)`` holds the zero offset first, then one of each pair ``+-o``, so each pair is
+    checked once. Pairs go into the caller's buffers from index ``count`` with ``first <= second``
+    and ``code = sum_a (n_a + m) weights[a]`` for the image ``n`` of the separation
+    ``x_first - x_second + h n``. Returns ``(count, bin)``: ``bin`` is the number of bins when all
+    are done, else the first bin that did not fit (the buffers are then to be grown and the call
+    resumed from it). The buffers are never reallocated here: numba would then reference-count
+    them in the inner loop (measured 2x slower).
+    """
+    nb0, nb1, nb2 = nbins[0], nbins[1], nbins[2]
+    capacity = first.size
+    for b in range(bin_from, nb0 * nb1 * nb2):
+        c0 = b % nb0
+        c1 = (b // nb0) % nb1
+        c2 = b // (nb0 * nb1)
+        count_at_bin = count
+        for o in range(offsets.shape[0]):
+            t0, t1, t2 = c0 + offsets[o, 0], c1 + offsets[o, 1], c2 + offsets[o, 2]
+            w0 = -1 if t0 < 0 else (1 if t0 >= nb0 else 0)
+            w1 = -1 if t1 < 0 else (1 if t1 >= nb1 else 0)
+            w2 = -1 if t2 < 0 else (1 if t2 >= nb2 else 0)
+            nb_lin = ((t2 - w2 * nb2) * nb1 + (t1 - w1 * nb1)) * nb0 + (t0 - w0 * nb0)
+            sx = h[0, 0] * w0 + h[0, 1] * w1 + h[0, 2] * w2
+            sy = h[1, 1] * w1 + h[1, 2] * w2
+            sz = h[2, 2] * w2
+            for mi in range(bin_start[b], bin_start[b + 1]):
+                xi, yi, zi, ri = xs[mi, 0] - sx, xs[mi, 1] - sy, xs[mi, 2] - sz, rs[mi]
+                lo = mi + 1 if o == 0 else bin_start[nb_lin]
+                for mj in range(lo, bin_start[nb_lin + 1]):
+                    dx = xi - xs[mj, 0]
+                    dy = yi - xs[mj, 1]
+                    dz = zi - xs[mj, 2]
+                    cut = ri + rs[mj] + skin
+                    if dx * dx + dy * dy + dz * dz >= cut * cut:
+                        continue
+                    if count == capacity:
+                        return count_at_bin, b
+                    i = member[mi]
+                    j = member[mj]
+                    # image of the separation x_i - x_j + h n: n = fs_j - fs_i - wrap
+                    n0 = fs[mj, 0] - fs[mi, 0] - w0
+                    n1 = fs[mj, 1] - fs[mi, 1] - w1
+                    n2 = fs[mj, 2] - fs[mi, 2] - w2
+                    if j < i:
+                        i, j = j, i
+                        n0, n1, n2 = -n0, -n1, -n2
+                    first[count] = i
+                    second[count] = j
+                    n0 = (n0 + m) * weights[0] + (n1 + m) * weights[1] + (n2 + m) * weights[2]
+                    code[count] = n0
+                    count += 1
+    return count, nb0 * nb1 * nb2
 
 
 @_jit

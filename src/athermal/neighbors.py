@@ -1,8 +1,8 @@
 """Verlet pair lists in any periodic cell: an O(N) cell-list build and a brute-force twin.
 
 A :class:`NeighborList` holds every pair ``(i, j)`` closer than ``r_i + r_j + skin`` once, as
-flat arrays sorted by ``i`` with ``j >= i`` (``j == i`` only for a particle's own image in a cell
-narrower than the cut-off), each with an image code. The separation of a pair is
+flat arrays in spatial (bin) order with ``j >= i`` (``j == i`` only for a particle's own image
+in a cell narrower than the cut-off), each with an image code. The separation of a pair is
 ``x_i - x_j + shift[code]`` where ``shift = images @ h.T`` are lattice translations, so the list
 stays exact for unwrapped positions, any tilt and deformation of the cell (shifts follow ``h``).
 It stays complete while no particle has moved more than ``skin / 2`` since the build.
@@ -35,7 +35,7 @@ class NeighborList:
 
     Attributes
     ----------
-    first : ``(P,)`` int32, the ``i`` of each pair (non-decreasing).
+    first : ``(P,)`` int32, the ``i`` of each pair.
     second : ``(P,)`` int32, the ``j`` of each pair (``j >= i``).
     code : ``(P,)`` int16, index into ``images``.
     images : ``(C, d)`` float64, integer lattice vectors ``n``; shift = ``h n``.
@@ -79,6 +79,74 @@ def _bin_layout(cell: Cell, cutoff: float, n: int) -> tuple[NDArray[np.int64], N
     return nbins, reach
 
 
+def _half_stencil(dim: int) -> NDArray[np.int64]:
+    """Bin offsets ``(S, 3)``: zero first, then one of each pair ``+-o`` (5 in 2D, 14 in 3D)."""
+    half = [o for o in product((-1, 0, 1), repeat=dim) if any(o) and o > tuple(-v for v in o)]
+    offsets = np.zeros((len(half) + 1, 3), dtype=np.int64)
+    offsets[1:, :dim] = half
+    return offsets
+
+
+def _half_stencil_search(
+    x: NDArray[np.float64],
+    r: NDArray[np.float64],
+    cell: Cell,
+    skin: float,
+    nbins: NDArray[np.int64],
+) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int16], NDArray[np.float64]]:
+    """Pairs by :func:`_kernels.collect_pairs` (2D embedded in 3D with ``z = 0`` and one bin)."""
+    d, n = cell.dim, r.size
+    x3 = np.zeros((n, 3))
+    x3[:, :d] = x
+    h3, hinv3 = np.eye(3), np.eye(3)
+    h3[:d, :d], hinv3[:d, :d] = cell.h, cell.inverse
+    nb3 = np.ones(3, dtype=np.int64)
+    nb3[:d] = nbins
+    bin_start, member, xs, rs, fs = _kernels.bin_particles(x3, h3, hinv3, nb3, r)
+    m = int(np.ptp(fs, axis=0).max()) + 1 if n else 1  # bound on |image| components
+    side = 2 * m + 1
+    if side**d > _MAX_IMAGE_CODES:
+        raise InputError("positions: particles lie too many cells outside the box; wrap them first")
+    weights = np.zeros(3, dtype=np.int64)
+    weights[:d] = side ** np.arange(d)
+    offsets = _half_stencil(d)
+    capacity = (4 if d == 2 else 7) * n + 16
+    first = np.empty(capacity, dtype=np.int32)
+    second = np.empty(capacity, dtype=np.int32)
+    code = np.empty(capacity, dtype=np.int16)
+    count, done = 0, 0
+    total = int(np.prod(nb3))
+    while True:
+        count, done = _kernels.collect_pairs(
+            bin_start,
+            member,
+            xs,
+            rs,
+            fs,
+            h3,
+            nb3,
+            offsets,
+            skin,
+            weights,
+            m,
+            first,
+            second,
+            code,
+            done,
+            count,
+        )
+        if done == total:
+            break
+        first, second, code = (np.concatenate([a, np.empty_like(a)]) for a in (first, second, code))
+    return first[:count], second[:count], code[:count], _image_table(m, d)
+
+
+def _image_table(m: int, dim: int) -> NDArray[np.float64]:
+    """Integer lattice vectors ``(C, d)``, row ``c`` = image with code ``sum (n_a + m) side^a``."""
+    table = np.array(list(product(range(-m, m + 1), repeat=dim)), dtype=np.float64)[:, ::-1]
+    return np.ascontiguousarray(table)
+
+
 def _encode_images(
     image: NDArray[np.int32], dim: int
 ) -> tuple[NDArray[np.int16], NDArray[np.float64]]:
@@ -88,8 +156,7 @@ def _encode_images(
         raise InputError("positions: particles lie too many cells outside the box; wrap them first")
     weights = side ** np.arange(dim)
     code = ((image + m) @ weights).astype(np.int16)
-    table = np.array(list(product(range(-m, m + 1), repeat=dim)), dtype=np.float64)[:, ::-1]
-    return code, np.ascontiguousarray(table)
+    return code, _image_table(m, dim)
 
 
 def build_neighbor_list(
@@ -114,10 +181,12 @@ def build_neighbor_list(
         raise InputError(f"skin: must be >= 0, got {skin}")
     cutoff = 2.0 * float(r.max()) + skin
     nbins, reach = _bin_layout(cell, cutoff, r.size)
-    first, second, image = _kernels.cell_list_pairs(
-        x, r, np.ascontiguousarray(cell.h), np.ascontiguousarray(cell.inverse), skin, nbins, reach
-    )
-    code, table = _encode_images(image, cell.dim)
+    if np.all(nbins >= 3) and np.all(reach == 1):
+        first, second, code, table = _half_stencil_search(x, r, cell, skin, nbins)
+    else:  # cells narrower than three cut-offs: search every image
+        h, hinv = np.ascontiguousarray(cell.h), np.ascontiguousarray(cell.inverse)
+        first, second, image = _kernels.cell_list_pairs(x, r, h, hinv, skin, nbins, reach)
+        code, table = _encode_images(image, cell.dim)
     return NeighborList(first, second, code, table, skin, x.copy())
 
 
