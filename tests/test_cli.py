@@ -117,3 +117,39 @@ def test_command_line_entry_point_and_help():
         check=True,
     )
     assert "--json" in done.stdout
+
+
+CONTRACT_RELAX_KEYS = {
+    "method",
+    "converged",
+    "iterations",
+    "evaluations",
+    "seconds",
+    "energy",
+    "max_gradient",
+}
+
+
+@pytest.mark.parametrize(
+    "extra", [[], ["--method", "plbfgs"], ["--method", "cg", "--gtol", "1e-12"]]
+)
+def test_relax_json_and_output_file(tmp_path, capsys, extra):
+    start = tmp_path / "start.gsd"
+    write_gsd(start, random_packing(64, 0.88, seed=2))
+    out = tmp_path / "relaxed.gsd"
+    code, stdout, _ = run(capsys, "relax", str(start), "-o", str(out), "--json", *extra)
+    assert code == 0
+    data = json.loads(stdout)
+    assert CONTRACT_RELAX_KEYS <= set(data) and data["converged"] is True
+    assert data["max_gradient"] <= data["gtol"]
+    frame = read_gsd(out)
+    assert float(frame.log["energy"]) == pytest.approx(data["energy"], rel=1e-12)
+
+
+def test_relax_that_does_not_converge_exits_3_but_writes(tmp_path, capsys):
+    start = tmp_path / "start.gsd"
+    write_gsd(start, random_packing(64, 0.88, seed=2))
+    out = tmp_path / "relaxed.gsd"
+    code, stdout, err = run(capsys, "relax", str(start), "-o", str(out), "--maxiter", "2", "--json")
+    assert code == 3 and "did not converge" in err
+    assert json.loads(stdout)["converged"] is False and out.exists()

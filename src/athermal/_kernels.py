@@ -344,3 +344,42 @@ def max_displacement_sq(x, reference):  # type: ignore[no-untyped-def]
         if s > best:
             best = s
     return best
+
+
+@_jit_fast
+def max_row_norm(v, d):  # type: ignore[no-untyped-def]
+    """``max_i |v_i|`` over the ``d``-vectors of a flat ``(N d,)`` array."""
+    best = 0.0
+    for i in range(v.size // d):
+        s = 0.0
+        for a in range(d):
+            s += v[i * d + a] * v[i * d + a]
+        best = max(best, s)
+    return np.sqrt(best)
+
+
+@_jit_fast
+def lbfgs_first_loop(q, s_mem, y_mem, rho, order, alphas):  # type: ignore[no-untyped-def]
+    """First loop of the L-BFGS recursion, newest pair first: ``q -= a_k y_k`` (in place)."""
+    for t in range(order.size - 1, -1, -1):
+        k = order[t]
+        a = 0.0
+        for p in range(q.size):
+            a += s_mem[k, p] * q[p]
+        a *= rho[k]
+        alphas[k] = a
+        for p in range(q.size):
+            q[p] -= a * y_mem[k, p]
+
+
+@_jit_fast
+def lbfgs_second_loop(r, s_mem, y_mem, rho, order, alphas):  # type: ignore[no-untyped-def]
+    """Second loop, oldest pair first: ``r += (a_k - rho_k y_k.r) s_k`` (in place)."""
+    for t in range(order.size):
+        k = order[t]
+        b = 0.0
+        for p in range(r.size):
+            b += y_mem[k, p] * r[p]
+        c = alphas[k] - rho[k] * b
+        for p in range(r.size):
+            r[p] += c * s_mem[k, p]

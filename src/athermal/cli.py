@@ -1,4 +1,4 @@
-"""The ``athermal`` command (see CONTRACT.md): ``random`` and ``measure`` so far."""
+"""The ``athermal`` command (see CONTRACT.md): ``random``, ``measure`` and ``relax`` so far."""
 
 from __future__ import annotations
 
@@ -14,6 +14,8 @@ import numpy as np
 from .contact import ContactModel
 from .errors import InputError
 from .io import read_gsd, write_gsd
+from .minimize import METHODS, PRECONDITIONERS, minimize
+from .objective import Objective
 from .observables import Observables, measure
 from .packing import random_packing
 
@@ -80,6 +82,39 @@ def _parser() -> argparse.ArgumentParser:
     mea.add_argument("input", help="GSD file (athermal's, or any HOOMD-schema file)")
     mea.add_argument("--frame", type=int, default=-1, help="frame index (default: last)")
     _add_model_options(mea, None)
+
+    rel = sub.add_parser(
+        "relax",
+        help="one energy minimization",
+        description="Relax the last frame of a GSD file to a force tolerance and "
+        "write the relaxed packing. Exit code 3 when it did not converge (the "
+        "result is written and reported all the same).",
+    )
+    rel.add_argument("input", help="GSD file")
+    rel.add_argument("-o", "--output", required=True, help="GSD file to write")
+    rel.add_argument(
+        "--method",
+        default="lbfgs",
+        choices=METHODS,
+        help="minimizer (plbfgs / pcg: lbfgs / cg with --precon exp)",
+    )
+    rel.add_argument(
+        "--precon", default="none", choices=PRECONDITIONERS, help="preconditioner (default none)"
+    )
+    rel.add_argument("--A", type=float, default=0.0, help="Exp preconditioner parameter A (0)")
+    rel.add_argument(
+        "--solver",
+        default="auto",
+        choices=("auto", "direct", "amg"),
+        help="linear solver of the preconditioner (default auto)",
+    )
+    tol = rel.add_mutually_exclusive_group()
+    tol.add_argument("--gtol", type=float, help="absolute tolerance on max_i |grad_i|")
+    tol.add_argument(
+        "--rtol", type=float, help="tolerance relative to the mean contact force (default 1e-9)"
+    )
+    rel.add_argument("--maxiter", type=int, default=100_000, help="iteration limit (100000)")
+    _add_model_options(rel, None)
     return parser
 
 
@@ -141,6 +176,48 @@ def _run(args: argparse.Namespace) -> None:
         frame = read_gsd(args.input, frame=args.frame)
         model = _model(args.alpha, args.stiffness, frame.model)
         _report(measure(frame.packing, model), {"alpha": model.alpha}, args.json)
+    elif args.command == "relax":
+        _relax(args)
+
+
+def _relax(args: argparse.Namespace) -> None:
+    frame = read_gsd(args.input)
+    model = _model(args.alpha, args.stiffness, frame.model)
+    rtol = 1e-9 if args.gtol is None and args.rtol is None else args.rtol
+    res = minimize(
+        Objective(frame.packing, model),
+        args.method,
+        precon=args.precon,
+        A=args.A,
+        solver=args.solver,
+        gtol=args.gtol,
+        rtol=rtol,
+        maxiter=args.maxiter,
+    )
+    obs = measure(res.packing, model)
+    write_gsd(
+        args.output, res.packing, model=model, seed=frame.seed, observables=_file_observables(obs)
+    )
+    summary = {
+        "method": res.method,
+        "precon": res.precon,
+        "converged": res.converged,
+        "message": res.message,
+        "iterations": res.iterations,
+        "evaluations": res.evaluations,
+        "seconds": round(res.seconds, 6),
+        "energy": res.energy,
+        "max_gradient": res.max_gradient,
+        "gtol": res.gtol,
+        "output": args.output,
+    }
+    _report(obs, summary, args.json)
+    if not res.converged:
+        raise NotConverged(f"did not converge: {res.message}")
+
+
+class NotConverged(RuntimeError):
+    """A minimization that stopped short of its tolerance (its result was still written)."""
 
 
 def _file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
@@ -162,6 +239,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as exc:
         print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except NotConverged as exc:
+        print(f"athermal {args.command}: {exc}", file=sys.stderr)
+        return 3
     except OSError as exc:
         print(
             f"athermal {args.command}: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(

@@ -1,0 +1,75 @@
+"""Energy minimizers on an :class:`~athermal.objective.Objective`: one entry, a registry.
+
+Methods: ``"lbfgs"`` (seed Algorithm 2), ``"cg"`` (Fletcher-Reeves, seed Algorithms 3-4, or
+Polak-Ribiere+), ``"fire"`` (FIRE 2.0, the community's baseline); ``"plbfgs"`` and ``"pcg"`` are
+the seed's names for ``lbfgs`` and ``cg`` with the Exp preconditioner. Preconditioners:
+``"none"``, ``"exp"`` (the seed's universal preconditioner, parameter ``A``) and ``"contact"``
+(contact stiffness + Exp stabilization).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from .._validate import choice
+from ..objective import Objective
+from .cg import cg
+from .fire import fire
+from .lbfgs import lbfgs
+from .result import MinimizeResult, Preconditioner
+
+Method = Literal["lbfgs", "cg", "fire", "plbfgs", "pcg"]
+PreconName = Literal["none", "exp", "contact"]
+Solver = Literal["auto", "direct", "amg"]
+METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "plbfgs", "pcg")
+PRECONDITIONERS: tuple[str, ...] = ("none", "exp", "contact")
+_ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
+
+
+def minimize(
+    objective: Objective,
+    method: Method = "lbfgs",
+    *,
+    precon: PreconName | Preconditioner = "none",
+    A: float = 0.0,
+    solver: Solver = "auto",
+    gtol: float | None = None,
+    rtol: float | None = None,
+    maxiter: int = 100_000,
+    memory: int = 10,
+    cg_variant: Literal["fr", "pr+"] = "fr",
+) -> MinimizeResult:
+    """Relax ``objective`` from ``objective.x0`` to ``max_i |grad_i| <= gtol``.
+
+    Parameters
+    ----------
+    method : ``lbfgs``, ``cg``, ``fire``, or the seed's ``plbfgs`` / ``pcg``.
+    precon : preconditioner name, or a ready :class:`Preconditioner` (reused across calls,
+        e.g. by the quasi-static protocols).
+    A, solver : parameter of the Exp weights and the linear solver (``direct`` Cholesky,
+        ``amg``, or ``auto`` by size), used when ``precon`` is a name.
+    gtol, rtol : absolute tolerance on ``max_i |grad_i|``, or relative to the mean contact
+        force at the start (give exactly one).
+    maxiter : iteration limit (non-convergence is reported in the result).
+    memory : L-BFGS memory ``m``.
+    cg_variant : ``fr`` (Fletcher-Reeves) or ``pr+`` (Polak-Ribiere+).
+    """
+    choice(method, "method", METHODS)
+    base, implied = _ALIASES.get(method, (method, "none"))
+    if isinstance(precon, str):
+        choice(precon, "precon", PRECONDITIONERS)
+        from ..precon import make_preconditioner  # precon builds on minimize.result
+
+        pre = make_preconditioner(
+            implied if precon == "none" else precon, objective, A=A, solver=solver
+        )
+    else:
+        pre = precon
+    if base == "lbfgs":
+        return lbfgs(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, precon=pre, memory=memory)
+    if base == "cg":
+        return cg(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, precon=pre, variant=cg_variant)
+    return fire(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, precon=pre)
+
+
+__all__ = ["METHODS", "PRECONDITIONERS", "MinimizeResult", "Preconditioner", "minimize"]

@@ -1,0 +1,83 @@
+"""Nonlinear conjugate gradients: Fletcher-Reeves (seed Algorithms 3 and 4) or Polak-Ribiere+.
+
+With a preconditioner, ``y = P^-1 g`` and ``beta_FR = y_k.g_k / y_{k-1}.g_{k-1}`` (seed
+Algorithm 4). Steps satisfy the strong Wolfe conditions with ``c2 = 0.1`` (the curvature bound
+that keeps FR directions descent directions); the first trial step follows Nocedal & Wright's
+``a_k = a_{k-1} g_{k-1}.p_{k-1} / g_k.p_k``. The method restarts from the (preconditioned)
+gradient when a direction is not a descent direction, when a line search fails, and by Powell's
+test when consecutive gradients are far from orthogonal, ``|g_{k-1}.y_k| >= 0.1 g_k.y_k``
+(Nocedal & Wright, section 5.2): without it FR crawls (77204 iterations instead of 612 relaxing
+a random 128-disk packing to 1e-9 of the contact forces).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from .._validate import choice
+from ..objective import Objective
+from ._step import search
+from .result import MinimizeResult, Preconditioner, Tracker
+
+CGVariant = Literal["fr", "pr+"]
+_POWELL = 0.1  # restart threshold on the overlap of consecutive gradients
+
+
+def cg(
+    objective: Objective,
+    *,
+    gtol: float | None = None,
+    rtol: float | None = None,
+    maxiter: int = 100_000,
+    precon: Preconditioner | None = None,
+    variant: CGVariant = "fr",
+) -> MinimizeResult:
+    """Minimize ``objective`` from ``objective.x0`` by (preconditioned) nonlinear CG.
+
+    ``variant``: ``"fr"`` (Fletcher-Reeves, the seed's) or ``"pr+"`` (Polak-Ribiere+).
+    Stopping rules as :func:`~athermal.minimize.lbfgs.lbfgs`.
+    """
+    choice(variant, "variant", ("fr", "pr+"))
+    tracker = Tracker.start(objective, "cg", precon, gtol, rtol, maxiter)
+    x = objective.x0.copy()
+    energy, grad = objective(x)
+    if precon is not None:
+        precon.update(x)
+    if tracker.record(energy, grad):
+        return tracker.finish(x, True, "converged")
+    y = precon.solve(grad) if precon is not None else grad
+    direction = -y
+    yg = float(y @ grad)
+    step = 1.0
+    restarted = True
+    while tracker.iterations < maxiter:
+        slope = float(grad @ direction)
+        if not slope < 0.0:
+            direction, slope, restarted = -y, -yg, True
+        ls = search(objective, x, energy, grad, direction, step, c2=0.1)
+        if not ls.ok and not restarted:
+            direction, slope, restarted = -y, -yg, True
+            ls = search(objective, x, energy, grad, direction, 1.0, c2=0.1)
+        if not ls.ok:
+            return tracker.finish(x, False, "line search failed: no Wolfe step along descent")
+        x = x + ls.step * direction
+        energy, grad_new = objective(x)
+        if precon is not None:
+            precon.update(x)
+        y_new = precon.solve(grad_new) if precon is not None else grad_new
+        yg_new = float(y_new @ grad_new)
+        if abs(float(y_new @ grad)) >= _POWELL * yg_new:
+            beta = 0.0
+        elif variant == "fr":
+            beta = yg_new / yg
+        else:
+            beta = max(0.0, float(y_new @ (grad_new - grad)) / yg)
+        step = ls.step * slope / float(grad_new @ (beta * direction - y_new)) if beta else 1.0
+        step = step if np.isfinite(step) and step > 0.0 else 1.0
+        direction = beta * direction - y_new
+        grad, y, yg, restarted = grad_new, y_new, yg_new, False
+        if tracker.record(energy, grad):
+            return tracker.finish(x, True, "converged")
+    return tracker.finish(x, False, f"iteration limit {maxiter} reached")

@@ -1,0 +1,137 @@
+"""What every minimizer returns, and the bookkeeping they share."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
+from ..objective import Objective
+from ..packing import Packing
+
+
+class Preconditioner(Protocol):
+    """A symmetric positive definite ``P`` ``(N d, N d)`` approximating the Hessian.
+
+    ``update`` is called at every iterate and rebuilds ``P`` only when its own rule says so;
+    ``solve`` returns ``P^-1 g`` with a factorization reused until the next rebuild.
+    """
+
+    name: str
+    n_builds: int
+
+    def update(self, x: NDArray[np.float64]) -> None: ...
+
+    def solve(self, g: NDArray[np.float64]) -> NDArray[np.float64]: ...
+
+    def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]: ...
+
+
+@dataclass(frozen=True, eq=False)
+class MinimizeResult:
+    """Outcome of one minimization.
+
+    ``x`` is the final flat vector (the objective's internal order) and ``packing`` the final
+    configuration in the caller's order. ``history_energy`` and ``history_max_gradient`` have one
+    entry per iteration plus the start (index 0). ``max_gradient`` is ``max_i |grad_i|``
+    (Euclidean norm per particle); ``gtol`` the absolute tolerance on it that was used.
+    """
+
+    x: NDArray[np.float64]
+    packing: Packing
+    converged: bool
+    message: str
+    method: str
+    precon: str
+    iterations: int
+    evaluations: int
+    seconds: float
+    energy: float
+    max_gradient: float
+    gtol: float
+    history_energy: NDArray[np.float64]
+    history_max_gradient: NDArray[np.float64]
+    neighbor_rebuilds: int
+    precon_builds: int
+
+
+@dataclass
+class Tracker:
+    """Shared bookkeeping of a minimizer run: tolerance, history, timing, final result."""
+
+    objective: Objective
+    method: str
+    precon: Preconditioner | None
+    gtol: float
+    maxiter: int
+    energies: list[float] = field(default_factory=list)
+    gradients: list[float] = field(default_factory=list)
+    start_time: float = field(default_factory=time.perf_counter)
+    start_evaluations: int = 0
+    start_rebuilds: int = 0
+
+    @classmethod
+    def start(
+        cls,
+        objective: Objective,
+        method: str,
+        precon: Preconditioner | None,
+        gtol: float | None,
+        rtol: float | None,
+        maxiter: int,
+    ) -> Tracker:
+        """Fix the absolute tolerance: ``gtol``, or ``rtol`` x the mean contact force at ``x0``."""
+        if (gtol is None) == (rtol is None):
+            raise InputError("give exactly one of gtol (absolute) and rtol (x mean contact force)")
+        tol = gtol if gtol is not None else rtol * objective.mean_contact_force(objective.x0)  # type: ignore[operator]
+        if not np.isfinite(tol) or tol < 0.0:
+            raise InputError(f"gtol/rtol: tolerance must be finite and >= 0, got {tol}")
+        if maxiter < 0:
+            raise InputError(f"maxiter: must be >= 0, got {maxiter}")
+        return cls(
+            objective,
+            method,
+            precon,
+            float(tol),
+            int(maxiter),
+            start_evaluations=objective.n_evaluations,
+            start_rebuilds=objective.n_rebuilds,
+        )
+
+    def record(self, energy: float, grad: NDArray[np.float64]) -> bool:
+        """Log an iterate; True when it meets the tolerance (or the energy is exactly zero)."""
+        gmax = self.objective.max_gradient(grad)
+        self.energies.append(energy)
+        self.gradients.append(gmax)
+        return gmax <= self.gtol or energy == 0.0
+
+    @property
+    def iterations(self) -> int:
+        """Iterations done so far (recorded iterates minus the start)."""
+        return len(self.energies) - 1
+
+    def finish(self, x: NDArray[np.float64], converged: bool, message: str) -> MinimizeResult:
+        """The result at ``x`` (which must be the last recorded iterate)."""
+        obj = self.objective
+        return MinimizeResult(
+            x=x,
+            packing=obj.packing(x),
+            converged=converged,
+            message=message,
+            method=self.method,
+            precon=self.precon.name if self.precon is not None else "none",
+            iterations=self.iterations,
+            evaluations=obj.n_evaluations - self.start_evaluations,
+            seconds=time.perf_counter() - self.start_time,
+            energy=self.energies[-1],
+            max_gradient=self.gradients[-1],
+            gtol=self.gtol,
+            history_energy=np.array(self.energies),
+            history_max_gradient=np.array(self.gradients),
+            neighbor_rebuilds=obj.n_rebuilds - self.start_rebuilds,
+            precon_builds=self.precon.n_builds if self.precon is not None else 0,
+        )

@@ -1,0 +1,107 @@
+"""The energy of a packing as a function of a flat vector of positions, for the minimizers.
+
+:class:`Objective` maps ``x`` ``(N d,)`` to the contact energy and its gradient, caches the last
+evaluation, counts evaluations and keeps its Verlet list fresh (rebuilt when a particle has moved
+more than half the skin). Particles are held internally along a space-filling curve (the kernels
+run 2-3.5x faster at N >= 65536); :meth:`Objective.packing` gives them back in the caller's order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from . import _kernels
+from .contact import ContactModel, energy_gradient
+from .neighbors import NeighborList, build_neighbor_list, default_skin
+from .packing import Packing
+
+
+class Objective:
+    """``E(x)`` and ``grad E(x)`` for the positions of ``packing`` (radii and cell fixed).
+
+    Parameters
+    ----------
+    packing : start configuration; ``x0`` holds its positions (internal order).
+    model : contact law.
+    skin : Verlet skin (length units); default :func:`~athermal.neighbors.default_skin`.
+    sort : hold particles along a space-filling curve internally (recommended).
+    """
+
+    def __init__(
+        self, packing: Packing, model: ContactModel, *, skin: float | None = None, sort: bool = True
+    ) -> None:
+        self.order = packing.spatial_order() if sort else np.arange(packing.n)
+        inner = packing.permuted(self.order)
+        self.model = model
+        self.cell = inner.cell
+        self.radii = np.ascontiguousarray(inner.radii)
+        self.dim = inner.dim
+        self.n = inner.n
+        self.skin = default_skin(self.radii) if skin is None else float(skin)
+        self.x0 = np.ascontiguousarray(inner.positions).ravel().copy()
+        self._typeid = model.typeid(inner)
+        self._nlist: NeighborList | None = None
+        self._shifts = np.zeros((1, self.dim))
+        self._last_x: NDArray[np.float64] | None = None
+        self._last: tuple[float, NDArray[np.float64]] = (0.0, np.zeros(0))
+        self.n_evaluations = 0
+        self.n_rebuilds = 0
+
+    @property
+    def n_dof(self) -> int:
+        """Number of degrees of freedom ``N d``."""
+        return self.n * self.dim
+
+    def neighbor_list(self, x: NDArray[np.float64]) -> NeighborList:
+        """The Verlet list, rebuilt first if ``x`` moved a particle more than ``skin / 2``."""
+        positions = x.reshape(self.n, self.dim)
+        if self._nlist is None or not self._nlist.is_current(positions):
+            self._nlist = build_neighbor_list(positions, self.radii, self.cell, self.skin)
+            self._shifts = self._nlist.shifts(self.cell)
+            self.n_rebuilds += 1
+        return self._nlist
+
+    def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        """Energy and gradient ``(N d,)`` at ``x``; repeated calls at the same ``x`` are free."""
+        if self._last_x is not None and np.array_equal(x, self._last_x):
+            return self._last
+        x = np.ascontiguousarray(x, dtype=np.float64)
+        nlist = self.neighbor_list(x)
+        grad = np.empty(self.n_dof)
+        energy = energy_gradient(
+            x.reshape(self.n, self.dim),
+            self.radii,
+            self._typeid,
+            self._shifts,
+            nlist,
+            self.model,
+            grad.reshape(self.n, self.dim),
+        )
+        self.n_evaluations += 1
+        self._last_x = x.copy()
+        self._last = (energy, grad)
+        return self._last
+
+    def max_gradient(self, grad: NDArray[np.float64]) -> float:
+        """``max_i |grad_i|``: the largest Euclidean norm of one particle's gradient."""
+        return float(_kernels.max_row_norm(grad, self.dim))
+
+    def mean_contact_force(self, x: NDArray[np.float64]) -> float:
+        """Mean ``k delta^(alpha-1)`` over overlapping pairs at ``x`` (0 with no contacts)."""
+        from .contact import find_contacts
+
+        forces = find_contacts(self.packing(x, internal=True), self.model).force_magnitude
+        return float(forces.mean()) if forces.size else 0.0
+
+    def packing(self, x: NDArray[np.float64], *, internal: bool = False) -> Packing:
+        """The packing at ``x``, particles in the caller's order (or the internal one)."""
+        positions = np.asarray(x, dtype=np.float64).reshape(self.n, self.dim)
+        if not internal:
+            restored = np.empty_like(positions)
+            restored[self.order] = positions
+            positions = restored
+            radii = np.empty_like(self.radii)
+            radii[self.order] = self.radii
+            return Packing(positions, radii, self.cell)
+        return Packing(positions, self.radii, self.cell)

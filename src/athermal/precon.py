@@ -1,0 +1,565 @@
+"""Preconditioners ``P`` approximating the Hessian, and the sparse solvers that apply ``P^-1``.
+
+Two preconditioners satisfy :class:`~athermal.minimize.result.Preconditioner`:
+
+* :class:`ExpPreconditioner`, the seed's universal preconditioner (section 3.2.2, after Packwood
+  et al. 2016): ``u^T P u = mu sum_{0<|r_ij|<r_cut} c_ij |u_i - u_j|^2 + mu C_stab |u|^2`` with
+  ``c_ij = exp(-A (r_ij / r_nn - 1))``. ``P = L (x) I_d`` for a scalar ``(N, N)`` matrix ``L``, so
+  one factorization of ``L`` solves the ``d`` Cartesian components together.
+* :class:`ContactPreconditioner`, beyond the seed, aimed at the soft modes near jamming:
+  ``P = K_+ + L (x) I_d``, where ``K_+`` is the contact stiffness matrix built from the positive
+  (normal) part of every contact's Hessian block and ``L`` is the Exp matrix as stabilization.
+
+Flat vectors are ``(N d,)``, particle-major (``x.reshape(N, d)``), in the objective's internal
+order. Both factor ``P`` once per rebuild and reuse the factor for every :meth:`solve`: the
+direct solver is CHOLMOD through cholespy (given the lower triangle only: it ignores the upper
+one) or, without cholespy, SciPy's ``splu``; the AMG solver applies a fixed number of
+smoothed-aggregation V-cycles from a zero start, a fixed symmetric linear operator.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import time
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING, Literal, Protocol
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numpy.typing import NDArray
+
+from . import _kernels
+from ._validate import choice, positive_scalar
+from .cell import Cell
+from .contact import assemble_blocks, find_contacts
+from .errors import InputError
+from .neighbors import NeighborList, build_neighbor_list
+from .objective import Objective
+
+if TYPE_CHECKING:  # the protocol lives with its users, above this module
+    from .minimize.result import Preconditioner
+
+SolverName = Literal["auto", "direct", "amg"]
+PreconName = Literal["none", "exp", "contact"]
+SOLVERS: tuple[str, ...] = ("auto", "direct", "amg")
+PRECONDITIONERS: tuple[str, ...] = ("none", "exp", "contact")
+
+R_CUT_FACTOR = 2.2
+"""Default cut-off ``r_cut = 2.2 r_max`` (seed)."""
+C_STAB = 0.1
+"""Default stabilization ``C_stab`` (seed)."""
+REBUILD_FRACTION = 0.25
+"""Rebuild when a particle has moved more than ``REBUILD_FRACTION * r_cut`` (seed: 1/4)."""
+SINE_AMPLITUDE = 1e-3
+"""Amplitude of the sine test perturbation in units of ``r_cut`` (seed: ``M = 1e-3 r_cut``)."""
+CONTACT_CHANGE = 0.1
+"""The contact preconditioner rebuilds when the contact number changes by more than 10 %."""
+AUTO_DIRECT_MAX_N = 200_000
+"""``solver="auto"``: direct below this number of particles, AMG from it on."""
+AMG_CYCLES = 1
+"""Default number of AMG V-cycles per application (N = 65536, 2D: ~19 matrix-vector products)."""
+
+
+class _Factor(Protocol):
+    """A fixed approximation of ``P^-1``: ``solve`` maps ``(n, k)`` columns to ``(n, k)``."""
+
+    backend: str
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]: ...
+
+
+class _CholespyFactor:
+    """Sparse Cholesky factor (CHOLMOD via cholespy) of an SPD matrix, built once.
+
+    cholespy reads only the lower triangle (``row >= col``) of what it is given, so exactly that
+    triangle is passed; an upper triangle would silently factor a different matrix.
+    """
+
+    backend = "cholespy"
+
+    def __init__(self, matrix: sp.spmatrix) -> None:
+        from cholespy import CholeskySolverD, MatrixType
+
+        lower = sp.tril(matrix, format="coo")
+        self._solver = CholeskySolverD(
+            matrix.shape[0],
+            np.ascontiguousarray(lower.row, dtype=np.int32),
+            np.ascontiguousarray(lower.col, dtype=np.int32),
+            np.ascontiguousarray(lower.data, dtype=np.float64),
+            MatrixType.COO,
+        )
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        b = np.ascontiguousarray(rhs, dtype=np.float64)
+        out = np.empty_like(b)
+        self._solver.solve(b, out)
+        return out
+
+
+class _SpluFactor:
+    """SciPy SuperLU factor with a symmetric ordering and no pivoting (cholespy missing)."""
+
+    backend = "splu"
+
+    def __init__(self, matrix: sp.spmatrix) -> None:
+        self._lu = spla.splu(
+            sp.csc_matrix(matrix),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(self._lu.solve(np.asarray(rhs, dtype=np.float64)), dtype=np.float64)
+
+
+class _AmgFactor:
+    """``cycles`` smoothed-aggregation V-cycles from a zero start: a fixed SPD linear operator.
+
+    pyamg's default smoothers (symmetric Gauss-Seidel before and after) and exact coarse solve
+    make one V-cycle symmetric; with ``tol=0`` no cycle is skipped, so the map is linear. With
+    ``k > 1`` near-null vectors (the ``d`` translations of an ``(N d)`` system) the matrix is
+    aggregated by ``k x k`` blocks (one block per particle).
+    """
+
+    backend = "pyamg"
+
+    def __init__(self, matrix: sp.spmatrix, cycles: int, near_null: NDArray[np.float64]) -> None:
+        import pyamg
+
+        block = near_null.shape[1]
+        system = sp.bsr_matrix(matrix, blocksize=(block, block)) if block > 1 else matrix
+        self._cycles = cycles
+        self._ml = pyamg.smoothed_aggregation_solver(system, B=near_null, symmetry="hermitian")
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        b = np.asarray(rhs, dtype=np.float64)
+        out = np.empty_like(b)
+        for col in range(b.shape[1]):
+            out[:, col] = self._ml.solve(
+                b[:, col], x0=np.zeros(b.shape[0]), tol=0.0, maxiter=self._cycles, cycle="V"
+            )
+        return out
+
+
+def _available(module: str) -> bool:
+    return importlib.util.find_spec(module) is not None
+
+
+def _resolve_solver(solver: str, n: int) -> str:
+    """``"direct"`` or ``"amg"`` for ``solver`` and ``n`` particles (``"auto"`` resolved)."""
+    choice(solver, "solver", SOLVERS)
+    if solver == "amg" and not _available("pyamg"):
+        raise InputError(
+            "solver: 'amg' needs pyamg; install it with `pip install athermal[solvers]`"
+        )
+    if solver == "auto":
+        return "amg" if n >= AUTO_DIRECT_MAX_N and _available("pyamg") else "direct"
+    return solver
+
+
+def _factorize(
+    matrix: sp.spmatrix, solver: str, cycles: int, near_null: NDArray[np.float64]
+) -> _Factor:
+    """Factor (direct: cholespy, else splu) or build the AMG hierarchy of an SPD ``matrix``."""
+    if solver == "amg":
+        return _AmgFactor(matrix, cycles, near_null)
+    if _available("cholespy"):
+        return _CholespyFactor(matrix)
+    return _SpluFactor(matrix)
+
+
+def _separations(
+    nlist: NeighborList, positions: NDArray[np.float64], cell: Cell
+) -> NDArray[np.float64]:
+    """``x_i - x_j + shift`` ``(P, d)`` of the listed pairs (``np.take``: ~8x faster gathers)."""
+    shifts = nlist.shifts(cell)
+    return (
+        np.take(positions, nlist.first, axis=0)
+        - np.take(positions, nlist.second, axis=0)
+        + np.take(shifts, nlist.code, axis=0)
+    )
+
+
+def cutoff_pairs(
+    positions: NDArray[np.float64], objective: Objective, r_cut: float
+) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
+    """Pairs ``i < j`` with ``0 < |x_i - x_j + h n| < r_cut`` and their distances ``(P,)``.
+
+    Periodic images count; ``r_cut`` below half the narrowest cell width makes each pair unique.
+    """
+    radii = np.full(objective.n, 0.5 * r_cut)
+    nlist = build_neighbor_list(positions, radii, objective.cell, skin=0.0)
+    sep = _separations(nlist, positions, objective.cell)
+    dist = np.sqrt(np.einsum("ij,ij->i", sep, sep))
+    keep = (nlist.first != nlist.second) & (dist > 0.0)
+    return (
+        nlist.first[keep].astype(np.int64),
+        nlist.second[keep].astype(np.int64),
+        dist[keep],
+    )
+
+
+def nearest_neighbor_distance(
+    i: NDArray[np.int64], j: NDArray[np.int64], dist: NDArray[np.float64], n: int, fallback: float
+) -> float:
+    """``r_nn``: the mean over particles with a pair of the distance to their nearest partner.
+
+    ``fallback`` (length units) when there are no pairs at all.
+    """
+    if dist.size == 0:
+        return fallback
+    nearest = np.full(n, np.inf)
+    np.minimum.at(nearest, i, dist)
+    np.minimum.at(nearest, j, dist)
+    return float(nearest[np.isfinite(nearest)].mean())
+
+
+def exp_laplacian(
+    i: NDArray[np.int64],
+    j: NDArray[np.int64],
+    dist: NDArray[np.float64],
+    n: int,
+    *,
+    A: float,
+    r_nn: float,
+    c_stab: float,
+) -> sp.csr_matrix:
+    """``P_{mu=1}`` as the scalar ``(N, N)`` matrix: weighted graph Laplacian plus ``c_stab I``.
+
+    Off-diagonal ``-c_ij``, diagonal ``sum_j c_ij + c_stab``, ``c_ij = exp(-A (r_ij/r_nn - 1))``.
+    """
+    c = np.exp(-A * (dist / r_nn - 1.0))
+    diag = np.bincount(i, c, n) + np.bincount(j, c, n) + c_stab
+    idx = np.arange(n)
+    rows = np.concatenate([i, j, idx])
+    cols = np.concatenate([j, i, idx])
+    vals = np.concatenate([-c, -c, diag])
+    return sp.csr_matrix(sp.coo_matrix((vals, (rows, cols)), shape=(n, n)))
+
+
+def sine_perturbation(
+    positions: NDArray[np.float64], objective: Objective, r_cut: float
+) -> NDArray[np.float64]:
+    """Test perturbation ``v = M sin(2 pi s)`` ``(N, d)``: ``s = h^-1 x``, ``M = 1e-3 r_cut``.
+
+    Each Cartesian component ``a`` of ``v_i`` is ``M sin(2 pi s_ia)``: periodic in every lattice
+    direction, so it is the same for every image of a particle, in any (tilted) cell.
+    """
+    s = objective.cell.fractional(positions)
+    out: NDArray[np.float64] = SINE_AMPLITUDE * r_cut * np.sin(2.0 * np.pi * s)
+    return out
+
+
+class _PairPreconditioner(ABC):
+    """Shared state and rebuild logic; subclasses assemble the matrix in :meth:`_assemble`."""
+
+    name: str
+
+    def __init__(
+        self,
+        objective: Objective,
+        *,
+        A: float,
+        r_cut: float | None,
+        c_stab: float,
+        mu: float | None,
+        solver: str,
+        amg_cycles: int,
+    ) -> None:
+        self.objective = objective
+        self.A = float(A)
+        if not np.isfinite(self.A) or self.A < 0.0:
+            raise InputError(f"A: must be a finite number >= 0, got {A!r}")
+        rc = R_CUT_FACTOR * float(objective.radii.max()) if r_cut is None else r_cut
+        self.r_cut = positive_scalar(rc, "r_cut")
+        half_width = 0.5 * float(objective.cell.widths.min())
+        if self.r_cut >= half_width:
+            raise InputError(
+                f"r_cut: {self.r_cut:.6g} must be below half the narrowest cell width "
+                f"({half_width:.6g}); use a larger cell or a smaller r_cut"
+            )
+        self.c_stab = positive_scalar(c_stab, "c_stab")
+        self._fixed_mu = None if mu is None else positive_scalar(mu, "mu")
+        if int(amg_cycles) != amg_cycles or amg_cycles < 1:
+            raise InputError(f"amg_cycles: must be an integer >= 1, got {amg_cycles!r}")
+        self.amg_cycles = int(amg_cycles)
+        self.solver = _resolve_solver(solver, objective.n)
+        self.mu = float("nan")
+        self.r_nn = float("nan")
+        self.matrix: sp.csr_matrix | None = None
+        self.backend = ""
+        self.n_builds = 0
+        self.n_factorizations = 0
+        self.n_solves = 0
+        self.build_seconds = 0.0
+        self.factorize_seconds = 0.0
+        self._factor: _Factor | None = None
+        self._reference: NDArray[np.float64] | None = None
+
+    def update(self, x: NDArray[np.float64]) -> None:
+        """Rebuild ``P`` at ``x`` ``(N d,)`` if this is the first call or :meth:`_stale` says so."""
+        if np.shape(x) != (self.objective.n_dof,):
+            raise InputError(f"x: expected shape ({self.objective.n_dof},), got {np.shape(x)}")
+        positions = np.ascontiguousarray(x, dtype=np.float64).reshape(
+            self.objective.n, self.objective.dim
+        )
+        if self._reference is None or self._stale(positions):
+            self._rebuild(positions)
+
+    def _stale(self, positions: NDArray[np.float64]) -> bool:
+        """True when a particle moved more than ``r_cut / 4`` since the last build."""
+        moved_sq = _kernels.max_displacement_sq(positions, self._reference)
+        return bool(moved_sq > (REBUILD_FRACTION * self.r_cut) ** 2)
+
+    def _exp_part(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
+        """The scalar Exp matrix ``mu P_{mu=1}`` at ``positions``; sets ``r_nn`` and ``mu``."""
+        n = self.objective.n
+        i, j, dist = cutoff_pairs(positions, self.objective, self.r_cut)
+        fallback = 2.0 * float(self.objective.radii.mean())
+        self.r_nn = nearest_neighbor_distance(i, j, dist, n, fallback)
+        unit = exp_laplacian(i, j, dist, n, A=self.A, r_nn=self.r_nn, c_stab=self.c_stab)
+        self.mu = (
+            self._fixed_mu if self._fixed_mu is not None else self._estimate_mu(positions, unit)
+        )
+        return sp.csr_matrix(self.mu * unit)
+
+    def _estimate_mu(self, positions: NDArray[np.float64], unit: sp.csr_matrix) -> float:
+        """Seed's energy scale: ``mu = v.(grad E(x + v) - grad E(x)) / (v^T P_{mu=1} v)``.
+
+        ``v`` is :func:`sine_perturbation`. Costs one objective evaluation when ``grad E(x)`` is
+        the objective's cached one, else two; the objective's cache then holds ``x + v``. When
+        the ratio is not finite and > 0 (no contacts, ``E = 0``), the previous ``mu`` is kept, or
+        on the first build the mean contact stiffness ``k`` (the Hooke scale; 1 in the seed's
+        units).
+        """
+        v = sine_perturbation(positions, self.objective, self.r_cut)
+        x = positions.ravel()
+        _, g0 = self.objective(x)
+        _, g1 = self.objective(x + v.ravel())
+        numerator = float(np.dot(v.ravel(), g1 - g0))
+        denominator = float(np.einsum("ia,ia->", v, unit @ v))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mu = numerator / denominator if denominator > 0.0 else float("nan")
+        if np.isfinite(mu) and mu > 0.0:
+            return mu
+        if np.isfinite(self.mu):
+            return self.mu
+        return float(np.mean(self.objective.model.kmat))
+
+    @abstractmethod
+    def _assemble(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
+        """The matrix ``P`` to factor at ``positions`` ``(N, d)`` (sets ``r_nn`` and ``mu``)."""
+
+    @abstractmethod
+    def _near_null(self) -> NDArray[np.float64]:
+        """Near-null space of ``P`` for AMG: its rigid translations, one per column."""
+
+    def _rebuild(self, positions: NDArray[np.float64]) -> None:
+        start = time.perf_counter()
+        self.matrix = self._assemble(positions)
+        mid = time.perf_counter()
+        self._factor = _factorize(self.matrix, self.solver, self.amg_cycles, self._near_null())
+        end = time.perf_counter()
+        self.backend = self._factor.backend
+        self._reference = positions.copy()
+        self.n_builds += 1
+        self.n_factorizations += 1
+        self.factorize_seconds += end - mid
+        self.build_seconds += end - start
+
+    def _ready(self, vec: NDArray[np.float64], what: str) -> tuple[sp.csr_matrix, _Factor]:
+        if self.matrix is None or self._factor is None:
+            raise RuntimeError(f"{self.name} preconditioner: call update(x) before {what}()")
+        if np.shape(vec) != (self.objective.n_dof,):
+            raise InputError(
+                f"{what}: expected shape ({self.objective.n_dof},), got {np.shape(vec)}"
+            )
+        return self.matrix, self._factor
+
+
+class ExpPreconditioner(_PairPreconditioner):
+    """The seed's universal preconditioner ``P = L (x) I_d`` (Exp, section 3.2.2).
+
+    ``L = mu (Lap_c + C_stab I)`` ``(N, N)``: ``Lap_c`` is the graph Laplacian of the pairs
+    closer than ``r_cut`` (periodic images included) weighted by ``c_ij = exp(-A (r_ij/r_nn - 1))``.
+
+    Parameters
+    ----------
+    objective : supplies ``N``, ``d``, radii, cell and (for ``mu``) gradients.
+    A : decay of the weights with distance (``A = 0``: plain adjacency, the seed's choice).
+    r_cut : pair cut-off (length units); default ``2.2 r_max``; must be below half the narrowest
+        cell width.
+    c_stab : stabilization ``C_stab`` (dimensionless, > 0).
+    mu : energy scale (energy / length^2); default re-estimated at every build by the seed's
+        sine test (:meth:`_estimate_mu`).
+    solver : ``"direct"`` (cholespy Cholesky, SciPy ``splu`` without cholespy), ``"amg"``
+        (pyamg, ``amg_cycles`` V-cycles) or ``"auto"`` (direct for N < 200 000, else AMG;
+        direct without pyamg).
+    amg_cycles : V-cycles per AMG application (default 1).
+
+    Attributes
+    ----------
+    matrix : the factored matrix, here ``L`` ``(N, N)`` CSR including ``mu``.
+    mu, r_nn : energy scale and nearest-neighbour distance of the last build.
+    solver, backend : ``"direct"``/``"amg"`` and ``"cholespy"``/``"splu"``/``"pyamg"``.
+    n_builds, n_factorizations, n_solves : counters.
+    build_seconds, factorize_seconds : wall time spent in builds (factorization included) and
+        in factorizations alone.
+
+    Notes
+    -----
+    ``r_nn`` is the mean over particles of the distance to their nearest partner within
+    ``r_cut`` (particles without one are left out; ``2 <r>`` when no pair exists). ``P`` is
+    rebuilt (pairs, ``r_nn``, ``mu``, factorization) on the first :meth:`update` and whenever a
+    particle has moved more than ``r_cut / 4`` since the last build.
+
+    Examples
+    --------
+    >>> from athermal.contact import ContactModel
+    >>> from athermal.packing import random_packing
+    >>> obj = Objective(random_packing(64, 0.9, seed=1), ContactModel())
+    >>> precon = ExpPreconditioner(obj)
+    >>> precon.update(obj.x0)
+    >>> bool(np.allclose(precon.dot(precon.solve(obj.x0)), obj.x0))
+    True
+    """
+
+    name = "exp"
+
+    def __init__(
+        self,
+        objective: Objective,
+        *,
+        A: float = 0.0,
+        r_cut: float | None = None,
+        c_stab: float = C_STAB,
+        mu: float | None = None,
+        solver: SolverName = "auto",
+        amg_cycles: int = AMG_CYCLES,
+    ) -> None:
+        super().__init__(
+            objective, A=A, r_cut=r_cut, c_stab=c_stab, mu=mu, solver=solver, amg_cycles=amg_cycles
+        )
+
+    def _assemble(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
+        return self._exp_part(positions)
+
+    def _near_null(self) -> NDArray[np.float64]:
+        return np.ones((self.objective.n, 1))
+
+    def solve(self, g: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``P^-1 g`` ``(N d,)``: the ``d`` columns of ``g.reshape(N, d)`` solved together."""
+        _, factor = self._ready(g, "solve")
+        self.n_solves += 1
+        rhs = np.asarray(g, dtype=np.float64).reshape(self.objective.n, self.objective.dim)
+        return factor.solve(rhs).ravel()
+
+    def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``P v = (L (x) I_d) v`` ``(N d,)``."""
+        matrix, _ = self._ready(v, "dot")
+        block = np.asarray(v, dtype=np.float64).reshape(self.objective.n, self.objective.dim)
+        return np.asarray(matrix @ block).ravel()
+
+
+class ContactPreconditioner(_PairPreconditioner):
+    """Contact stiffness plus Exp stabilization: ``P = K_+ + L (x) I_d`` ``(N d, N d)``.
+
+    ``K_+`` is assembled from the current contacts with the positive part of each contact's
+    Hessian block, ``k (alpha - 1) delta^(alpha-2) n n^T`` (the tangential term ``-k
+    delta^(alpha-1)/l (I - n n^T)`` is dropped, so ``K_+`` is positive semidefinite and
+    ``P`` is SPD). ``L`` is the :class:`ExpPreconditioner` matrix with its own sine-test ``mu``.
+
+    Parameters and attributes are those of :class:`ExpPreconditioner` (``matrix`` is ``P``
+    ``(N d, N d)``, ``exp_matrix`` its ``L`` ``(N, N)``, ``n_contacts`` the contact number at
+    the last build), plus ``contact_change`` (default 0.1):
+    besides the ``r_cut / 4`` displacement rule, ``P`` is rebuilt when the number of contacts
+    ``M`` differs from its value ``M_b`` at the last build by more than ``contact_change * M_b``
+    (any contact appearing when ``M_b = 0``). The AMG solver works on the ``(N d)`` system with
+    the ``d`` rigid translations as near-null space.
+    """
+
+    name = "contact"
+
+    def __init__(
+        self,
+        objective: Objective,
+        *,
+        A: float = 0.0,
+        r_cut: float | None = None,
+        c_stab: float = C_STAB,
+        mu: float | None = None,
+        solver: SolverName = "auto",
+        amg_cycles: int = AMG_CYCLES,
+        contact_change: float = CONTACT_CHANGE,
+    ) -> None:
+        super().__init__(
+            objective, A=A, r_cut=r_cut, c_stab=c_stab, mu=mu, solver=solver, amg_cycles=amg_cycles
+        )
+        self.contact_change = positive_scalar(contact_change, "contact_change")
+        self.n_contacts = 0
+        self.exp_matrix: sp.csr_matrix | None = None
+
+    def count_contacts(self, positions: NDArray[np.float64]) -> int:
+        """Number of overlapping pairs at ``positions`` ``(N, d)``.
+
+        Uses (and when stale, rebuilds) the objective's Verlet list.
+        """
+        obj = self.objective
+        nlist = obj.neighbor_list(positions.ravel())
+        sep = _separations(nlist, positions, obj.cell)
+        reach = np.take(obj.radii, nlist.first) + np.take(obj.radii, nlist.second)
+        return int(np.count_nonzero(np.einsum("ij,ij->i", sep, sep) < reach * reach))
+
+    def _stale(self, positions: NDArray[np.float64]) -> bool:
+        if super()._stale(positions):
+            return True
+        change = abs(self.count_contacts(positions) - self.n_contacts)
+        return change > self.contact_change * self.n_contacts
+
+    def _assemble(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
+        obj = self.objective
+        self.exp_matrix = self._exp_part(positions)
+        contacts = find_contacts(
+            obj.packing(positions.ravel(), internal=True),
+            obj.model,
+            obj.neighbor_list(positions.ravel()),
+        )
+        scale = (
+            contacts.stiffness * (contacts.alpha - 1.0) * contacts.overlap ** (contacts.alpha - 2.0)
+        )
+        normal = contacts.normal
+        blocks = scale[:, None, None] * normal[:, :, None] * normal[:, None, :]
+        stiffness = assemble_blocks(contacts.i, contacts.j, blocks, obj.n)
+        self.n_contacts = self.count_contacts(positions)
+        return sp.csr_matrix(stiffness + sp.kron(self.exp_matrix, sp.eye(obj.dim), format="csr"))
+
+    def _near_null(self) -> NDArray[np.float64]:
+        return np.tile(np.eye(self.objective.dim), (self.objective.n, 1))
+
+    def solve(self, g: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``P^-1 g`` ``(N d,)``."""
+        _, factor = self._ready(g, "solve")
+        self.n_solves += 1
+        return factor.solve(np.asarray(g, dtype=np.float64).reshape(-1, 1)).ravel()
+
+    def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``P v`` ``(N d,)``."""
+        matrix, _ = self._ready(v, "dot")
+        return np.asarray(matrix @ np.asarray(v, dtype=np.float64))
+
+
+def make_preconditioner(
+    name: PreconName, objective: Objective, *, A: float = 0.0, solver: SolverName = "auto"
+) -> Preconditioner | None:
+    """The preconditioner called ``name`` (``"none"``, ``"exp"``, ``"contact"``) for ``objective``.
+
+    ``"none"`` gives ``None``; the others use their default parameters with ``A`` and ``solver``.
+    """
+    choice(name, "precon", PRECONDITIONERS)
+    if name == "exp":
+        return ExpPreconditioner(objective, A=A, solver=solver)
+    if name == "contact":
+        return ContactPreconditioner(objective, A=A, solver=solver)
+    return None

@@ -1,0 +1,162 @@
+import numpy as np
+import pytest
+
+from athermal.cell import Cell
+from athermal.contact import ContactModel
+from athermal.errors import InputError
+from athermal.minimize import minimize
+from athermal.minimize.cg import cg
+from athermal.minimize.lbfgs import lbfgs
+from athermal.objective import Objective
+from athermal.packing import Packing, random_packing
+
+
+class FunctionObjective:
+    """A smooth test function on ``n`` two-component 'particles', Objective's interface."""
+
+    def __init__(self, fun, x0):
+        self.fun, self.x0 = fun, np.asarray(x0, dtype=float)
+        self.dim, self.n = 2, self.x0.size // 2
+        self.n_dof = self.x0.size
+        self.n_evaluations = self.n_rebuilds = 0
+        self.radii = np.full(self.n, 10.0)  # per-iteration moves are capped at 0.1 x radius
+
+    def __call__(self, x):
+        self.n_evaluations += 1
+        return self.fun(x)
+
+    def max_gradient(self, g):
+        return float(np.sqrt((g.reshape(-1, 2) ** 2).sum(axis=1)).max())
+
+    def mean_contact_force(self, x):
+        return 1.0
+
+    def packing(self, x, internal=False):
+        return None
+
+
+def quadratic(x):
+    h = np.arange(1.0, x.size + 1.0)
+    return 0.5 * float(h @ (x - 1.0) ** 2), h * (x - 1.0)
+
+
+def unit_quadratic(x):
+    return 0.5 * float((x - 1.0) @ (x - 1.0)), x - 1.0
+
+
+def rosenbrock(x):
+    a, b = x[:-1], x[1:]
+    f = float(np.sum(100.0 * (b - a * a) ** 2 + (1.0 - a) ** 2))
+    g = np.zeros_like(x)
+    g[:-1] = -400.0 * a * (b - a * a) - 2.0 * (1.0 - a)
+    g[1:] += 200.0 * (b - a * a)
+    return f, g
+
+
+class Identity:
+    name, n_builds = "identity", 0
+
+    def update(self, x):
+        pass
+
+    def solve(self, g):
+        return g.copy()
+
+    def dot(self, v):
+        return v.copy()
+
+
+@pytest.mark.parametrize("method", ["lbfgs", "cg-fr", "cg-pr+"])
+@pytest.mark.parametrize(("fun", "limit"), [(quadratic, 300), (rosenbrock, 3000)])
+def test_methods_reach_the_known_minimum(method, fun, limit):
+    obj = FunctionObjective(fun, np.full(10, -1.2))
+    if method == "lbfgs":
+        res = lbfgs(obj, gtol=1e-9, maxiter=limit)
+    else:
+        res = cg(obj, gtol=1e-9, maxiter=limit * 3, variant=method[3:])
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.x, 1.0, atol=1e-7)
+    assert res.max_gradient <= 1e-9
+    assert res.history_energy.size == res.iterations + 1
+
+
+def test_lbfgs_with_identity_preconditioner_equals_plain_lbfgs_when_b0_is_identity():
+    """On a function with unit Hessian the seed's scaling s.y / y.y is exactly 1."""
+    start = np.linspace(-2.0, 3.0, 12)
+    plain = lbfgs(FunctionObjective(unit_quadratic, start), gtol=1e-12)
+    pre = lbfgs(FunctionObjective(unit_quadratic, start), gtol=1e-12, precon=Identity())
+    assert plain.iterations == pre.iterations
+    np.testing.assert_array_equal(plain.x, pre.x)
+    np.testing.assert_array_equal(plain.history_energy, pre.history_energy)
+
+
+def overlapped(seed=1, n=128, phi=0.88):
+    return random_packing(n, phi, seed=seed)
+
+
+# Iteration counts measured on these seeded problems; they may only go down.
+PINNED = {"lbfgs": 585, "cg": 675, "fire": 1140}
+
+
+@pytest.mark.parametrize("method", ["lbfgs", "cg", "fire"])
+def test_small_packings_relax_to_a_tight_tolerance(method):
+    obj = Objective(overlapped(), ContactModel(2.0))
+    e0, _ = obj(obj.x0)
+    res = minimize(obj, method, rtol=1e-9)
+    assert res.converged, res.message
+    assert res.max_gradient <= res.gtol
+    assert res.energy < e0
+    assert res.iterations <= PINNED[method]
+    # the returned packing is in the caller's order and at the final state
+    again = Objective(res.packing, ContactModel(2.0))
+    e_final, g_final = again(again.x0)
+    assert e_final == pytest.approx(res.energy, rel=1e-10)
+    assert again.max_gradient(g_final) == pytest.approx(res.max_gradient, rel=1e-6)
+
+
+def test_hertzian_packing_and_three_dimensions():
+    for packing, model in [
+        (overlapped(seed=2), ContactModel(2.5)),
+        (random_packing(96, 0.7, dim=3, seed=3), ContactModel(2.0)),
+    ]:
+        res = minimize(Objective(packing, model), "lbfgs", rtol=1e-9)
+        assert res.converged, res.message
+
+
+def test_unjammed_packing_ends_with_zero_energy():
+    obj = Objective(random_packing(128, 0.5, seed=4), ContactModel(2.0))
+    res = minimize(obj, "lbfgs", rtol=1e-9)
+    assert res.converged and res.energy == 0.0
+    done = minimize(Objective(res.packing, ContactModel(2.0)), "lbfgs", gtol=1e-12)
+    assert done.converged and done.iterations == 0 and done.evaluations == 1
+
+
+def test_non_convergence_is_reported_not_raised():
+    obj = Objective(overlapped(), ContactModel(2.0))
+    res = minimize(obj, "lbfgs", rtol=1e-12, maxiter=3)
+    assert not res.converged and "limit" in res.message and res.iterations == 3
+
+
+def test_runs_are_reproducible():
+    a = minimize(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
+    b = minimize(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
+    np.testing.assert_array_equal(a.x, b.x)
+    assert a.iterations == b.iterations
+
+
+def test_option_errors_name_the_choices():
+    obj = Objective(overlapped(), ContactModel(2.0))
+    with pytest.raises(InputError, match="'lbfgs'"):
+        minimize(obj, "bfgs", rtol=1e-9)
+    with pytest.raises(InputError, match="precon"):
+        minimize(obj, "lbfgs", precon="jacobi", rtol=1e-9)
+    with pytest.raises(InputError, match="exactly one"):
+        minimize(obj, "lbfgs")
+
+
+def test_two_disks_relax_to_touching():
+    p = Packing(np.array([[0.0, 0.0], [0.15, 0.0]]), np.array([0.1, 0.1]), Cell.box([1.0, 1.0]))
+    res = minimize(Objective(p, ContactModel(2.0)), "lbfgs", gtol=1e-14)
+    assert res.converged
+    sep = p.cell.minimum_image(res.packing.positions[0] - res.packing.positions[1])
+    assert np.linalg.norm(sep) >= 0.2 - 1e-12
