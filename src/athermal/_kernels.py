@@ -383,3 +383,21 @@ def lbfgs_second_loop(r, s_mem, y_mem, rho, order, alphas):  # type: ignore[no-u
         c = alphas[k] - rho[k] * b
         for p in range(r.size):
             r[p] += c * s_mem[k, p]
+
+
+@_jit
+def count_overlaps(x, radii, first, second, code, shift):  # type: ignore[no-untyped-def]
+    """Number of listed pairs that overlap (``|x_i - x_j + shift| < r_i + r_j``)."""
+    count = 0
+    d = x.shape[1]
+    for p in range(first.size):
+        i = first[p]
+        j = second[p]
+        r2 = 0.0
+        for a in range(d):
+            t = x[i, a] - x[j, a] + shift[code[p], a]
+            r2 += t * t
+        reach = radii[i] + radii[j]
+        if r2 < reach * reach:
+            count += 1
+    return count

@@ -83,6 +83,16 @@ class Objective:
         self._last = (energy, grad)
         return self._last
 
+    def count_contacts(self, x: NDArray[np.float64]) -> int:
+        """Number of overlapping pairs at ``x`` (compiled; the Verlet list is kept fresh)."""
+        nlist = self.neighbor_list(x)
+        positions = np.ascontiguousarray(x, dtype=np.float64).reshape(self.n, self.dim)
+        return int(
+            _kernels.count_overlaps(
+                positions, self.radii, nlist.first, nlist.second, nlist.code, self._shifts
+            )
+        )
+
     def max_gradient(self, grad: NDArray[np.float64]) -> float:
         """``max_i |grad_i|``: the largest Euclidean norm of one particle's gradient."""
         return float(_kernels.max_row_norm(grad, self.dim))

@@ -31,10 +31,9 @@ from numpy.typing import NDArray
 
 from . import _kernels
 from ._validate import choice, positive_scalar
-from .cell import Cell
 from .contact import assemble_blocks, find_contacts
 from .errors import InputError
-from .neighbors import NeighborList, build_neighbor_list
+from .neighbors import build_neighbor_list
 from .objective import Objective
 
 if TYPE_CHECKING:  # the protocol lives with its users, above this module
@@ -170,18 +169,6 @@ def _factorize(
     return _SpluFactor(matrix)
 
 
-def _separations(
-    nlist: NeighborList, positions: NDArray[np.float64], cell: Cell
-) -> NDArray[np.float64]:
-    """``x_i - x_j + shift`` ``(P, d)`` of the listed pairs (``np.take``: ~8x faster gathers)."""
-    shifts = nlist.shifts(cell)
-    return (
-        np.take(positions, nlist.first, axis=0)
-        - np.take(positions, nlist.second, axis=0)
-        + np.take(shifts, nlist.code, axis=0)
-    )
-
-
 def cutoff_pairs(
     positions: NDArray[np.float64], objective: Objective, r_cut: float
 ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
@@ -191,7 +178,7 @@ def cutoff_pairs(
     """
     radii = np.full(objective.n, 0.5 * r_cut)
     nlist = build_neighbor_list(positions, radii, objective.cell, skin=0.0)
-    sep = _separations(nlist, positions, objective.cell)
+    sep = nlist.separations(positions, objective.cell)
     dist = np.sqrt(np.einsum("ij,ij->i", sep, sep))
     keep = (nlist.first != nlist.second) & (dist > 0.0)
     return (
@@ -506,11 +493,7 @@ class ContactPreconditioner(_PairPreconditioner):
 
         Uses (and when stale, rebuilds) the objective's Verlet list.
         """
-        obj = self.objective
-        nlist = obj.neighbor_list(positions.ravel())
-        sep = _separations(nlist, positions, obj.cell)
-        reach = np.take(obj.radii, nlist.first) + np.take(obj.radii, nlist.second)
-        return int(np.count_nonzero(np.einsum("ij,ij->i", sep, sep) < reach * reach))
+        return self.objective.count_contacts(positions.ravel())
 
     def _stale(self, positions: NDArray[np.float64]) -> bool:
         if super()._stale(positions):
