@@ -183,6 +183,7 @@ def fire(
     for step in range(1, tracker.maxiter + 1):
         if not (np.isfinite(energy) and np.all(np.isfinite(grad))):
             return tracker.finish(x, False, "stopped: the energy or gradient is not finite")
+        x_recorded = x
         force = -grad
         if precon is not None:
             precon.update(x)
@@ -212,6 +213,12 @@ def fire(
             v *= 1.0 - alpha
             v += (alpha * v_norm / d_norm) * direction
         largest_sq = float(np.max(np.einsum("ij,ij->i", s := v.reshape(n, dim), s))) * dt * dt
+        if not np.isfinite(largest_sq):
+            return tracker.finish(
+                x_recorded,
+                False,
+                "stopped: non-finite step (is the preconditioner positive definite?)",
+            )
         if largest_sq > max_step_sq:
             v *= max_step / np.sqrt(largest_sq)
         x = x + dt * v
