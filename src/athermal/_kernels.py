@@ -22,6 +22,23 @@ _jit_fast = nb.njit(
 
 
 @_jit
+def _counting_sort(bin_of, total_bins):  # type: ignore[no-untyped-def]
+    """Particles grouped by bin: ``bin_start (B+1,)`` offsets and ``member (N,)`` indices."""
+    n = bin_of.size
+    bin_start = np.zeros(total_bins + 1, dtype=np.int64)
+    for i in range(n):
+        bin_start[bin_of[i] + 1] += 1
+    for b in range(total_bins):
+        bin_start[b + 1] += bin_start[b]
+    fill = bin_start[:-1].copy()
+    member = np.empty(n, dtype=np.int64)
+    for i in range(n):
+        member[fill[bin_of[i]]] = i
+        fill[bin_of[i]] += 1
+    return bin_start, member
+
+
+@_jit
 def cell_list_pairs(x, radii, h, hinv, skin, nbins, reach):  # type: ignore[no-untyped-def]
     """Half list of pairs closer than ``r_i + r_j + skin`` by a cell list in any periodic cell.
 
@@ -51,16 +68,7 @@ def cell_list_pairs(x, radii, h, hinv, skin, nbins, reach):  # type: ignore[no-u
     total_bins = 1
     for a in range(d):
         total_bins *= nbins[a]
-    bin_start = np.zeros(total_bins + 1, dtype=np.int64)
-    for i in range(n):
-        bin_start[bin_of[i] + 1] += 1
-    for b in range(total_bins):
-        bin_start[b + 1] += bin_start[b]
-    fill = bin_start[:-1].copy()
-    members = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        members[fill[bin_of[i]]] = i
-        fill[bin_of[i]] += 1
+    bin_start, members = _counting_sort(bin_of, total_bins)
 
     n_offsets = 1
     for a in range(d):
@@ -149,17 +157,7 @@ def bin_particles(x, h, hinv, nbins, radii):  # type: ignore[no-untyped-def]
         k1 = min(np.int64((s1 - np.floor(s1)) * nb1), nb1 - 1)
         k2 = min(np.int64((s2 - np.floor(s2)) * nb2), nb2 - 1)
         bin_of[i] = (k2 * nb1 + k1) * nb0 + k0
-    total_bins = nb0 * nb1 * nb2
-    bin_start = np.zeros(total_bins + 1, dtype=np.int64)
-    for i in range(n):
-        bin_start[bin_of[i] + 1] += 1
-    for b in range(total_bins):
-        bin_start[b + 1] += bin_start[b]
-    fill = bin_start[:-1].copy()
-    member = np.empty(n, dtype=np.int64)
-    for i in range(n):
-        member[fill[bin_of[i]]] = i
-        fill[bin_of[i]] += 1
+    bin_start, member = _counting_sort(bin_of, nb0 * nb1 * nb2)
     xs = np.empty((n, 3))
     fs = np.empty((n, 3), dtype=np.int64)
     rs = np.empty(n)

@@ -19,19 +19,6 @@ from .objective import Objective
 from .observables import Observables, measure
 from .packing import random_packing
 
-_CONTRACT_KEYS = (
-    "n",
-    "dim",
-    "phi",
-    "energy",
-    "pressure",
-    "stress",
-    "fabric",
-    "contacts",
-    "z",
-    "n_rattlers",
-)
-
 
 def _add_model_options(parser: argparse.ArgumentParser, default: float | None) -> None:
     parser.add_argument(

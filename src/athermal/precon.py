@@ -248,12 +248,12 @@ class _PairPreconditioner(ABC):
         self,
         objective: Objective,
         *,
-        A: float,
-        r_cut: float | None,
-        c_stab: float,
-        mu: float | None,
-        solver: str,
-        amg_cycles: int,
+        A: float = 0.0,
+        r_cut: float | None = None,
+        c_stab: float = C_STAB,
+        mu: float | None = None,
+        solver: SolverName = "auto",
+        amg_cycles: int = AMG_CYCLES,
     ) -> None:
         self.objective = objective
         self.A = float(A)
@@ -414,21 +414,6 @@ class ExpPreconditioner(_PairPreconditioner):
     """
 
     name = "exp"
-
-    def __init__(
-        self,
-        objective: Objective,
-        *,
-        A: float = 0.0,
-        r_cut: float | None = None,
-        c_stab: float = C_STAB,
-        mu: float | None = None,
-        solver: SolverName = "auto",
-        amg_cycles: int = AMG_CYCLES,
-    ) -> None:
-        super().__init__(
-            objective, A=A, r_cut=r_cut, c_stab=c_stab, mu=mu, solver=solver, amg_cycles=amg_cycles
-        )
 
     def _assemble(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
         return self._exp_part(positions)
