@@ -13,16 +13,14 @@ from typing import Literal
 
 from .._validate import choice
 from ..objective import Objective
+from ..precon import PRECONDITIONERS, PreconName, SolverName, make_preconditioner
 from .cg import cg
 from .fire import fire
 from .lbfgs import lbfgs
 from .result import MinimizeResult, Preconditioner
 
 Method = Literal["lbfgs", "cg", "fire", "plbfgs", "pcg"]
-PreconName = Literal["none", "exp", "contact"]
-Solver = Literal["auto", "direct", "amg"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "plbfgs", "pcg")
-PRECONDITIONERS: tuple[str, ...] = ("none", "exp", "contact")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
 
 
@@ -32,7 +30,7 @@ def minimize(
     *,
     precon: PreconName | Preconditioner = "none",
     A: float = 0.0,
-    solver: Solver = "auto",
+    solver: SolverName = "auto",
     gtol: float | None = None,
     rtol: float | None = None,
     maxiter: int = 100_000,
@@ -58,8 +56,6 @@ def minimize(
     base, implied = _ALIASES.get(method, (method, "none"))
     if isinstance(precon, str):
         choice(precon, "precon", PRECONDITIONERS)
-        from ..precon import make_preconditioner  # precon builds on minimize.result
-
         pre = make_preconditioner(
             implied if precon == "none" else precon, objective, A=A, solver=solver
         )

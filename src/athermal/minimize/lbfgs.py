@@ -92,11 +92,9 @@ def lbfgs(
         return tracker.finish(x, True, "converged")
     while tracker.iterations < maxiter:
         direction = -pairs.apply(grad, precon)
-        slope = float(grad @ direction)
-        if not slope < 0.0:
+        if not float(grad @ direction) < 0.0:  # curvature pairs gone stale: restart
             pairs.clear()
             direction = -pairs.b0(grad, precon)
-            slope = float(grad @ direction)
         ls = search(objective, x, energy, grad, direction, 1.0, c2=0.9)
         if not ls.ok and pairs:
             pairs.clear()  # stale curvature pairs: restart from the (preconditioned) gradient
