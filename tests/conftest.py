@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from importlib import resources
 from pathlib import Path
 
 import numpy as np
@@ -10,7 +11,7 @@ import pytest
 from athermal.cell import Cell
 from athermal.packing import Packing
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(str(resources.files("athermal.data")))  # reference configurations, with provenance
 
 
 @pytest.fixture(scope="session")

@@ -153,3 +153,30 @@ def test_relax_that_does_not_converge_exits_3_but_writes(tmp_path, capsys):
     code, stdout, err = run(capsys, "relax", str(start), "-o", str(out), "--maxiter", "2", "--json")
     assert code == 3 and "did not converge" in err
     assert json.loads(stdout)["converged"] is False and out.exists()
+
+
+def test_bench_quick_json_rows(capsys):
+    code, out, err = run(
+        capsys,
+        "bench",
+        "--cases",
+        "3",
+        "--alphas",
+        "2.5",
+        "--methods",
+        "L-BFGS",
+        "P-L-BFGS (A=0)",
+        "--repeats",
+        "1",
+        "--json",
+    )
+    assert code == 0 and err == ""  # no progress when stderr is not a terminal
+    rows = json.loads(out)["rows"]
+    assert [r["method"] for r in rows] == ["L-BFGS", "P-L-BFGS (A=0)"]
+    assert all(r["converged"] and r["grad_over_f0"] <= 1e-9 for r in rows)
+    assert rows[1]["iterations"] < rows[0]["iterations"]
+
+
+def test_bench_rejects_unknown_methods(capsys):
+    code, out, err = run(capsys, "bench", "--methods", "BFGS", "--repeats", "1")
+    assert code == 2 and out == "" and "unknown" in err

@@ -1,8 +1,9 @@
-"""The ``athermal`` command (see CONTRACT.md): ``random``, ``measure`` and ``relax`` so far."""
+"""The ``athermal`` command (see CONTRACT.md): ``random``, ``measure``, ``relax`` and ``bench``."""
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import time
@@ -11,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from . import bench
 from .contact import ContactModel
 from .errors import InputError
 from .io import read_gsd, write_gsd
@@ -102,6 +104,46 @@ def _parser() -> argparse.ArgumentParser:
     )
     rel.add_argument("--maxiter", type=int, default=100_000, help="iteration limit (100000)")
     _add_model_options(rel, None)
+
+    ben = sub.add_parser(
+        "bench",
+        help="the seed's Table benchmark (BENCHMARKS.md, B1)",
+        description="Minimizers and preconditioners on the three cases of the "
+        "seed's Table (N = 4096) to 1e-9 of the mean contact force, with scipy's "
+        "L-BFGS-B as the in-run reference. Prints a markdown table.",
+    )
+    ben.add_argument(
+        "--cases",
+        type=int,
+        nargs="+",
+        default=list(bench.CASES),
+        choices=bench.CASES,
+        help="cases (default 1 2 3)",
+    )
+    ben.add_argument(
+        "--alphas",
+        type=float,
+        nargs="+",
+        default=list(bench.ALPHAS),
+        help="contact exponents (default 2 2.5)",
+    )
+    ben.add_argument(
+        "--methods",
+        nargs="+",
+        default=None,
+        metavar="LABEL",
+        help="method labels (default all: " + ", ".join(m.label for m in bench.METHODS) + ")",
+    )
+    ben.add_argument("--repeats", type=int, default=3, help="timing repeats (median, default 3)")
+    ben.add_argument(
+        "--quick",
+        action="store_true",
+        help="case 3, alpha 2, L-BFGS / P-L-BFGS / scipy, one repeat",
+    )
+    ben.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    ben.add_argument(
+        "--json", action="store_true", help="print one JSON object on stdout and nothing else"
+    )
     return parser
 
 
@@ -165,6 +207,29 @@ def _run(args: argparse.Namespace) -> None:
         _report(measure(frame.packing, model), {"alpha": model.alpha}, args.json)
     elif args.command == "relax":
         _relax(args)
+    elif args.command == "bench":
+        _bench(args)
+
+
+def _bench(args: argparse.Namespace) -> None:
+    if args.quick:
+        args.cases, args.alphas, args.methods, args.repeats = [3], [2.0], bench.QUICK_METHODS, 1
+    show = not args.quiet and sys.stderr.isatty()
+
+    def progress(row: bench.Row) -> None:
+        if show:
+            print(
+                f"alpha {row.alpha:g} case {row.case} {row.method}: {row.iterations} "
+                f"iterations, {row.seconds:.2f} s",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    rows = bench.table1(args.cases, args.alphas, args.methods, args.repeats, progress)
+    if args.json:
+        print(json.dumps({"rows": [dataclasses.asdict(r) for r in rows]}))
+    else:
+        print(bench.markdown(rows), end="")
 
 
 def _relax(args: argparse.Namespace) -> None:

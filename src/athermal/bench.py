@@ -1,0 +1,211 @@
+"""The seed's Table benchmark (BENCHMARKS.md, B1): minimizers and preconditioners on three cases.
+
+Start configurations ship with the package (``athermal/data``, see its README): N = 4096
+bidisperse disks at phi = 0.8438, relaxed, alpha = 2 and 2.5. The cases:
+1. radii x (1 + 5e-5); 2. simple shear gamma = 1e-4 of positions and cell; 3. every coordinate
+displaced by U[-a, a], a = 1e-4 x mean diameter, ``default_rng(20240601)``. Every method runs to
+``max_i |grad_i| <= 1e-9 F0``, F0 the mean contact force at the start of the case; scipy's
+L-BFGS-B (m = 10) on the same compiled energy is the in-run reference.
+"""
+
+from __future__ import annotations
+
+import statistics
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from importlib import resources
+
+import numpy as np
+import scipy.optimize
+
+from .cell import Cell, simple_shear
+from .contact import ContactModel
+from .errors import InputError
+from .minimize import Method as MethodName
+from .minimize import minimize
+from .objective import Objective
+from .packing import Packing
+from .precon import PreconName
+
+RTOL = 1e-9
+CASES = (1, 2, 3)
+ALPHAS = (2.0, 2.5)
+
+
+@dataclass(frozen=True)
+class Method:
+    """One column of the seed's Table (``reference``: scipy's L-BFGS-B instead of athermal)."""
+
+    label: str
+    method: MethodName = "lbfgs"
+    precon: PreconName = "none"
+    A: float = 0.0
+    reference: bool = False
+
+
+METHODS = (
+    Method("L-BFGS"),
+    Method("P-L-BFGS (A=0)", "lbfgs", "exp"),
+    Method("P-L-BFGS (A=3)", "lbfgs", "exp", 3.0),
+    Method("FR-CG", "cg"),
+    Method("P-FR-CG", "cg", "exp"),
+    Method("FIRE", "fire"),
+    Method("contact P-L-BFGS", "lbfgs", "contact"),
+    Method("scipy L-BFGS-B", reference=True),
+)
+QUICK_METHODS = ("L-BFGS", "P-L-BFGS (A=0)", "scipy L-BFGS-B")
+SEED_ITERATIONS = {  # the seed's own Table (alpha = 2.5, its hardware), cases 1 / 2 / 3
+    "L-BFGS": (2003, 2749, 602),
+    "P-L-BFGS (A=0)": (705, 986, 380),
+    "P-L-BFGS (A=3)": (813, 1351, 432),
+    "FR-CG": (4574, 7306, 940),
+    "P-FR-CG": (1101, 2013, 528),
+}
+
+
+@dataclass(frozen=True)
+class Row:
+    """One (case, alpha, method) result; ``seconds`` is the median over the repeats."""
+
+    case: int
+    alpha: float
+    method: str
+    iterations: int
+    evaluations: int
+    seconds: float
+    energy: float
+    grad_over_f0: float
+    converged: bool
+
+
+def reference_packing(alpha: float) -> Packing:
+    """The relaxed N = 4096 start configuration for ``alpha`` (2 or 2.5)."""
+    if alpha not in ALPHAS:
+        raise InputError(f"alpha: the Table has start configurations for {ALPHAS}, not {alpha}")
+    name = f"table1_N4096_alpha{alpha:g}.npz"
+    with resources.files("athermal.data").joinpath(name).open("rb") as handle:
+        ref = np.load(handle)
+        return Packing(ref["positions"], ref["radii"], Cell.box(ref["box"]))
+
+
+def make_case(packing: Packing, case: int) -> Packing:
+    """The start of Table case ``case`` (1, 2 or 3) from a relaxed ``packing``."""
+    if case == 1:
+        return packing.scale_radii(1.0 + 5e-5)
+    if case == 2:
+        return packing.deform(simple_shear(1e-4))
+    if case == 3:
+        a = 1e-4 * 2.0 * float(packing.radii.mean())
+        shift = np.random.default_rng(20240601).uniform(-a, a, packing.positions.shape)
+        return packing.with_positions(packing.positions + shift)
+    raise InputError(f"case: must be one of {CASES}, got {case}")
+
+
+def run(start: Packing, model: ContactModel, method: Method) -> Row:
+    """One minimization of ``start`` by ``method`` to ``1e-9 F0``."""
+    objective = Objective(start, model)
+    f0 = objective.mean_contact_force(objective.x0)
+    t0 = time.perf_counter()
+    if method.reference:
+        res = scipy.optimize.minimize(
+            objective,
+            objective.x0,
+            jac=True,
+            method="L-BFGS-B",
+            options={
+                "maxcor": 10,
+                "gtol": RTOL * f0 / np.sqrt(objective.dim),
+                "ftol": 0.0,
+                "maxiter": 50_000,
+                "maxfun": 100_000,
+            },
+        )
+        seconds = time.perf_counter() - t0
+        energy, grad = objective(res.x)
+        gmax = objective.max_gradient(grad)
+        return Row(
+            0,
+            model.alpha,
+            method.label,
+            int(res.nit),
+            int(res.nfev),
+            seconds,
+            energy,
+            gmax / f0,
+            gmax <= RTOL * f0,
+        )
+    out = minimize(
+        objective, method.method, precon=method.precon, A=method.A, rtol=RTOL, maxiter=50_000
+    )
+    seconds = time.perf_counter() - t0
+    return Row(
+        0,
+        model.alpha,
+        method.label,
+        out.iterations,
+        out.evaluations,
+        seconds,
+        out.energy,
+        out.max_gradient / f0,
+        out.converged,
+    )
+
+
+def table1(
+    cases: Sequence[int] = CASES,
+    alphas: Sequence[float] = ALPHAS,
+    labels: Sequence[str] | None = None,
+    repeats: int = 3,
+    progress: Callable[[Row], None] | None = None,
+) -> list[Row]:
+    """All rows of the Table; ``labels`` picks methods (default all), ``progress`` sees each row."""
+    known = [m.label for m in METHODS]
+    chosen = [m for m in METHODS if labels is None or m.label in labels]
+    unknown = set(labels or ()) - set(known)
+    if unknown:
+        raise InputError(f"methods: unknown {sorted(unknown)}; choose from {known}")
+    if repeats < 1:
+        raise InputError(f"repeats: must be >= 1, got {repeats}")
+    rows = []
+    for alpha in alphas:
+        base, model = reference_packing(alpha), ContactModel(alpha)
+        for case in cases:
+            start = make_case(base, case)
+            for method in chosen:
+                runs = [run(start, model, method) for _ in range(repeats)]
+                first = runs[0]
+                row = Row(
+                    case,
+                    alpha,
+                    method.label,
+                    first.iterations,
+                    first.evaluations,
+                    statistics.median(r.seconds for r in runs),
+                    first.energy,
+                    first.grad_over_f0,
+                    first.converged,
+                )
+                rows.append(row)
+                if progress is not None:
+                    progress(row)
+    return rows
+
+
+def markdown(rows: Sequence[Row]) -> str:
+    """The rows as a markdown table, with seconds relative to scipy and the seed's iterations."""
+    lines = [
+        "| alpha | case | method | iterations | evaluations | seconds | s / scipy | final energy "
+        "| max\\|grad\\| / F0 | converged | seed's iterations (alpha 2.5) |",
+        "|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|",
+    ]
+    ref = {(r.alpha, r.case): r.seconds for r in rows if r.method == "scipy L-BFGS-B"}
+    for r in rows:
+        ratio = f"{r.seconds / ref[(r.alpha, r.case)]:.2f}" if (r.alpha, r.case) in ref else "-"
+        seed = SEED_ITERATIONS.get(r.method, ("-", "-", "-"))[r.case - 1]
+        lines.append(
+            f"| {r.alpha:g} | {r.case} | {r.method} | {r.iterations} | {r.evaluations} | "
+            f"{r.seconds:.3f} | {ratio} | {r.energy:.10e} | {r.grad_over_f0:.2e} | "
+            f"{'yes' if r.converged else 'no'} | {seed} |"
+        )
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,1 @@
+"""Reference configurations shipped with athermal (see README.md in this folder)."""
