@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _kernels
-from .contact import ContactModel, energy_gradient
+from .contact import ContactModel, energy_gradient, find_contacts
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
 
@@ -99,8 +99,6 @@ class Objective:
 
     def mean_contact_force(self, x: NDArray[np.float64]) -> float:
         """Mean ``k delta^(alpha-1)`` over overlapping pairs at ``x`` (0 with no contacts)."""
-        from .contact import find_contacts
-
         forces = find_contacts(self.packing(x, internal=True), self.model).force_magnitude
         return float(forces.mean()) if forces.size else 0.0
 

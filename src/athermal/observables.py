@@ -56,12 +56,6 @@ def deviatoric_part(tensor: NDArray[np.float64]) -> float:
     return float((eig[-1] - eig[0]) / 2.0)
 
 
-def contact_counts(contacts: Contacts, n: int) -> NDArray[np.int64]:
-    """Number of contacts of each particle ``(N,)`` (contacts with its own image excluded)."""
-    other = contacts.i != contacts.j
-    return np.bincount(contacts.i[other], minlength=n) + np.bincount(contacts.j[other], minlength=n)
-
-
 def rattlers(contacts: Contacts, n: int, dim: int) -> NDArray[np.bool_]:
     """Mask ``(N,)`` of rattlers: particles with fewer than ``d + 1`` contacts, removed
     iteratively (removing one can turn a neighbour into a rattler)."""

@@ -54,8 +54,7 @@ def minimize(
     """
     choice(method, "method", METHODS)
     base, implied = _ALIASES.get(method, (method, "none"))
-    if isinstance(precon, str):
-        choice(precon, "precon", PRECONDITIONERS)
+    if isinstance(precon, str):  # make_preconditioner validates the name
         pre = make_preconditioner(
             implied if precon == "none" else precon, objective, A=A, solver=solver
         )
