@@ -180,3 +180,95 @@ def test_bench_quick_json_rows(capsys):
 def test_bench_rejects_unknown_methods(capsys):
     code, out, err = run(capsys, "bench", "--methods", "BFGS", "--repeats", "1")
     assert code == 2 and out == "" and "unknown" in err
+
+
+CONTRACT_JAM_KEYS = {
+    "phi_c",
+    "energy",
+    "pressure",
+    "z",
+    "n_rattlers",
+    "steps",
+    "iterations",
+    "seconds",
+    "output",
+}
+
+
+def test_jam_compress_shear_chain_writes_files_tables_and_contract_keys(tmp_path, capsys):
+    from athermal.io import count_frames
+    from athermal.tables import read_table
+
+    jammed, steps = tmp_path / "j.gsd", tmp_path / "steps.gsd"
+    code, out, err = run(
+        capsys,
+        "jam",
+        "--n",
+        "64",
+        "--seed",
+        "3",
+        "--epsilon",
+        "1e-5",
+        "-o",
+        str(jammed),
+        "--trajectory",
+        str(steps),
+        "--json",
+    )
+    assert code == 0 and err == ""
+    summary = json.loads(out)
+    assert CONTRACT_JAM_KEYS <= set(summary)
+    frame = read_gsd(jammed)
+    assert float(frame.log["phi_c"]) == summary["phi_c"] == pytest.approx(frame.packing.phi)
+    assert frame.seed == 3 and summary["energy"] > 0.0
+    assert count_frames(steps) == summary["steps"] == len(read_table(tmp_path / "j.csv"))
+
+    traj = tmp_path / "c.gsd"
+    code, out, _ = run(
+        capsys,
+        "compress",
+        str(jammed),
+        "-o",
+        str(traj),
+        "--from",
+        "1e-5",
+        "--per-decade",
+        "1",
+        "--json",
+    )
+    assert code == 0
+    summary = json.loads(out)
+    assert {"table", "exponents"} <= set(summary)
+    table = read_table(summary["table"])
+    assert len(table) == count_frames(traj) == 5
+    assert set(summary["exponents"]) == {"pressure", "shear_modulus", "z_excess"}
+    assert summary["exponents"]["pressure"]["exponent"] > 0.5
+    assert summary["phi_c"] == pytest.approx(float(frame.log["phi_c"]))
+
+    sheared = tmp_path / "s.gsd"
+    code, out, _ = run(
+        capsys,
+        "shear",
+        str(traj),
+        "-o",
+        str(sheared),
+        "--mode",
+        "simple",
+        "--strain",
+        "2e-3",
+        "--step",
+        "1e-3",
+        "--json",
+    )
+    assert code == 0
+    summary = json.loads(out)
+    rows = read_table(summary["table"])
+    assert [r["strain"] for r in rows] == [0.0, 1e-3, 2e-3] and count_frames(sheared) == 3
+
+
+def test_protocol_errors_are_one_line(tmp_path, capsys):
+    code, out, err = run(
+        capsys, "jam", "--n", "64", "--phi-init", "0.95", "-o", str(tmp_path / "x")
+    )
+    assert code == 2 and out == "" and "phi_init" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()

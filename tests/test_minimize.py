@@ -31,6 +31,9 @@ class FunctionObjective:
     def mean_contact_force(self, x):
         return 1.0
 
+    def energy_noise(self, energy):
+        return 0.0  # only the relative round-off of the line search
+
     def packing(self, x, internal=False):
         return None
 
@@ -129,6 +132,16 @@ def test_unjammed_packing_ends_with_zero_energy():
     assert res.converged and res.energy == 0.0
     done = minimize(Objective(res.packing, ContactModel(2.0)), "lbfgs", gtol=1e-12)
     assert done.converged and done.iterations == 0 and done.evaluations == 1
+
+
+@pytest.mark.parametrize("method", ["lbfgs", "cg", "fire"])
+def test_energy_tolerance_ends_the_run_at_the_first_iterate_below_it(method):
+    obj = Objective(random_packing(128, 0.5, seed=4), ContactModel(2.0))
+    res = minimize(obj, method, gtol=0.0, etol=1e-12)
+    assert res.converged and res.energy <= 1e-12
+    assert np.all(res.history_energy[:-1] > 1e-12)
+    with pytest.raises(InputError, match="etol"):
+        minimize(obj, method, gtol=0.0, etol=-1.0)
 
 
 def test_non_convergence_is_reported_not_raised():

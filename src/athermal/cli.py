@@ -1,4 +1,5 @@
-"""The ``athermal`` command (see CONTRACT.md): ``random``, ``measure``, ``relax`` and ``bench``."""
+"""The ``athermal`` command (see CONTRACT.md): ``random``, ``measure``, ``relax``, ``bench``,
+and the protocols ``jam``, ``compress`` and ``shear``."""
 
 from __future__ import annotations
 
@@ -8,18 +9,32 @@ import json
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from . import bench
 from .contact import ContactModel
-from .errors import InputError
-from .io import read_gsd, write_gsd
+from .errors import ConvergenceError, InputError
+from .io import append_gsd, read_gsd, write_gsd
 from .minimize import METHODS, PRECONDITIONERS, minimize
 from .objective import Objective
 from .observables import Observables, measure
-from .packing import random_packing
+from .packing import Packing, random_packing
+from .protocols import (
+    SHEAR_MODES,
+    Minimizer,
+    compression_steps,
+    jamming_steps,
+    log_spaced,
+    scaling_exponents,
+    shear_steps,
+)
+from .tables import write_table
+
+PHI_INIT = {2: 0.8, 3: 0.6}
+"""Default start fraction of ``athermal jam``: unjammed after relaxation (phi_c ~ 0.84 / 0.64)."""
 
 
 def _add_model_options(parser: argparse.ArgumentParser, default: float | None) -> None:
@@ -39,6 +54,33 @@ def _add_model_options(parser: argparse.ArgumentParser, default: float | None) -
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
     )
+
+
+def _add_minimizer_options(parser: argparse.ArgumentParser, what: str) -> None:
+    parser.add_argument(
+        "--method",
+        default="lbfgs",
+        choices=METHODS,
+        help=f"minimizer {what} (plbfgs / pcg: lbfgs / cg with --precon exp; default lbfgs)",
+    )
+    parser.add_argument(
+        "--precon", default="none", choices=PRECONDITIONERS, help="preconditioner (default none)"
+    )
+    parser.add_argument("--A", type=float, default=0.0, help="Exp preconditioner parameter A (0)")
+    parser.add_argument(
+        "--solver",
+        default="auto",
+        choices=("auto", "direct", "amg"),
+        help="linear solver of the preconditioner (default auto)",
+    )
+    parser.add_argument("--maxiter", type=int, default=100_000, help="iteration limit (100000)")
+
+
+def _add_protocol_outputs(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--table", default=None, help="per-step CSV table (default: the output with .csv)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -81,29 +123,74 @@ def _parser() -> argparse.ArgumentParser:
     )
     rel.add_argument("input", help="GSD file")
     rel.add_argument("-o", "--output", required=True, help="GSD file to write")
-    rel.add_argument(
-        "--method",
-        default="lbfgs",
-        choices=METHODS,
-        help="minimizer (plbfgs / pcg: lbfgs / cg with --precon exp)",
-    )
-    rel.add_argument(
-        "--precon", default="none", choices=PRECONDITIONERS, help="preconditioner (default none)"
-    )
-    rel.add_argument("--A", type=float, default=0.0, help="Exp preconditioner parameter A (0)")
-    rel.add_argument(
-        "--solver",
-        default="auto",
-        choices=("auto", "direct", "amg"),
-        help="linear solver of the preconditioner (default auto)",
-    )
+    _add_minimizer_options(rel, "")
     tol = rel.add_mutually_exclusive_group()
     tol.add_argument("--gtol", type=float, help="absolute tolerance on max_i |grad_i|")
     tol.add_argument(
         "--rtol", type=float, help="tolerance relative to the mean contact force (default 1e-9)"
     )
-    rel.add_argument("--maxiter", type=int, default=100_000, help="iteration limit (100000)")
     _add_model_options(rel, None)
+
+    jam = sub.add_parser(
+        "jam",
+        help="jam a random packing (growth + bisection, the seed's Algorithm 1)",
+        description="Place N particles at random at --phi-init, then grow them by --dphi "
+        "and relax until the relaxed packing is jammed (E > 0, p > 0), and bisect the "
+        "packing fraction down to --epsilon. Writes the jammed packing (its log holds "
+        "phi_c); --trajectory also keeps every relaxed step.",
+    )
+    jam.add_argument("--n", type=int, default=1024, help="number of particles (default 1024)")
+    jam.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions (default 2)")
+    jam.add_argument("--size-ratio", type=float, default=1.4, help="large/small radius (1.4)")
+    jam.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    jam.add_argument(
+        "--phi-init", type=float, default=None, help="start fraction (default 0.8 2D, 0.6 3D)"
+    )
+    jam.add_argument("--dphi", type=float, default=1e-3, help="growth increment (1e-3)")
+    jam.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy (1e-6)")
+    jam.add_argument("-o", "--output", required=True, help="GSD file for the jammed packing")
+    jam.add_argument("--trajectory", default=None, help="GSD file for every relaxed step")
+    _add_minimizer_options(jam, "of every step")
+    _add_protocol_outputs(jam)
+    _add_model_options(jam, 2.0)
+
+    com = sub.add_parser(
+        "compress",
+        help="quasi-static compression above jamming (scaling laws)",
+        description="Grow the particles of a jammed packing to phi_c + delta phi for "
+        "log-spaced delta phi, relaxing each state; writes every state to a GSD "
+        "trajectory and a CSV table (pressure, energy, z, moduli by linear response, "
+        "iterations) and fits p, G and z - z_iso against delta phi.",
+    )
+    com.add_argument("input", help="GSD file with a jammed packing (e.g. from athermal jam)")
+    com.add_argument("-o", "--output", required=True, help="GSD trajectory to write")
+    com.add_argument(
+        "--phi-c", type=float, default=None, help="jamming fraction (default: the file's phi_c)"
+    )
+    com.add_argument("--from", dest="dphi_min", type=float, default=1e-7, help="smallest (1e-7)")
+    com.add_argument("--to", dest="dphi_max", type=float, default=1e-1, help="largest (1e-1)")
+    com.add_argument("--per-decade", type=int, default=4, help="steps per decade (4)")
+    com.add_argument("--rtol", type=float, default=1e-9, help="force tolerance (1e-9 x mean)")
+    _add_minimizer_options(com, "of every step")
+    _add_protocol_outputs(com)
+    _add_model_options(com, None)
+
+    she = sub.add_parser(
+        "shear",
+        help="quasi-static simple or pure shear",
+        description="Deform a packing by small affine shear increments, relaxing after "
+        "each; writes every state to a GSD trajectory and a CSV table (stress and "
+        "fabric, their isotropic and deviatoric parts, plastic events).",
+    )
+    she.add_argument("input", help="GSD file with the start packing")
+    she.add_argument("-o", "--output", required=True, help="GSD trajectory to write")
+    she.add_argument("--mode", default="pure", choices=SHEAR_MODES, help="shear (default pure)")
+    she.add_argument("--strain", type=float, default=0.02, help="final strain (0.02)")
+    she.add_argument("--step", type=float, default=1e-4, help="strain increment (1e-4)")
+    she.add_argument("--rtol", type=float, default=1e-9, help="force tolerance (1e-9 x mean)")
+    _add_minimizer_options(she, "of every step")
+    _add_protocol_outputs(she)
+    _add_model_options(she, None)
 
     ben = sub.add_parser(
         "bench",
@@ -209,6 +296,195 @@ def _run(args: argparse.Namespace) -> None:
         _relax(args)
     elif args.command == "bench":
         _bench(args)
+    elif args.command == "jam":
+        _jam(args)
+    elif args.command == "compress":
+        _compress(args)
+    elif args.command == "shear":
+        _shear(args)
+
+
+class _Progress:
+    """One live line on stderr (a terminal only, unless ``--quiet``)."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.show = not quiet and sys.stderr.isatty()
+
+    def __call__(self, text: str) -> None:
+        if self.show:
+            print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.show:
+            print(file=sys.stderr, flush=True)
+
+
+def _minimizer(args: argparse.Namespace) -> Minimizer:
+    return Minimizer(args.method, args.precon, args.A, args.solver, args.maxiter)
+
+
+def _table_path(args: argparse.Namespace) -> str:
+    return args.table if args.table is not None else str(Path(args.output).with_suffix(".csv"))
+
+
+def _print(summary: dict[str, Any], as_json: bool) -> None:
+    if as_json:
+        print(json.dumps(summary))
+        return
+    width = max(len(k) for k in summary)
+    for key, value in summary.items():
+        print(f"{key:<{width}}  {value}")
+
+
+def _jam(args: argparse.Namespace) -> None:
+    model = _model(args.alpha, args.stiffness, None)
+    phi_init = PHI_INIT[args.dim] if args.phi_init is None else args.phi_init
+    start = random_packing(
+        args.n, phi_init, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
+    )
+    progress, t0 = _Progress(args.quiet), time.perf_counter()
+    rows, last_jammed, iterations = [], None, 0
+    for step in jamming_steps(
+        start, model, dphi=args.dphi, epsilon=args.epsilon, minimizer=_minimizer(args)
+    ):
+        iterations += step.iterations
+        row = {k: v for k, v in dataclasses.asdict(step).items() if k != "packing"}
+        row["jammed"] = int(step.jammed)
+        rows.append(row)
+        if args.trajectory is not None:
+            append_gsd(
+                args.trajectory,
+                step.packing,
+                model=model,
+                seed=args.seed,
+                observables={"phi": step.phi, "energy": step.energy, "pressure": step.pressure},
+            )
+        if step.jammed:
+            last_jammed = step
+        progress(
+            f"step {step.index} {step.phase} phi {step.phi:.9f} "
+            f"{'jammed' if step.jammed else 'unjammed'} E {step.energy:.3e} "
+            f"iterations {step.iterations}"
+        )
+    progress.close()
+    assert last_jammed is not None  # the protocol ends on a bracket with a jammed top
+    obs = measure(last_jammed.packing, model)
+    write_gsd(
+        args.output,
+        last_jammed.packing,
+        model=model,
+        seed=args.seed,
+        observables={**_file_observables(obs), "phi_c": last_jammed.phi},
+    )
+    table = _table_path(args)
+    write_table(table, rows)
+    _print(
+        {
+            "phi_c": last_jammed.phi,
+            "energy": obs.energy,
+            "pressure": obs.pressure,
+            "z": obs.z,
+            "n_rattlers": obs.n_rattlers,
+            "contacts": obs.contacts,
+            "steps": len(rows),
+            "iterations": iterations,
+            "seconds": round(time.perf_counter() - t0, 3),
+            "seed": args.seed,
+            "method": _minimizer(args).label,
+            "output": args.output,
+            "table": table,
+            "trajectory": args.trajectory,
+        },
+        args.json,
+    )
+
+
+def _start(args: argparse.Namespace) -> tuple[Packing, ContactModel, Any]:
+    frame = read_gsd(args.input)
+    return frame.packing, _model(args.alpha, args.stiffness, frame.model), frame
+
+
+def _compress(args: argparse.Namespace) -> None:
+    packing, model, frame = _start(args)
+    phi_c = args.phi_c
+    if phi_c is None and "phi_c" in frame.log:
+        phi_c = float(frame.log["phi_c"].reshape(-1)[0])
+    deltas = log_spaced(args.dphi_min, args.dphi_max, args.per_decade)
+    progress, t0 = _Progress(args.quiet), time.perf_counter()
+    Path(args.output).unlink(missing_ok=True)
+    steps = []
+    for step in compression_steps(
+        packing, model, phi_c=phi_c, delta_phis=deltas, minimizer=_minimizer(args), rtol=args.rtol
+    ):
+        steps.append(step)
+        append_gsd(args.output, step.packing, model=model, seed=frame.seed, observables=step.row())
+        progress(
+            f"step {step.index + 1}/{deltas.size} delta phi {step.delta_phi:.1e} "
+            f"p {step.pressure:.3e} G {step.shear_modulus:.3e} iterations {step.iterations}"
+        )
+    progress.close()
+    table = _table_path(args)
+    write_table(table, [s.row() for s in steps])
+    fits = scaling_exponents(steps)
+    exponents = {
+        name: None if fit is None else {"exponent": fit.exponent, "stderr": fit.stderr}
+        for name, fit in vars(fits).items()
+    }
+    _print(
+        {
+            "table": table,
+            "exponents": exponents,
+            "phi_c": steps[0].phi - steps[0].delta_phi,
+            "steps": len(steps),
+            "iterations": sum(s.iterations for s in steps),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "output": args.output,
+        },
+        args.json,
+    )
+
+
+def _shear(args: argparse.Namespace) -> None:
+    packing, model, frame = _start(args)
+    progress, t0 = _Progress(args.quiet), time.perf_counter()
+    Path(args.output).unlink(missing_ok=True)
+    rows = []
+    for step in shear_steps(
+        packing,
+        model,
+        mode=args.mode,
+        strain=args.strain,
+        step=args.step,
+        minimizer=_minimizer(args),
+        rtol=args.rtol,
+    ):
+        rows.append(step.row())
+        append_gsd(
+            args.output,
+            step.packing,
+            model=model,
+            seed=frame.seed,
+            observables={**_file_observables(step.observables), **step.row()},
+        )
+        progress(
+            f"step {step.index} strain {step.strain:.2e} tau {step.tau:.3e} "
+            f"{'plastic ' if step.plastic else ''}iterations {step.iterations}"
+        )
+    progress.close()
+    table = _table_path(args)
+    write_table(table, rows)
+    _print(
+        {
+            "table": table,
+            "mode": args.mode,
+            "steps": len(rows),
+            "plastic_events": sum(int(r["plastic"]) for r in rows),
+            "iterations": sum(int(r["iterations"]) for r in rows),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "output": args.output,
+        },
+        args.json,
+    )
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -291,6 +567,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except InputError as exc:
         print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
         return 2
+    except ConvergenceError as exc:
+        print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
+        return 3
     except NotConverged as exc:
         print(f"athermal {args.command}: {exc}", file=sys.stderr)
         return 3

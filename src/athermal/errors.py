@@ -7,3 +7,7 @@ class InputError(ValueError):
 
 class FileFormatError(InputError):
     """A file that cannot be read as an athermal/HOOMD GSD configuration."""
+
+
+class ConvergenceError(RuntimeError):
+    """A protocol step whose energy minimization did not converge (the message says how)."""

@@ -24,6 +24,15 @@ METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "plbfgs", "pcg")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
 
 
+def resolve_method(method: str, precon: PreconName = "none") -> tuple[str, PreconName]:
+    """The base method (``lbfgs``, ``cg``, ``fire``) and preconditioner that ``method`` with
+    ``precon`` names: ``plbfgs`` and ``pcg`` imply ``exp`` unless another is given."""
+    choice(method, "method", METHODS)
+    choice(precon, "precon", PRECONDITIONERS)
+    base, implied = _ALIASES.get(method, (method, "none"))
+    return base, implied if precon == "none" else precon
+
+
 def minimize(
     objective: Objective,
     method: Method = "lbfgs",
@@ -34,6 +43,7 @@ def minimize(
     gtol: float | None = None,
     rtol: float | None = None,
     maxiter: int = 100_000,
+    etol: float = 0.0,
     memory: int = 10,
     cg_variant: Literal["fr", "pr+"] = "fr",
 ) -> MinimizeResult:
@@ -49,22 +59,46 @@ def minimize(
     gtol, rtol : absolute tolerance on ``max_i |grad_i|``, or relative to the mean contact
         force at the start (give exactly one).
     maxiter : iteration limit (non-convergence is reported in the result).
+    etol : the run also stops, converged, once the energy is ``<= etol`` (absolute, energy
+        units; default 0: only an exactly zero energy). The jamming protocol uses it to end the
+        relaxation of an unjammed packing.
     memory : L-BFGS memory ``m``.
     cg_variant : ``fr`` (Fletcher-Reeves) or ``pr+`` (Polak-Ribiere+).
     """
-    choice(method, "method", METHODS)
-    base, implied = _ALIASES.get(method, (method, "none"))
-    if isinstance(precon, str):  # make_preconditioner validates the name
-        pre = make_preconditioner(
-            implied if precon == "none" else precon, objective, A=A, solver=solver
-        )
+    if isinstance(precon, str):
+        base, name = resolve_method(method, precon)
+        pre = make_preconditioner(name, objective, A=A, solver=solver)
     else:
+        base, _ = resolve_method(method)
         pre = precon
     if base == "lbfgs":
-        return lbfgs(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, precon=pre, memory=memory)
+        return lbfgs(
+            objective,
+            gtol=gtol,
+            rtol=rtol,
+            maxiter=maxiter,
+            etol=etol,
+            precon=pre,
+            memory=memory,
+        )
     if base == "cg":
-        return cg(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, precon=pre, variant=cg_variant)
-    return fire(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, precon=pre)
+        return cg(
+            objective,
+            gtol=gtol,
+            rtol=rtol,
+            maxiter=maxiter,
+            etol=etol,
+            precon=pre,
+            variant=cg_variant,
+        )
+    return fire(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, etol=etol, precon=pre)
 
 
-__all__ = ["METHODS", "PRECONDITIONERS", "MinimizeResult", "Preconditioner", "minimize"]
+__all__ = [
+    "METHODS",
+    "PRECONDITIONERS",
+    "MinimizeResult",
+    "Preconditioner",
+    "minimize",
+    "resolve_method",
+]

@@ -32,4 +32,12 @@ def search(
         f, g = objective(x + a * direction)
         return f, float(g @ direction)
 
-    return strong_wolfe(phi, energy, float(grad @ direction), step, c2=c2, step_max=step_max)
+    return strong_wolfe(
+        phi,
+        energy,
+        float(grad @ direction),
+        step,
+        c2=c2,
+        step_max=step_max,
+        noise=objective.energy_noise(energy),
+    )

@@ -31,6 +31,7 @@ def cg(
     gtol: float | None = None,
     rtol: float | None = None,
     maxiter: int = 100_000,
+    etol: float = 0.0,
     precon: Preconditioner | None = None,
     variant: CGVariant = "fr",
 ) -> MinimizeResult:
@@ -40,7 +41,7 @@ def cg(
     Stopping rules as :func:`~athermal.minimize.lbfgs.lbfgs`.
     """
     choice(variant, "variant", ("fr", "pr+"))
-    tracker = Tracker.start(objective, "cg", precon, gtol, rtol, maxiter)
+    tracker = Tracker.start(objective, "cg", precon, gtol, rtol, maxiter, etol)
     x = objective.x0.copy()
     energy, grad = objective(x)
     if precon is not None:

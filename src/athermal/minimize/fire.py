@@ -150,6 +150,7 @@ def fire(
     gtol: float | None = None,
     rtol: float | None = None,
     maxiter: int = 100_000,
+    etol: float = 0.0,
     precon: Preconditioner | None = None,
     dt: float | None = None,
     dt_max: float | None = None,
@@ -168,7 +169,8 @@ def fire(
     objective : energy and gradient of a flat ``(N d,)`` vector; unit masses.
     gtol : absolute tolerance on ``max_i |grad_i E|`` (force units ``k`` x length^(alpha-1)).
     rtol : tolerance relative to the mean contact force at ``x0``; give exactly one of the two.
-        The run also stops, converged, when the energy is exactly zero (no overlaps).
+        The run also stops, converged, when the energy is ``<= etol`` (default 0: no overlaps).
+    etol : energy tolerance (absolute, energy units).
     maxiter : the most steps (one energy+gradient evaluation each).
     precon : preconditioner; the dynamics then follow ``F_p = -P^-1 grad E``.
     dt_max : largest time step (time units ``sqrt(m / k)``, m = 1). Default
@@ -216,7 +218,7 @@ def fire(
         raise InputError(f"f_alpha: must be in (0, 1], got {f_alpha!r}")
     if max_step is not None:
         max_step = positive_scalar(max_step, "max_step")
-    tracker = Tracker.start(objective, "fire", precon, gtol, rtol, maxiter)
+    tracker = Tracker.start(objective, "fire", precon, gtol, rtol, maxiter, etol)
     dt, dt_max, dt_min = default_timesteps(objective, precon, dt, dt_max, dt_min)
     if max_step is None:
         max_step = MAX_STEP_FACTOR * float(np.mean(objective.radii))

@@ -73,16 +73,18 @@ def lbfgs(
     gtol: float | None = None,
     rtol: float | None = None,
     maxiter: int = 100_000,
+    etol: float = 0.0,
     precon: Preconditioner | None = None,
     memory: int = 10,
 ) -> MinimizeResult:
     """Minimize ``objective`` from ``objective.x0`` by (preconditioned) L-BFGS.
 
     Stops when ``max_i |grad_i| <= gtol`` (or ``rtol`` x the mean contact force at the start),
-    when the energy is exactly zero, after ``maxiter`` iterations, or when no step satisfying
-    the Wolfe conditions exists even along steepest descent (reported, ``converged=False``).
+    when the energy is ``<= etol`` (default: exactly zero), after ``maxiter`` iterations, or
+    when no step satisfying the Wolfe conditions exists even along steepest descent (reported,
+    ``converged=False``).
     """
-    tracker = Tracker.start(objective, "lbfgs", precon, gtol, rtol, maxiter)
+    tracker = Tracker.start(objective, "lbfgs", precon, gtol, rtol, maxiter, etol)
     x = objective.x0.copy()
     energy, grad = objective(x)
     if precon is not None:

@@ -4,7 +4,8 @@ Nocedal & Wright's bracketing and zoom (Algorithms 3.5 and 3.6, cubic interpolat
 ``phi(a) = E(x + a p)``. Near a minimum, energy differences ``E(x + a p) - E(x)`` fall below the
 round-off of ``E`` long before the gradient reaches ``1e-9`` of the contact forces, and an
 energy-based search stalls (as scipy's L-BFGS-B and ASE's PreconLBFGS do). So when
-``|phi(a) - phi(0)| <= eps |phi(0)|`` energy comparisons are not trusted: sufficient decrease is
+``|phi(a) - phi(0)|`` is below the round-off (``eps |phi(0)|``, or an absolute ``noise`` given by
+the caller) energy comparisons are not trusted: sufficient decrease is
 judged by Hager & Zhang's approximate Wolfe condition ``phi'(a) <= (1 - 2 c1) |phi'(0)|``
 (exact for a quadratic) and interpolation falls back to the secant of ``phi'``.
 """
@@ -38,6 +39,7 @@ class _Search:
     c1: float
     c2: float
     eps: float
+    noise: float
     evaluations: int = 0
 
     def __call__(self, a: float) -> tuple[float, float]:
@@ -46,7 +48,7 @@ class _Search:
 
     def resolved(self, f: float, f_ref: float) -> bool:
         """True when ``f`` and ``f_ref`` differ by more than the energy round-off."""
-        return abs(f - f_ref) > self.eps * abs(self.f0)
+        return abs(f - f_ref) > max(self.eps * abs(self.f0), self.noise)
 
     def decrease(self, a: float, f: float, df: float) -> bool:
         if self.resolved(f, self.f0):
@@ -70,6 +72,7 @@ def strong_wolfe(
     c2: float = 0.9,
     step_max: float = np.inf,
     eps: float = 1e-12,
+    noise: float = 0.0,
     max_evaluations: int = 40,
 ) -> LineSearchResult:
     """Find ``a > 0`` with sufficient decrease and ``|phi'(a)| <= c2 |phi'(0)|``.
@@ -80,7 +83,8 @@ def strong_wolfe(
     f0, g0 : ``phi(0)`` and ``phi'(0) < 0``.
     step : first trial step (clipped to ``step_max``).
     c1, c2 : Wolfe constants, ``0 < c1 < c2 < 1``.
-    eps : relative energy round-off below which energy differences are not trusted.
+    eps, noise : relative and absolute energy round-off; energy differences below the larger
+        of ``eps |phi(0)|`` and ``noise`` are not trusted.
     max_evaluations : budget of ``phi`` calls.
 
     A zero energy at the trial point (an unjammed packing) is accepted at once: it cannot be
@@ -89,7 +93,7 @@ def strong_wolfe(
     """
     if not g0 < 0.0:
         raise ValueError(f"phi'(0) = {g0} is not a descent direction")
-    s = _Search(phi, f0, g0, c1, c2, eps)
+    s = _Search(phi, f0, g0, c1, c2, eps, noise)
     a_prev, f_prev, df_prev = 0.0, f0, g0
     a = min(step, step_max)
     while s.evaluations < max_evaluations:

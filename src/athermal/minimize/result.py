@@ -68,6 +68,7 @@ class Tracker:
     precon: Preconditioner | None
     gtol: float
     maxiter: int
+    etol: float = 0.0
     energies: list[float] = field(default_factory=list)
     gradients: list[float] = field(default_factory=list)
     start_time: float = field(default_factory=time.perf_counter)
@@ -83,8 +84,10 @@ class Tracker:
         gtol: float | None,
         rtol: float | None,
         maxiter: int,
+        etol: float = 0.0,
     ) -> Tracker:
-        """Fix the absolute tolerance: ``gtol``, or ``rtol`` x the mean contact force at ``x0``."""
+        """Fix the absolute tolerance: ``gtol``, or ``rtol`` x the mean contact force at ``x0``;
+        ``etol`` is the energy at or below which the run also stops, converged."""
         if (gtol is None) == (rtol is None):
             raise InputError("give exactly one of gtol (absolute) and rtol (x mean contact force)")
         tol = gtol if gtol is not None else rtol * objective.mean_contact_force(objective.x0)  # type: ignore[operator]
@@ -92,22 +95,25 @@ class Tracker:
             raise InputError(f"gtol/rtol: tolerance must be finite and >= 0, got {tol}")
         if maxiter < 0:
             raise InputError(f"maxiter: must be >= 0, got {maxiter}")
+        if not np.isfinite(etol) or etol < 0.0:
+            raise InputError(f"etol: energy tolerance must be finite and >= 0, got {etol}")
         return cls(
             objective,
             method,
             precon,
             float(tol),
             int(maxiter),
+            float(etol),
             start_evaluations=objective.n_evaluations,
             start_rebuilds=objective.n_rebuilds,
         )
 
     def record(self, energy: float, grad: NDArray[np.float64]) -> bool:
-        """Log an iterate; True when it meets the tolerance (or the energy is exactly zero)."""
+        """Log an iterate; True when it meets the tolerance or its energy is ``<= etol``."""
         gmax = self.objective.max_gradient(grad)
         self.energies.append(energy)
         self.gradients.append(gmax)
-        return gmax <= self.gtol or energy == 0.0
+        return gmax <= self.gtol or energy <= self.etol
 
     @property
     def iterations(self) -> int:

@@ -1,0 +1,487 @@
+"""Bulk and shear moduli of a packing at an energy minimum: exact linear response and finite strain.
+
+Linear response. Deform positions and cell along an affine path ``x -> D(gamma) x`` with
+``D(0) = I``, ``D1 = D'(0)``, ``D2 = D''(0)``, and let the particles relax by non-affine
+displacements ``u``. For a contact with branch vector ``r = x_i - x_j`` (length ``l``, unit
+``n``) and pair energy ``phi(l) = k delta^alpha / alpha``, ``delta = r_i + r_j - l``, so that
+``phi' = -k delta^(alpha-1)`` and ``phi'' = k (alpha-1) delta^(alpha-2)``:
+
+* affine curvature ``d2E/dgamma2 = sum_c phi'' (n.D1 r)^2 + (phi'/l) (|D1 r|^2 - (n.D1 r)^2)
+  + phi' n.D2 r``;
+* mixed derivative ``Xi = d2E/du dgamma`` ``(N d,)``: ``+K D1 r`` on ``i`` (the head of ``r``)
+  and ``-K D1 r`` on ``j``, with ``K = phi'' n n^T + (phi'/l) (I - n n^T)`` (the Hessian block
+  of :func:`~athermal.contact.contact_blocks`);
+* relaxed curvature ``E''_rel = d2E/dgamma2 - Xi^T H^+ Xi`` (H the Hessian): minimizing the
+  quadratic expansion ``E''_aff gamma^2 / 2 + gamma Xi.u + u.H u / 2`` over ``u``.
+
+Rattlers (:func:`~athermal.observables.rattlers`) and every contact that touches one are left out
+of all three terms; the ``d`` translations, zero modes of ``H``, are removed by pinning one
+particle (``Xi`` sums to zero, so the minimum is unchanged). Moduli follow from ``E''_rel``:
+simple shear ``D1 = e0 e1^T`` gives ``G = E''_rel / V = -d sigma_01 / d gamma``; isotropic
+compression at fixed radii ``D = (1 + e) I`` gives ``p(e) = -(1+e)^(1-d) dE/de / (d V0)`` and so
+``B = -V dp/dV = E''_rel / (d^2 V) + (d - 1) p / d``.
+
+Finite strain (the seed's quasi-static way): small strain increments, each followed by an energy
+minimization, and a least-squares slope of the stress against the strain.
+
+Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x length^(alpha-d).
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numpy.typing import ArrayLike, NDArray
+
+from ._validate import float_array
+from .cell import isotropic, simple_shear
+from .contact import ContactModel, Contacts, find_contacts, hessian
+from .errors import InputError
+from .minimize import Method, minimize
+from .objective import Objective
+from .observables import pressure, rattlers, shear_stress, stress
+from .packing import Packing
+from .precon import PreconName
+
+RESIDUAL_TOL = 1e-8
+"""Relative residual ``|H y - Xi| / |Xi|`` above which the direct solve is refined by MINRES."""
+RESIDUAL_WARN = 1e-6
+"""Relative residual above which :func:`relaxed_strain_curvature` warns (``Xi`` not in the range
+of ``H``: a floppy mode couples to the strain and the relaxed curvature is ill-defined)."""
+DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
+"""The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
+DEFAULT_STRAINS.setflags(write=False)
+
+SolverUsed = Literal["none", "cholmod", "minres"]
+"""How ``H y = Xi`` was solved: not at all (fewer than two non-rattlers), by CHOLMOD, or by the
+MINRES fallback."""
+
+
+@dataclass(frozen=True)
+class LinearResponse:
+    """Moduli from the exact linear response of a packing at an energy minimum.
+
+    Attributes
+    ----------
+    bulk : bulk modulus ``B = -V dp/dV`` at fixed radii (non-affine relaxation included).
+    shear : shear modulus ``G = -d sigma_01 / d gamma`` under simple shear ``x += gamma y``.
+    bulk_affine, shear_affine : the same without relaxation (Born terms, prestress included).
+    pressure : ``p`` from the contacts between non-rattlers.
+    n_rattlers : particles left out (:func:`~athermal.observables.rattlers`).
+    residual : largest relative residual ``|H y - Xi| / |Xi|`` of the two linear solves.
+    solver : ``"cholmod"`` (the pinned Hessian of the non-rattlers was positive definite),
+        ``"minres"`` (it was not, or the direct residual was too large) or ``"none"`` (fewer
+        than two non-rattlers: nothing to relax).
+    """
+
+    bulk: float
+    shear: float
+    bulk_affine: float
+    shear_affine: float
+    pressure: float
+    n_rattlers: int
+    residual: float
+    solver: SolverUsed
+
+
+@dataclass(frozen=True, eq=False)
+class FiniteStrain:
+    """A modulus fitted to quasi-static finite-strain steps.
+
+    Attributes
+    ----------
+    modulus : ``G = d(-sigma_01)/d gamma`` (shear) or ``B = -(1/d) dp/de`` (bulk), the
+        least-squares slope through the start and every step (scaled by ``-1/d`` for bulk).
+    stderr : standard error of ``modulus`` from the fit residuals.
+    strains : ``(k,)`` total strain after each step.
+    stresses : ``(k,)`` shear stress ``-sigma_01`` (shear) or pressure (bulk) after each
+        relaxation.
+    iterations : ``(k,)`` minimizer iterations of each relaxation (the seed's iteration count).
+    contacts : ``(k,)`` number of contacts after each relaxation.
+    stress_initial : the stress of the input packing (strain 0).
+    contacts_initial : number of contacts of the input packing.
+    converged : True when every relaxation met its tolerance.
+    packing : the relaxed configuration at the last strain.
+    """
+
+    modulus: float
+    stderr: float
+    strains: NDArray[np.float64]
+    stresses: NDArray[np.float64]
+    iterations: NDArray[np.int64]
+    contacts: NDArray[np.int64]
+    stress_initial: float
+    contacts_initial: int
+    converged: bool
+    packing: Packing
+
+
+def strain_terms(
+    contacts: Contacts, n: int, d1: NDArray[np.float64], d2: NDArray[np.float64] | None = None
+) -> tuple[float, NDArray[np.float64]]:
+    """Affine curvature ``d2E/dgamma2`` and mixed derivative ``Xi = d2E/dx dgamma``.
+
+    Parameters
+    ----------
+    contacts : the contacts to sum over (all of them are used).
+    n : number of particles N.
+    d1, d2 : ``(d, d)`` first and second derivatives of the deformation ``D(gamma)`` at
+        ``gamma = 0`` (``d2`` None: zero, as for simple shear and isotropic strain).
+
+    Returns
+    -------
+    curvature : ``d2E/dgamma2`` at fixed non-affine displacements, energy units.
+    xi : ``(N, d)`` derivative of the gradient ``dE/dx`` along the affine path, energy / length.
+    """
+    r = contacts.branch
+    length = contacts.distance
+    unit = contacts.normal
+    dphi = -contacts.force_magnitude
+    ddphi = contacts.stiffness * (contacts.alpha - 1.0) * contacts.overlap ** (contacts.alpha - 2.0)
+    a = r @ d1.T  # D1 r, (M, d)
+    na = np.einsum("cd,cd->c", unit, a)
+    aa = np.einsum("cd,cd->c", a, a)
+    tension = dphi / length
+    curvature = float(np.sum(ddphi * na**2 + tension * (aa - na**2)))
+    if d2 is not None:
+        curvature += float(np.sum(dphi * np.einsum("cd,cd->c", unit, r @ d2.T)))
+    k_a = (ddphi * na)[:, None] * unit + tension[:, None] * (a - na[:, None] * unit)  # K D1 r
+    xi = np.zeros((n, r.shape[1]))
+    for axis in range(r.shape[1]):
+        xi[:, axis] = np.bincount(contacts.i, k_a[:, axis], n) - np.bincount(
+            contacts.j, k_a[:, axis], n
+        )
+    return curvature, xi
+
+
+def relaxed_strain_curvature(
+    packing: Packing, model: ContactModel, d1: ArrayLike, d2: ArrayLike | None = None
+) -> tuple[float, float]:
+    """Affine and relaxed ``d2E/dgamma2`` along the deformation path with derivatives ``d1, d2``.
+
+    Parameters
+    ----------
+    packing : a configuration at an energy minimum (radii and cell fixed).
+    model : contact law.
+    d1, d2 : ``(d, d)`` first and second derivatives of ``D(gamma)`` at 0 (``d2`` None: zero).
+        Pure shear ``diag(1 + g, 1 / (1 + g))`` has ``d1 = diag(1, -1)``, ``d2 = diag(0, 2)``.
+
+    Returns
+    -------
+    (affine, relaxed) curvatures in energy units; rattlers and their contacts left out. A
+    ``RuntimeWarning`` reports a linear solve whose relative residual exceeds ``RESIDUAL_WARN``.
+
+    Examples
+    --------
+    >>> from athermal.cell import Cell
+    >>> p = Packing([[0.0, 0.0]], [0.1], Cell.box([1.0, 1.0]))
+    >>> relaxed_strain_curvature(p, ContactModel(), [[0.0, 1.0], [0.0, 0.0]])
+    (0.0, 0.0)
+    """
+    dim = packing.dim
+    d1_arr = float_array(d1, "d1", (dim, dim))
+    d2_arr = None if d2 is None else float_array(d2, "d2", (dim, dim))
+    contacts, rattler = _live_contacts(packing, model)
+    affine, xi = strain_terms(contacts, packing.n, d1_arr, d2_arr)
+    correction, residual, _ = _nonaffine_correction(contacts, rattler, xi[:, :, None])
+    if residual > RESIDUAL_WARN:
+        warnings.warn(
+            f"relaxed_strain_curvature: linear solve residual {residual:.2e}; the packing may not "
+            "be at a stable minimum",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    return affine, affine - float(correction[0])
+
+
+def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
+    """Bulk and shear moduli of ``packing`` (at an energy minimum) from its sparse Hessian.
+
+    One factorization of the Hessian serves both: simple shear ``D1 = e0 e1^T`` gives
+    ``G = E''_rel / V``; isotropic strain ``D1 = I`` gives ``B = E''_rel / (d^2 V) + (d-1) p / d``
+    (radii fixed). Moduli in units of ``k`` x length^(alpha-d).
+
+    Examples
+    --------
+    >>> from athermal.contact import ContactModel
+    >>> from athermal.objective import Objective
+    >>> from athermal.packing import random_packing
+    >>> p = minimize(Objective(random_packing(64, 0.88, seed=1), ContactModel()), rtol=1e-12)
+    >>> lr = linear_response(p.packing, ContactModel())
+    >>> bool(0.0 < lr.shear < lr.shear_affine)
+    True
+    """
+    dim, volume = packing.dim, packing.cell.volume
+    contacts, rattler = _live_contacts(packing, model)
+    p = pressure(stress(contacts, packing.cell))
+    shear_aff, xi_shear = strain_terms(contacts, packing.n, simple_shear(1.0, dim) - np.eye(dim))
+    bulk_aff, xi_bulk = strain_terms(contacts, packing.n, np.eye(dim))
+    correction, residual, solver = _nonaffine_correction(
+        contacts, rattler, np.stack([xi_shear, xi_bulk], axis=-1)
+    )
+    iso = (dim - 1) * p / dim
+    return LinearResponse(
+        bulk=(bulk_aff - float(correction[1])) / (dim**2 * volume) + iso,
+        shear=(shear_aff - float(correction[0])) / volume,
+        bulk_affine=bulk_aff / (dim**2 * volume) + iso,
+        shear_affine=shear_aff / volume,
+        pressure=p,
+        n_rattlers=int(rattler.sum()),
+        residual=residual,
+        solver=solver,
+    )
+
+
+def _live_contacts(packing: Packing, model: ContactModel) -> tuple[Contacts, NDArray[np.bool_]]:
+    """The contacts between non-rattlers, and the rattler mask ``(N,)``."""
+    contacts = find_contacts(packing, model)
+    rattler = rattlers(contacts, packing.n, packing.dim)
+    keep = ~(rattler[contacts.i] | rattler[contacts.j])
+    live = Contacts(
+        contacts.i[keep],
+        contacts.j[keep],
+        contacts.branch[keep],
+        contacts.distance[keep],
+        contacts.overlap[keep],
+        contacts.stiffness[keep],
+        contacts.alpha,
+    )
+    return live, rattler
+
+
+def _nonaffine_correction(
+    contacts: Contacts, rattler: NDArray[np.bool_], xi: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], float, SolverUsed]:
+    """``Xi^T H^+ Xi`` for each of the ``m`` columns of ``xi`` ``(N, d, m)``, the largest
+    relative residual of the solves and the solver used.
+
+    H is restricted to the non-rattlers with the first of them pinned (its ``d`` coordinates
+    removed), which takes out the translations, and factored once for all columns (:func:`_solve`).
+    """
+    n, dim, m = xi.shape
+    live = np.flatnonzero(~rattler)
+    if live.size <= 1:
+        return np.zeros(m), 0.0, "none"
+    dofs = (live[1:, None] * dim + np.arange(dim)).ravel()
+    b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
+    h = hessian(contacts, n)[dofs][:, dofs].tocsr()
+    y, residual, solver = _solve(h, b)
+    return np.einsum("km,km->m", b, y), residual, solver
+
+
+def _solve(
+    h: sp.csr_matrix, b: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], float, SolverUsed]:
+    """A solution ``y`` ``(n, m)`` of ``h y = b`` for symmetric ``h`` ``(n, n)``, the largest
+    relative residual ``|h y - b| / |b|`` over the columns and the solver that gave it.
+
+    CHOLMOD first; when ``h`` is not positive definite, or the residual exceeds
+    ``RESIDUAL_TOL``, MINRES (from the direct answer, if any), which also solves consistent
+    singular systems (``b`` in the range of ``h``).
+    """
+    norms = np.linalg.norm(b, axis=0)
+    y = _cholesky_solve(h, b)
+    if y is None:
+        y = np.zeros_like(b)
+    else:
+        residual = _relative_residual(h, y, b, norms)
+        if residual <= RESIDUAL_TOL:
+            return y, residual, "cholmod"
+    for col in range(b.shape[1]):
+        y[:, col] = spla.minres(h, b[:, col], x0=y[:, col], rtol=1e-14, maxiter=10 * b.shape[0])[0]
+    return y, _relative_residual(h, y, b, norms), "minres"
+
+
+def _cholesky_solve(h: sp.csr_matrix, b: NDArray[np.float64]) -> NDArray[np.float64] | None:
+    """``h^-1 b`` by CHOLMOD (lower triangle passed: cholespy ignores the upper one); None when
+    ``h`` is not positive definite."""
+    from cholespy import CholeskySolverD, MatrixType
+
+    lower = sp.tril(h, format="coo")
+    try:
+        solver = CholeskySolverD(
+            h.shape[0],
+            np.ascontiguousarray(lower.row, dtype=np.int32),
+            np.ascontiguousarray(lower.col, dtype=np.int32),
+            np.ascontiguousarray(lower.data, dtype=np.float64),
+            MatrixType.COO,
+        )
+    except ValueError:  # "Matrix is not positive definite!"
+        return None
+    y = np.empty_like(b)
+    solver.solve(b, y)
+    return y
+
+
+def _relative_residual(
+    h: sp.csr_matrix, y: NDArray[np.float64], b: NDArray[np.float64], norms: NDArray[np.float64]
+) -> float:
+    """Largest ``|h y - b| / |b|`` over the columns with ``b != 0`` (``norms`` = ``|b|``; 0 when
+    every column is zero)."""
+    res = np.linalg.norm(h @ y - b, axis=0)
+    nonzero = norms > 0.0
+    return float(np.max(res[nonzero] / norms[nonzero], initial=0.0))
+
+
+def finite_strain_shear(
+    packing: Packing,
+    model: ContactModel,
+    strains: ArrayLike = DEFAULT_STRAINS,
+    *,
+    method: Method = "lbfgs",
+    precon: PreconName = "none",
+    rtol: float = 1e-9,
+    maxiter: int = 100_000,
+) -> FiniteStrain:
+    """Shear modulus ``G = d(-sigma_01)/d gamma`` from quasi-static simple shear ``x += gamma y``.
+
+    Each step deforms the previous relaxed configuration by the simple shear increment that
+    reaches the next strain (``Packing.deform``) and relaxes it with :func:`minimize` on a fresh
+    :class:`Objective`; ``G`` is the least-squares slope through the input (``gamma = 0``) and
+    every step.
+
+    Parameters
+    ----------
+    packing : a relaxed configuration (the fit assumes it is at a minimum).
+    model : contact law.
+    strains : ``(k,)`` total shear strains, ``k >= 2``, of one sign, strictly increasing in
+        magnitude (default: the seed's 1e-6 to 1e-5 in 10 steps).
+    method, precon, rtol, maxiter : passed to :func:`~athermal.minimize.minimize` (``rtol`` is
+        relative to the mean contact force at the start of each relaxation).
+    """
+    gammas = _check_strains(strains, lower=-np.inf)
+    dim = packing.dim
+    return _quasi_static(
+        packing,
+        model,
+        gammas,
+        lambda old, new: simple_shear(new - old, dim),
+        lambda contacts, p: shear_stress(stress(contacts, p.cell)),
+        1.0,
+        method,
+        precon,
+        rtol,
+        maxiter,
+    )
+
+
+def finite_strain_bulk(
+    packing: Packing,
+    model: ContactModel,
+    strains: ArrayLike = -DEFAULT_STRAINS,
+    *,
+    method: Method = "lbfgs",
+    precon: PreconName = "none",
+    rtol: float = 1e-9,
+    maxiter: int = 100_000,
+) -> FiniteStrain:
+    """Bulk modulus ``B = -(1/d) dp/de`` from quasi-static isotropic strain at fixed radii.
+
+    Strain ``e`` is the cell map ``D = (1 + e) I`` (``e < 0`` compresses); each step applies
+    ``(1 + e_new) / (1 + e_old) I`` to the previous relaxed configuration and relaxes it. ``B`` is
+    ``-1/d`` times the least-squares slope of the pressure through the input (``e = 0``) and every
+    step; it equals ``-V dp/dV`` to first order in the strain.
+
+    Parameters
+    ----------
+    packing : a relaxed configuration (the fit assumes it is at a minimum).
+    model : contact law.
+    strains : ``(k,)`` total strains, ``k >= 2``, each > -1, of one sign, strictly increasing in
+        magnitude (default: compression by 1e-6 to 1e-5 in 10 steps).
+    method, precon, rtol, maxiter : passed to :func:`~athermal.minimize.minimize`.
+    """
+    strain = _check_strains(strains, lower=-1.0)
+    dim = packing.dim
+    return _quasi_static(
+        packing,
+        model,
+        strain,
+        lambda old, new: isotropic((1.0 + new) / (1.0 + old), dim),
+        lambda contacts, p: pressure(stress(contacts, p.cell)),
+        -1.0 / dim,
+        method,
+        precon,
+        rtol,
+        maxiter,
+    )
+
+
+def _check_strains(strains: ArrayLike, lower: float) -> NDArray[np.float64]:
+    """``strains`` as ``(k,)`` float64: k >= 2, finite, > ``lower``, one sign, increasing size."""
+    values = float_array(strains, "strains", (None,))
+    if values.size < 2:
+        raise InputError(f"strains: need at least 2 for a fit with an error, got {values.size}")
+    if np.any(values <= lower):
+        raise InputError(f"strains: every strain must be > {lower}, got min {values.min()}")
+    if np.any(values == 0.0) or not (np.all(values > 0.0) or np.all(values < 0.0)):
+        raise InputError("strains: must be nonzero and all of one sign")
+    if np.any(np.diff(np.abs(values)) <= 0.0):
+        raise InputError("strains: magnitudes must be strictly increasing")
+    return values
+
+
+def _quasi_static(
+    packing: Packing,
+    model: ContactModel,
+    strains: NDArray[np.float64],
+    increment: Callable[[float, float], NDArray[np.float64]],
+    observe: Callable[[Contacts, Packing], float],
+    scale: float,
+    method: Method,
+    precon: PreconName,
+    rtol: float,
+    maxiter: int,
+) -> FiniteStrain:
+    """Step through ``strains``: deform by ``increment(old, new)``, relax, ``observe``; fit."""
+    contacts = find_contacts(packing, model)
+    first = observe(contacts, packing)
+    first_contacts = int(contacts.i.size)
+    stresses = np.empty(strains.size)
+    iterations = np.empty(strains.size, dtype=np.int64)
+    counts = np.empty(strains.size, dtype=np.int64)
+    converged = True
+    current, old = packing, 0.0
+    for step, new in enumerate(strains):
+        result = minimize(
+            Objective(current.deform(increment(old, float(new))), model),
+            method,
+            precon=precon,
+            rtol=rtol,
+            maxiter=maxiter,
+        )
+        current, old = result.packing, float(new)
+        contacts = find_contacts(current, model)
+        stresses[step] = observe(contacts, current)
+        iterations[step] = result.iterations
+        counts[step] = contacts.i.size
+        converged = converged and result.converged
+    slope, stderr = _fit_slope(
+        np.concatenate([[0.0], strains]), np.concatenate([[first], stresses])
+    )
+    return FiniteStrain(
+        modulus=scale * slope,
+        stderr=abs(scale) * stderr,
+        strains=strains,
+        stresses=stresses,
+        iterations=iterations,
+        contacts=counts,
+        stress_initial=first,
+        contacts_initial=first_contacts,
+        converged=converged,
+        packing=current,
+    )
+
+
+def _fit_slope(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
+    """Least-squares slope of ``y = a + b x`` ``(n,)``, n >= 3, and its standard error."""
+    xc = x - x.mean()
+    sxx = float(xc @ xc)
+    slope = float(xc @ (y - y.mean())) / sxx
+    resid = y - y.mean() - slope * xc
+    return slope, float(np.sqrt(float(resid @ resid) / (x.size - 2) / sxx))

@@ -1,0 +1,98 @@
+"""What the quasi-static protocols share: one minimizer, one objective and one preconditioner
+kept across steps, and the energy and force scales their tolerances are stated in."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..contact import ContactModel
+from ..errors import ConvergenceError, InputError
+from ..minimize import Method, MinimizeResult, minimize, resolve_method
+from ..objective import Objective
+from ..precon import PreconName, SolverName, make_preconditioner
+
+GTOL_FLOOR = 1e-13
+"""Smallest ``max_i |grad_i|`` a protocol asks for, in units of :func:`force_scale`: gradients
+carry round-off of ~1e-16 x the cell size x ``k`` per contact, ~1e-14 of the force scale for
+N = 4096 in the unit square."""
+
+
+@dataclass(frozen=True)
+class Minimizer:
+    """The energy minimizer a protocol relaxes every step with.
+
+    Parameters
+    ----------
+    method : ``lbfgs``, ``cg``, ``fire`` or the seed's ``plbfgs`` / ``pcg``.
+    precon : ``none``, ``exp`` (the seed's, weights parameter ``A``) or ``contact``.
+    A : Exp weight decay (dimensionless, >= 0).
+    solver : ``auto``, ``direct`` or ``amg`` for the preconditioner's linear solves.
+    maxiter : iteration limit of one relaxation; reaching it stops the protocol with a
+        :class:`~athermal.errors.ConvergenceError`.
+    """
+
+    method: Method = "lbfgs"
+    precon: PreconName = "none"
+    A: float = 0.0
+    solver: SolverName = "auto"
+    maxiter: int = 100_000
+
+    def __post_init__(self) -> None:
+        resolve_method(self.method, self.precon)
+        if int(self.maxiter) != self.maxiter or self.maxiter < 1:
+            raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
+
+    @property
+    def label(self) -> str:
+        """``method`` or ``method+precon``, e.g. ``lbfgs+exp``."""
+        base, precon = resolve_method(self.method, self.precon)
+        return base if precon == "none" else f"{base}+{precon}"
+
+
+class Relaxer:
+    """An :class:`Objective` and its preconditioner, reused for every relaxation of a protocol.
+
+    The preconditioner rebuilds itself by its own rule (displacement since its last build), and
+    the objective's Verlet list by the skin, so small steps cost no rebuild.
+    """
+
+    def __init__(self, objective: Objective, minimizer: Minimizer) -> None:
+        self.objective = objective
+        self.minimizer = minimizer
+        self.method, name = resolve_method(minimizer.method, minimizer.precon)
+        self.precon = make_preconditioner(name, objective, A=minimizer.A, solver=minimizer.solver)
+
+    def relax(
+        self, x: NDArray[np.float64], *, gtol: float, etol: float = 0.0, what: str = "step"
+    ) -> MinimizeResult:
+        """Minimize from ``x`` ``(N d,)`` (internal order) to ``max_i |grad_i| <= gtol`` or
+        energy ``<= etol``; raises :class:`ConvergenceError` naming ``what`` otherwise."""
+        self.objective.start_from(x)
+        result = minimize(
+            self.objective,
+            self.method,  # type: ignore[arg-type]
+            precon=self.precon if self.precon is not None else "none",
+            gtol=gtol,
+            etol=etol,
+            maxiter=self.minimizer.maxiter,
+        )
+        if not result.converged:
+            raise ConvergenceError(
+                f"{what}: {self.minimizer.label} did not converge ({result.message}; "
+                f"max|grad| {result.max_gradient:.3e} > gtol {gtol:.3e}); raise maxiter or "
+                "try another method"
+            )
+        return result
+
+
+def force_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
+    """``k_max <r>^(alpha-1)``: the force of an overlap of one mean radius (force units)."""
+    return float(model.kmat.max()) * float(np.mean(radii)) ** (model.alpha - 1.0)
+
+
+def energy_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
+    """``k_max <r>^alpha``: the energy of an overlap of one mean radius (energy units)."""
+    return float(model.kmat.max()) * float(np.mean(radii)) ** model.alpha

@@ -1,0 +1,199 @@
+"""Quasi-static compression above jamming: the seed's scaling-law experiment (section 4.2).
+
+From a jammed packing at ``phi_c`` the radii are grown to ``phi_c + Delta phi`` for log-spaced
+``Delta phi`` (1e-7 ... 1e-1 by default), each state relaxed from the previous one. Every step
+reports pressure, energy, contacts, z with rattlers removed and its distance ``z - z_iso`` from
+the isostatic value of the non-rattlers, and the bulk and shear moduli by exact linear response
+(:func:`~athermal.moduli.linear_response`); :func:`scaling_exponents` fits the power laws
+``p ~ Delta phi^(alpha-1)``, ``G ~ Delta phi^(alpha-3/2)``, ``z - z_iso ~ Delta phi^(1/2)``.
+
+The bulk modulus reported is the seed's ``B = phi dp/dphi`` along this protocol (radii growing in
+a fixed cell). Growing the radii is cell compression followed by a uniform rescaling of lengths,
+under which stresses scale as ``length^(alpha-d)``, so ``B = B_cell + (alpha - d) p / d`` with
+``B_cell = -V dp/dV`` the fixed-radii modulus of the linear response.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._validate import float_array
+from ..contact import ContactModel
+from ..errors import InputError
+from ..fitting import PowerLaw, fit_power_law
+from ..moduli import linear_response
+from ..objective import Objective
+from ..observables import measure
+from ..packing import Packing
+from ._relax import GTOL_FLOOR, Minimizer, Relaxer, force_scale
+
+RTOL = 1e-9
+"""Default tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at a step's start."""
+
+
+def log_spaced(start: float = 1e-7, stop: float = 1e-1, per_decade: int = 4) -> NDArray[np.float64]:
+    """``Delta phi`` values from ``start`` to ``stop``, ``per_decade`` per decade (both ends)."""
+    if not 0.0 < start < stop:
+        raise InputError(f"delta phi range: need 0 < start < stop, got {start}, {stop}")
+    if int(per_decade) != per_decade or per_decade < 1:
+        raise InputError(f"per_decade: must be an integer >= 1, got {per_decade!r}")
+    count = round(float(np.log10(stop / start)) * per_decade) + 1
+    return np.logspace(np.log10(start), np.log10(stop), count)
+
+
+def isostatic_z(n_live: int, dim: int) -> float:
+    """Isostatic coordination of ``n_live`` non-rattlers in a periodic cell:
+    ``2 N_c / N'`` with ``N_c = d (N' - 1) + 1`` contacts (tends to ``2 d``)."""
+    if n_live < 1:
+        return 0.0
+    return 2.0 * (dim * (n_live - 1) + 1) / n_live
+
+
+@dataclass(frozen=True, eq=False)
+class CompressionStep:
+    """One relaxed state of the compression (units: ``k`` and the cell's lengths).
+
+    ``bulk_modulus`` is ``phi dp/dphi`` along the protocol, ``shear_modulus`` the simple-shear
+    ``G``, both by linear response; ``z_excess = z - z_iso`` over the non-rattlers.
+    """
+
+    index: int
+    delta_phi: float
+    phi: float
+    energy: float
+    pressure: float
+    shear_stress: float
+    contacts: int
+    z: float
+    z_excess: float
+    n_rattlers: int
+    bulk_modulus: float
+    shear_modulus: float
+    iterations: int
+    evaluations: int
+    seconds: float
+    packing: Packing
+
+    def row(self) -> dict[str, float | int]:
+        """The step's numbers (no packing), for tables."""
+        return {
+            "index": self.index,
+            "delta_phi": self.delta_phi,
+            "phi": self.phi,
+            "energy": self.energy,
+            "pressure": self.pressure,
+            "shear_stress": self.shear_stress,
+            "contacts": self.contacts,
+            "z": self.z,
+            "z_excess": self.z_excess,
+            "n_rattlers": self.n_rattlers,
+            "bulk_modulus": self.bulk_modulus,
+            "shear_modulus": self.shear_modulus,
+            "iterations": self.iterations,
+            "evaluations": self.evaluations,
+            "seconds": self.seconds,
+        }
+
+
+def compression_steps(
+    jammed: Packing,
+    model: ContactModel,
+    *,
+    phi_c: float | None = None,
+    delta_phis: ArrayLike | None = None,
+    minimizer: Minimizer | None = None,
+    rtol: float = RTOL,
+) -> Iterator[CompressionStep]:
+    """Compress ``jammed`` quasi-statically, yielding each relaxed step.
+
+    Parameters
+    ----------
+    jammed : a jammed packing (e.g. :func:`~athermal.protocols.jam`'s), the first start.
+    model : contact law.
+    phi_c : jamming fraction ``Delta phi`` is measured from; default ``jammed.phi``.
+    delta_phis : increasing ``Delta phi > 0`` ``(k,)``; default :func:`log_spaced`.
+    minimizer : how each step is relaxed (default L-BFGS).
+    rtol : tolerance relative to the mean contact force at each step's start, floored at
+        ``GTOL_FLOOR`` x ``k <r>^(alpha-1)`` (round-off).
+    """
+    targets = float_array(log_spaced() if delta_phis is None else delta_phis, "delta_phis", (None,))
+    if targets.size == 0 or np.any(targets <= 0.0) or np.any(np.diff(targets) <= 0.0):
+        raise InputError("delta_phis: need increasing values > 0")
+    phi_ref = jammed.phi if phi_c is None else float(phi_c)
+    if not 0.0 < phi_ref < 1.0 or phi_ref > jammed.phi + 1e-12:
+        raise InputError(f"phi_c: must lie in (0, phi of the packing = {jammed.phi:.9g}]")
+    if phi_ref + targets[-1] >= 1.0:
+        raise InputError(f"delta_phis: phi_c + {targets[-1]:g} reaches 1")
+    objective = Objective(jammed, model)
+    relaxer = Relaxer(objective, minimizer or Minimizer())
+    base, phi0 = jammed.radii, jammed.phi
+    x = objective.x0
+    for index, dphi in enumerate(targets):
+        t0 = time.perf_counter()
+        phi = phi_ref + float(dphi)
+        if phi < phi0 - 1e-12:
+            raise InputError(
+                f"delta_phis: phi_c + {dphi:g} is below the jammed packing's phi {phi0:.9g}"
+            )
+        radii = base * (phi / phi0) ** (1.0 / jammed.dim)
+        objective.set_radii(radii)
+        objective.start_from(x)
+        f0 = objective.mean_contact_force(x)
+        gtol = max(rtol * f0, GTOL_FLOOR * force_scale(radii, model))
+        result = relaxer.relax(x, gtol=gtol, what=f"compression step {index} (delta phi {dphi:g})")
+        x = result.x
+        obs = measure(result.packing, model)
+        moduli = linear_response(result.packing, model)
+        n_live = obs.n - obs.n_rattlers
+        yield CompressionStep(
+            index=index,
+            delta_phi=float(dphi),
+            phi=phi,
+            energy=obs.energy,
+            pressure=obs.pressure,
+            shear_stress=obs.shear_stress,
+            contacts=obs.contacts,
+            z=obs.z,
+            z_excess=obs.z - isostatic_z(n_live, jammed.dim) if n_live else 0.0,
+            n_rattlers=obs.n_rattlers,
+            bulk_modulus=moduli.bulk + (model.alpha - jammed.dim) * obs.pressure / jammed.dim,
+            shear_modulus=moduli.shear,
+            iterations=result.iterations,
+            evaluations=result.evaluations,
+            seconds=time.perf_counter() - t0,
+            packing=result.packing,
+        )
+
+
+@dataclass(frozen=True)
+class ScalingExponents:
+    """Power laws fitted to a compression: ``p``, ``G`` and ``z - z_iso`` vs ``Delta phi``.
+    ``None`` where fewer than 3 usable points fell in the window."""
+
+    pressure: PowerLaw | None
+    shear_modulus: PowerLaw | None
+    z_excess: PowerLaw | None
+
+
+def scaling_exponents(
+    steps: Sequence[CompressionStep], *, lower: float = 0.0, upper: float = np.inf
+) -> ScalingExponents:
+    """Fit the three power laws over the steps with ``lower <= Delta phi <= upper``."""
+    dphi = np.array([s.delta_phi for s in steps])
+
+    def fit(values: list[float]) -> PowerLaw | None:
+        try:
+            return fit_power_law(dphi, values, lower=lower, upper=upper)
+        except InputError:
+            return None
+
+    return ScalingExponents(
+        pressure=fit([s.pressure for s in steps]),
+        shear_modulus=fit([s.shear_modulus for s in steps]),
+        z_excess=fit([s.z_excess for s in steps]),
+    )

@@ -1,0 +1,158 @@
+"""Quasi-static shear: simple or pure shear in small affine steps, each relaxed (seed 4.3).
+
+Each step maps positions and cell by the increment of the deformation (simple shear
+``x += gamma y``, or the seed's area-preserving pure shear ``D = diag(1 + gamma, 1/(1 + gamma))``,
+stretching x and compressing y) and relaxes the packing. A step reports the stress and fabric
+tensors with their isotropic and deviatoric parts (the seed's eigenvalue definitions), the
+driven shear stress ``tau`` (the stress work-conjugate to the strain: ``-sigma_01`` for simple
+shear, ``(sigma_11 - sigma_00) / 2`` for pure shear, positive when loaded) and whether ``tau``
+dropped: a plastic event.
+
+The cell changes at every step, so each relaxation starts from a fresh objective and
+preconditioner: a step depends on its start configuration alone.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._validate import choice, positive_scalar
+from ..cell import pure_shear, simple_shear
+from ..contact import ContactModel
+from ..errors import InputError
+from ..objective import Objective
+from ..observables import Observables, measure
+from ..packing import Packing
+from ._relax import GTOL_FLOOR, Minimizer, Relaxer, force_scale
+from .compress import RTOL
+
+ShearMode = Literal["simple", "pure"]
+SHEAR_MODES: tuple[str, ...] = ("simple", "pure")
+DROP_TOL = 1e-6
+"""A plastic event is a drop of ``tau`` by more than ``DROP_TOL`` x the pressure."""
+
+
+def deformation(mode: ShearMode, gamma: float, dim: int) -> NDArray[np.float64]:
+    """The total deformation ``D(gamma)`` ``(d, d)`` of ``mode`` at strain ``gamma``."""
+    return simple_shear(gamma, dim) if mode == "simple" else pure_shear(gamma, dim)
+
+
+def driven_stress(mode: ShearMode, sigma: NDArray[np.float64]) -> float:
+    """``tau``: ``-sigma_01`` (simple) or ``(sigma_11 - sigma_00) / 2`` (pure shear)."""
+    if mode == "simple":
+        return float(-sigma[0, 1])
+    return 0.5 * float(sigma[1, 1] - sigma[0, 0])
+
+
+@dataclass(frozen=True, eq=False)
+class ShearStep:
+    """One relaxed state of the shear (step 0: the start, relaxed, at zero strain).
+
+    ``observables`` holds stress, fabric, their iso/dev parts, pressure, contacts and z;
+    ``tau`` the driven shear stress; ``plastic`` is True when ``tau`` dropped since the
+    previous step by more than ``DROP_TOL`` x the pressure (``stress_drop`` > 0 is the drop).
+    """
+
+    index: int
+    strain: float
+    tau: float
+    stress_drop: float
+    plastic: bool
+    observables: Observables
+    iterations: int
+    evaluations: int
+    seconds: float
+    packing: Packing
+
+    def row(self) -> dict[str, float | int]:
+        """The step's numbers (no packing), for tables."""
+        obs = self.observables
+        return {
+            "index": self.index,
+            "strain": self.strain,
+            "tau": self.tau,
+            "stress_drop": self.stress_drop,
+            "plastic": int(self.plastic),
+            "energy": obs.energy,
+            "pressure": obs.pressure,
+            "stress_iso": obs.stress_iso,
+            "stress_dev": obs.stress_dev,
+            "fabric_iso": obs.fabric_iso,
+            "fabric_dev": obs.fabric_dev,
+            "contacts": obs.contacts,
+            "z": obs.z,
+            "n_rattlers": obs.n_rattlers,
+            "iterations": self.iterations,
+            "evaluations": self.evaluations,
+            "seconds": self.seconds,
+        }
+
+
+def shear_steps(
+    start: Packing,
+    model: ContactModel,
+    *,
+    mode: ShearMode = "pure",
+    strain: float = 0.02,
+    step: float = 1e-4,
+    minimizer: Minimizer | None = None,
+    rtol: float = RTOL,
+) -> Iterator[ShearStep]:
+    """Shear ``start`` quasi-statically to ``strain`` in increments ``step``, yielding steps.
+
+    Parameters
+    ----------
+    start : a packing, relaxed first (step 0); usually jammed or compressed above jamming.
+    model : contact law.
+    mode : ``"pure"`` (the seed's shear test) or ``"simple"``.
+    strain, step : final strain and increment (dimensionless, > 0); the last increment is
+        shortened to end exactly at ``strain``.
+    minimizer : how each step is relaxed (default L-BFGS).
+    rtol : tolerance relative to the mean contact force at each step's start (floored at
+        round-off, see :data:`~athermal.protocols._relax.GTOL_FLOOR`).
+    """
+    choice(mode, "mode", SHEAR_MODES)
+    strain = positive_scalar(strain, "strain")
+    step = positive_scalar(step, "step")
+    if step > strain:
+        raise InputError(f"step: the increment {step:g} exceeds the final strain {strain:g}")
+    n_steps = int(np.ceil(strain / step - 1e-9))
+    strains = np.minimum(np.arange(n_steps + 1) * step, strain)
+    config = minimizer or Minimizer()
+    packing, tau_prev = start, np.nan
+    gamma_prev = 0.0
+    for index, gamma in enumerate(strains):
+        t0 = time.perf_counter()
+        if index:
+            total_new = deformation(mode, float(gamma), start.dim)
+            total_old = deformation(mode, gamma_prev, start.dim)
+            packing = packing.deform(total_new @ np.linalg.inv(total_old))
+        objective = Objective(packing, model)
+        f0 = objective.mean_contact_force(objective.x0)
+        gtol = max(rtol * f0, GTOL_FLOOR * force_scale(packing.radii, model))
+        result = Relaxer(objective, config).relax(
+            objective.x0, gtol=gtol, what=f"shear step {index} (strain {gamma:g})"
+        )
+        packing = result.packing
+        obs = measure(packing, model)
+        tau = driven_stress(mode, obs.stress)
+        drop = tau_prev - tau if index else 0.0
+        yield ShearStep(
+            index=index,
+            strain=float(gamma),
+            tau=tau,
+            stress_drop=drop,
+            plastic=bool(index and drop > DROP_TOL * abs(obs.pressure)),
+            observables=obs,
+            iterations=result.iterations,
+            evaluations=result.evaluations,
+            seconds=time.perf_counter() - t0,
+            packing=packing,
+        )
+        tau_prev, gamma_prev = tau, float(gamma)

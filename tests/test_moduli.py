@@ -1,0 +1,338 @@
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from athermal import moduli
+from athermal.cell import Cell, pure_shear, simple_shear
+from athermal.contact import (
+    ContactModel,
+    Contacts,
+    find_contacts,
+    gradient,
+    strain_derivative,
+    total_energy,
+)
+from athermal.errors import InputError
+from athermal.minimize import minimize
+from athermal.moduli import (
+    _cholesky_solve,
+    _solve,
+    finite_strain_bulk,
+    finite_strain_shear,
+    linear_response,
+    relaxed_strain_curvature,
+    strain_terms,
+)
+from athermal.objective import Objective
+from athermal.observables import rattlers
+from athermal.packing import Packing, random_packing
+
+
+def assert_second_order(err_h, err_h2, scale, tol=1e-6):
+    """Central differences: small error that shrinks ~4x when the step halves (or round-off)."""
+    assert err_h2 <= tol * scale, (err_h, err_h2, scale)
+    assert err_h2 <= err_h / 3.0 or err_h <= 1e-9 * scale, (err_h, err_h2)
+
+
+def deformed(contacts: Contacts, dmat: np.ndarray) -> Contacts:
+    """The same contacts after ``x -> D x`` (branch vectors deformed, rest lengths kept)."""
+    branch = contacts.branch @ dmat.T
+    dist = np.linalg.norm(branch, axis=1)
+    overlap = contacts.overlap + contacts.distance - dist
+    assert np.all(overlap > 0.0)  # no contact opens within the step
+    return Contacts(
+        contacts.i, contacts.j, branch, dist, overlap, contacts.stiffness, contacts.alpha
+    )
+
+
+def overlapping_more_than(contacts: Contacts, fraction: float) -> Contacts:
+    """The contacts with ``overlap > fraction * distance`` (none opens under strains << fraction;
+    the strain terms are sums over contacts, so any subset checks them)."""
+    keep = contacts.overlap > fraction * contacts.distance
+    assert keep.sum() > 0.5 * keep.size
+    return Contacts(
+        contacts.i[keep],
+        contacts.j[keep],
+        contacts.branch[keep],
+        contacts.distance[keep],
+        contacts.overlap[keep],
+        contacts.stiffness[keep],
+        contacts.alpha,
+    )
+
+
+def quadratic_paths(dim: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """``(D1, D2)`` of paths ``D(g) = I + g D1 + g^2 D2 / 2``: simple shear, isotropic, pure
+    shear to second order (``diag(1 + g, 1 / (1 + g))``) and a random one."""
+    rng = np.random.default_rng(7)
+    zero = np.zeros((dim, dim))
+    return {
+        "simple shear": (simple_shear(1.0, dim) - np.eye(dim), zero),
+        "isotropic": (np.eye(dim), zero),
+        "pure shear": (np.diag([1.0, -1.0, 0.0][:dim]), np.diag([0.0, 2.0, 0.0][:dim])),
+        "general": (rng.normal(size=(dim, dim)), rng.normal(size=(dim, dim))),
+    }
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("alpha", [2.0, 2.5])
+@pytest.mark.parametrize("path", ["simple shear", "isotropic", "pure shear", "general"])
+def test_strain_terms_against_central_differences(dim, alpha, path):
+    """Along ``D(g)`` at fixed contacts: ``Xi`` against the difference of the gradient, and
+    ``d2E/dg2`` against the difference of ``dE/dg = sum_ab S_ab (D'(g) D(g)^-1)_ab``, with ``S``
+    the strain derivative (tested against the energy in test_contact), itself checked here
+    against the difference of the energy."""
+    p = random_packing(40 if dim == 2 else 30, 0.9 if dim == 2 else 0.7, dim=dim, seed=3)
+    model = ContactModel(alpha, stiffness=1.3)
+    c = overlapping_more_than(find_contacts(p, model), 0.02)
+    d1, d2 = quadratic_paths(dim)[path]
+    curvature, xi = strain_terms(c, p.n, d1, d2)
+
+    def at(g):
+        return deformed(c, np.eye(dim) + g * d1 + 0.5 * g**2 * d2)
+
+    def slope(g):
+        rate = (d1 + g * d2) @ np.linalg.inv(np.eye(dim) + g * d1 + 0.5 * g**2 * d2)
+        return float(np.sum(strain_derivative(at(g)) * rate))
+
+    h = 1e-4
+    assert (total_energy(at(h)) - total_energy(at(-h))) / (2 * h) == pytest.approx(
+        slope(0.0), rel=1e-6
+    )
+    curv_errs, xi_errs = [], []
+    for h in (1e-4, 5e-5):
+        curv_errs.append(abs((slope(h) - slope(-h)) / (2.0 * h) - curvature))
+        fd_xi = (gradient(at(h), p.n) - gradient(at(-h), p.n)) / (2.0 * h)
+        xi_errs.append(np.abs(fd_xi - xi).max())
+    assert_second_order(*curv_errs, scale=abs(curvature))
+    assert_second_order(*xi_errs, scale=np.abs(xi).max())
+
+
+def test_strain_terms_follow_the_deformed_packing_with_its_cell():
+    """The same through ``Packing.deform`` (cell and periodic images deformed together) along the
+    cell module's pure shear ``D = diag(1 + g, 1 / (1 + g))``, whose ``D'' = diag(0, 2)``. The
+    curvature is the difference of ``dE/dg = sum_ab S_ab (D' D^-1)_ab = (S_00 - S_11) / (1 + g)``,
+    ``S`` the strain derivative of the deformed packing."""
+    p = random_packing(60, 0.9, seed=4).deform(simple_shear(0.2))
+    model = ContactModel(2.5)
+    c = find_contacts(p, model)
+    curvature, xi = strain_terms(c, p.n, np.diag([1.0, -1.0]), np.diag([0.0, 2.0]))
+
+    def slope(g):
+        s = strain_derivative(find_contacts(p.deform(pure_shear(g)), model))
+        return (s[0, 0] - s[1, 1]) / (1.0 + g)
+
+    curv_errs, xi_errs = [], []
+    for h in (2e-5, 1e-5):
+        plus, minus = (find_contacts(p.deform(pure_shear(s)), model) for s in (h, -h))
+        assert plus.i.size == minus.i.size == c.i.size
+        curv_errs.append(abs((slope(h) - slope(-h)) / (2.0 * h) - curvature))
+        fd_xi = (gradient(plus, p.n) - gradient(minus, p.n)) / (2.0 * h)
+        xi_errs.append(np.abs(fd_xi - xi).max())
+    # the pure-shear curvature nearly cancels here (1.9e-5 against terms ~1e-3)
+    assert_second_order(*curv_errs, scale=abs(curvature), tol=1e-3)
+    assert_second_order(*xi_errs, scale=np.abs(xi).max())
+
+
+def relaxed(n, phi, dim, alpha, seed=1):
+    model = ContactModel(alpha)
+    result = minimize(Objective(random_packing(n, phi, dim=dim, seed=seed), model), rtol=1e-12)
+    assert result.converged
+    return result.packing, model
+
+
+@pytest.mark.parametrize(
+    ("n", "phi", "dim", "alpha"),
+    [(128, 0.87, 2, 2.0), (128, 0.87, 2, 2.5), (64, 0.68, 3, 2.0)],
+)
+def test_linear_response_agrees_with_finite_strain(n, phi, dim, alpha):
+    """Measured relative differences (finite strain 1e-6..1e-5 in 10 steps, rtol 1e-9):
+    2D alpha=2: G 8e-5, B 3e-5; 2D alpha=2.5: G 3e-4, B 2e-4; 3D alpha=2: G 1e-5, B 4e-5."""
+    p, model = relaxed(n, phi, dim, alpha)
+    lr = linear_response(p, model)
+    assert lr.solver == "cholmod" and lr.residual < 1e-10
+    assert 0.0 < lr.shear < lr.shear_affine
+    assert 0.0 < lr.bulk < lr.bulk_affine
+    for fs, exact in (
+        (finite_strain_shear(p, model), lr.shear),
+        (finite_strain_bulk(p, model), lr.bulk),
+    ):
+        assert fs.converged
+        np.testing.assert_array_equal(fs.contacts, fs.contacts_initial)  # same contact network
+        assert fs.iterations.shape == (10,) and np.all(fs.iterations > 0)
+        assert fs.modulus == pytest.approx(exact, rel=2e-3)
+        assert fs.stderr < 1e-3 * abs(fs.modulus)
+    # the general entry point gives the same shear modulus
+    _, rel = relaxed_strain_curvature(p, model, simple_shear(1.0, dim) - np.eye(dim))
+    assert rel / p.cell.volume == pytest.approx(lr.shear, rel=1e-12)
+
+
+def test_pure_shear_curvature_against_relaxed_energy_differences():
+    """Pure shear has ``D'' != 0``: the relaxed curvature against the second difference of the
+    relaxed energy of the deformed packing."""
+    p, model = relaxed(128, 0.87, 2, 2.0)
+    d1, d2 = np.diag([1.0, -1.0]), np.diag([0.0, 2.0])
+    affine, rel = relaxed_strain_curvature(p, model, d1, d2)
+    h = 1e-5
+
+    def energy(s):
+        result = minimize(Objective(p.deform(pure_shear(s)), model), gtol=1e-15)
+        return result.energy
+
+    fd = (energy(h) - 2.0 * total_energy(find_contacts(p, model)) + energy(-h)) / h**2
+    assert fd == pytest.approx(rel, rel=1e-6)  # measured 4e-8
+    assert rel < 0.9 * affine  # the non-affine relaxation matters
+
+
+def triangular_crystal(a, radius, nx=6, ny=6):
+    rows = np.arange(ny)
+    x = np.arange(nx)[None, :] * a + 0.5 * a * (rows[:, None] % 2)
+    y = np.repeat(rows[:, None] * a * np.sqrt(3.0) / 2.0, nx, axis=1)
+    cell = Cell.box([nx * a, ny * a * np.sqrt(3.0) / 2.0])
+    return Packing(np.column_stack([x.ravel(), y.ravel()]), np.full(nx * ny, radius), cell)
+
+
+def fcc_crystal(a, radius, m=3):
+    c = a * np.sqrt(2.0)
+    basis = np.array([[0, 0, 0], [0.5, 0.5, 0], [0.5, 0, 0.5], [0, 0.5, 0.5]])
+    cells = np.array(np.meshgrid(*[np.arange(m)] * 3, indexing="ij")).reshape(3, -1).T
+    x = (cells[:, None, :] + basis[None, :, :]).reshape(-1, 3) * c
+    return Packing(x, np.full(len(x), radius), Cell.box([m * c] * 3))
+
+
+@pytest.mark.parametrize("alpha", [2.0, 2.5])
+@pytest.mark.parametrize("dim", [2, 3])
+def test_crystal_moduli_by_hand(alpha, dim):
+    """Equal spheres at nearest distance ``a``, overlap ``delta``; ``phi' = -k delta^(alpha-1)``,
+    ``phi'' = k (alpha-1) delta^(alpha-2)``. Every particle is a centre of inversion, so ``Xi``
+    vanishes (neighbours at ``+r`` and ``-r`` cancel) and the moduli are the affine ones.
+    Simple shear ``D1 r = (a ny, 0, ..)``: each bond gives ``phi'' (n.D1 r)^2 + (phi'/a)
+    (|D1 r|^2 - (n.D1 r)^2) = a^2 [phi'' nx^2 ny^2 + (phi'/a) ny^2 (1 - nx^2)]``; compression
+    ``D1 = I`` gives ``a^2 phi''`` per bond, and ``p = -(1 / (d V)) sum_bonds a phi'``.
+
+    Triangular (2D): per particle 3 bonds at 0, 60, 120 degrees, area ``V = sqrt(3)/2 a^2``;
+    ``sum nx^2 ny^2 = 3/8``, ``sum ny^2 (1 - nx^2) = 9/8``, so
+    ``G = a^2 (3/8 phi'' + 9/8 phi'/a) / V``; ``E''_bulk = 3 a^2 phi''``,
+    ``p = -sqrt(3) phi' / a`` and ``B = E''/(4 V) + p/2 = sqrt(3)/2 (phi'' - phi'/a)``. For
+    alpha = 2 this is ``-V dp/dV`` of ``p(a) = sqrt(3) k (2R - a) / a``, ``V ~ a^2``.
+
+    FCC (3D): per particle 6 bonds along (1,+-1,0), (1,0,+-1), (0,1,+-1) over sqrt(2), volume
+    ``V = a^3/sqrt(2)``; ``sum nx^2 ny^2 = 1/2``, ``sum ny^2 (1 - nx^2) = 3/2``, so
+    ``G = a^2 (phi''/2 + 3/2 phi'/a) / V``; ``E''_bulk = 6 a^2 phi''``,
+    ``p = -2 sqrt(2) phi' / a^2`` and ``B = E''/(9 V) + 2p/3 =
+    (2 sqrt(2)/3) (phi''/a - 2 phi'/a^2)``. For alpha = 2 this is ``-V dp/dV`` of
+    ``p(a) = 2 sqrt(2) k (2R - a) / a^2``, ``V ~ a^3``.
+    """
+    a, delta, k = 1.0, 0.06, 1.3
+    p = triangular_crystal(a, (a + delta) / 2) if dim == 2 else fcc_crystal(a, (a + delta) / 2)
+    model = ContactModel(alpha, stiffness=k)
+    lr = linear_response(p, model)
+    d1 = -k * delta ** (alpha - 1.0)
+    d2 = k * (alpha - 1.0) * delta ** (alpha - 2.0)
+    if dim == 2:
+        shear = a**2 * (3 / 8 * d2 + 9 / 8 * d1 / a) / (np.sqrt(3.0) / 2 * a**2)
+        bulk = np.sqrt(3.0) / 2 * (d2 - d1 / a)
+        press = -np.sqrt(3.0) * d1 / a
+    else:
+        shear = a**2 * (d2 / 2 + 1.5 * d1 / a) / (a**3 / np.sqrt(2.0))
+        bulk = 2 * np.sqrt(2.0) / 3 * (d2 / a - 2 * d1 / a**2)
+        press = -2 * np.sqrt(2.0) * d1 / a**2
+    assert lr.n_rattlers == 0
+    _, xi = strain_terms(find_contacts(p, model), p.n, np.eye(dim), None)
+    assert np.abs(xi).max() < 1e-14 * abs(d2) * a  # neighbours at +r and -r cancel
+    assert lr.pressure == pytest.approx(press, rel=1e-12)
+    assert lr.shear == pytest.approx(shear, rel=1e-12)
+    assert lr.bulk == pytest.approx(bulk, rel=1e-12)
+    assert lr.shear_affine == pytest.approx(shear, rel=1e-12)
+    assert lr.bulk_affine == pytest.approx(bulk, rel=1e-12)
+
+
+def test_unjammed_packing_has_zero_moduli():
+    p = random_packing(50, 0.3, seed=2)
+    lr = linear_response(p, ContactModel())
+    assert lr.n_rattlers == p.n and lr.solver == "none"
+    assert lr.bulk == lr.shear == lr.pressure == 0.0
+
+
+def test_rattlers_are_left_out():
+    """A relaxed packing with rattlers (one pushed into a neighbour so that it has a loaded
+    contact, still fewer than d + 1) has the moduli of the packing without them."""
+    p, model = relaxed(256, 0.86, 2, 2.0)
+    lr = linear_response(p, model)
+    assert lr.n_rattlers >= 2
+    c = find_contacts(p, model)
+    rattler = rattlers(c, p.n, p.dim)
+    r = int(np.flatnonzero(rattler)[0])
+    sep = p.cell.minimum_image(p.positions[r] - p.positions)
+    dist = np.linalg.norm(sep, axis=1)
+    gap = dist - p.radii[r] - p.radii
+    gap[r] = np.inf
+    q = int(np.argmin(gap))
+    moved = p.positions.copy()
+    moved[r] -= sep[q] / dist[q] * (gap[q] + 0.01 * p.radii[r])
+    pushed = p.with_positions(moved)
+    cp = find_contacts(pushed, model)
+    assert 1 <= np.sum((cp.i == r) | (cp.j == r)) <= 2
+    assert np.array_equal(rattlers(cp, p.n, p.dim), rattler)
+    lr_pushed = linear_response(pushed, model)
+    keep = ~rattler
+    lr_removed = linear_response(Packing(p.positions[keep], p.radii[keep], p.cell), model)
+    assert lr_removed.n_rattlers == 0
+    assert lr_pushed.n_rattlers == lr.n_rattlers
+    for other in (lr_pushed, lr_removed):
+        assert other.solver == "cholmod"
+        for name in ("shear", "bulk", "shear_affine", "bulk_affine", "pressure"):
+            assert getattr(other, name) == pytest.approx(getattr(lr, name), rel=1e-10)
+
+
+def test_a_poor_solve_is_reported(monkeypatch):
+    p, model = relaxed(32, 0.88, 2, 2.0)
+    d1 = simple_shear(1.0) - np.eye(2)
+    monkeypatch.setattr(moduli, "RESIDUAL_WARN", 0.0)  # any residual counts as poor
+    with pytest.warns(RuntimeWarning, match="residual"):
+        relaxed_strain_curvature(p, model, d1)
+
+
+def test_solver_falls_back_for_singular_and_indefinite_matrices():
+    """CHOLMOD for an SPD matrix; MINRES when the matrix is singular (right-hand side in its
+    range) or indefinite. ``b^T y`` is ``b^T H^+ b`` in every case."""
+    n = 12
+    ring = sp.diags([2.0 * np.ones(n), -np.ones(n - 1), -np.ones(n - 1)], [0, 1, -1]).tolil()
+    ring[0, n - 1] = ring[n - 1, 0] = -1.0
+    ring = ring.tocsr()  # singular: the uniform vector
+    rng = np.random.default_rng(0)
+    b = rng.normal(size=(n, 2))
+    b -= b.mean(axis=0)
+    indefinite = ring + sp.diags(np.linspace(-0.5, 0.7, n))
+    spd = ring + 0.1 * sp.eye(n)
+    # cholespy reads the lower triangle only: given the upper one too (here doubled, so that
+    # reading it would factor another matrix), the answer must be that of the lower one
+    np.testing.assert_allclose(
+        _cholesky_solve(spd + sp.triu(spd, 1), b), np.linalg.solve(spd.toarray(), b), rtol=1e-12
+    )
+    assert _cholesky_solve(indefinite, b) is None
+    for matrix, solvers in (
+        (spd, {"cholmod"}),
+        (ring, {"cholmod", "minres"}),
+        (indefinite, {"minres"}),
+    ):
+        dense = matrix.toarray()
+        y, residual, solver = _solve(matrix.tocsr(), b)
+        assert residual < 1e-10 and solver in solvers
+        expected = np.einsum("km,km->m", b, np.linalg.pinv(dense) @ b)
+        np.testing.assert_allclose(np.einsum("km,km->m", b, y), expected, rtol=1e-9)
+
+
+def test_bad_input_is_rejected():
+    p, model = relaxed(32, 0.88, 2, 2.0)
+    for bad in ([], [1e-6], [1e-6, np.nan], [2e-6, 1e-6], [1e-6, -2e-6], [0.0, 1e-6]):
+        with pytest.raises(InputError, match="strains"):
+            finite_strain_shear(p, model, bad)
+    with pytest.raises(InputError, match="strains"):
+        finite_strain_bulk(p, model, [-0.5, -1.5])
+    with pytest.raises(InputError, match="d1"):
+        relaxed_strain_curvature(p, model, np.eye(3))
+    with pytest.raises(InputError, match="d2"):
+        relaxed_strain_curvature(p, model, np.eye(2), [1.0, 0.0])
+    with pytest.raises(InputError, match="method"):
+        finite_strain_shear(p, model, method="newton")  # type: ignore[arg-type]
