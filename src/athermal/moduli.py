@@ -1,4 +1,4 @@
-"""Bulk and shear moduli of a packing at an energy minimum: exact linear response and finite strain.
+"""Bulk and shear moduli of a packing at an energy minimum by exact linear response.
 
 Linear response. Deform positions and cell along an affine path ``x -> D(gamma) x`` with
 ``D(0) = I``, ``D1 = D'(0)``, ``D2 = D''(0)``, and let the particles relax by non-affine
@@ -21,8 +21,8 @@ simple shear ``D1 = e0 e1^T`` gives ``G = E''_rel / V = -d sigma_01 / d gamma``;
 compression at fixed radii ``D = (1 + e) I`` gives ``p(e) = -(1+e)^(1-d) dE/de / (d V0)`` and so
 ``B = -V dp/dV = E''_rel / (d^2 V) + (d - 1) p / d``.
 
-Finite strain (the seed's quasi-static way): small strain increments, each followed by an energy
-minimization, and a least-squares slope of the stress against the strain.
+The seed's finite-strain measurement (small strain steps, each relaxed) lives with the protocols
+(:mod:`athermal.protocols.finite_strain`).
 
 Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x length^(alpha-d).
 """
@@ -30,7 +30,6 @@ Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x le
 from __future__ import annotations
 
 import warnings
-from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -40,23 +39,16 @@ import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
 from ._validate import float_array
-from .cell import isotropic, simple_shear
+from .cell import simple_shear
 from .contact import ContactModel, Contacts, find_contacts, hessian
-from .errors import InputError
-from .minimize import Method, minimize
-from .objective import Objective
-from .observables import pressure, rattlers, shear_stress, stress
+from .observables import pressure, rattlers, stress
 from .packing import Packing
-from .precon import PreconName
 
 RESIDUAL_TOL = 1e-8
 """Relative residual ``|H y - Xi| / |Xi|`` above which the direct solve is refined by MINRES."""
 RESIDUAL_WARN = 1e-6
 """Relative residual above which :func:`relaxed_strain_curvature` warns (``Xi`` not in the range
 of ``H``: a floppy mode couples to the strain and the relaxed curvature is ill-defined)."""
-DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
-"""The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
-DEFAULT_STRAINS.setflags(write=False)
 
 SolverUsed = Literal["none", "cholmod", "minres"]
 """How ``H y = Xi`` was solved: not at all (fewer than two non-rattlers), by CHOLMOD, or by the
@@ -88,38 +80,6 @@ class LinearResponse:
     n_rattlers: int
     residual: float
     solver: SolverUsed
-
-
-@dataclass(frozen=True, eq=False)
-class FiniteStrain:
-    """A modulus fitted to quasi-static finite-strain steps.
-
-    Attributes
-    ----------
-    modulus : ``G = d(-sigma_01)/d gamma`` (shear) or ``B = -(1/d) dp/de`` (bulk), the
-        least-squares slope through the start and every step (scaled by ``-1/d`` for bulk).
-    stderr : standard error of ``modulus`` from the fit residuals.
-    strains : ``(k,)`` total strain after each step.
-    stresses : ``(k,)`` shear stress ``-sigma_01`` (shear) or pressure (bulk) after each
-        relaxation.
-    iterations : ``(k,)`` minimizer iterations of each relaxation (the seed's iteration count).
-    contacts : ``(k,)`` number of contacts after each relaxation.
-    stress_initial : the stress of the input packing (strain 0).
-    contacts_initial : number of contacts of the input packing.
-    converged : True when every relaxation met its tolerance.
-    packing : the relaxed configuration at the last strain.
-    """
-
-    modulus: float
-    stderr: float
-    strains: NDArray[np.float64]
-    stresses: NDArray[np.float64]
-    iterations: NDArray[np.int64]
-    contacts: NDArray[np.int64]
-    stress_initial: float
-    contacts_initial: int
-    converged: bool
-    packing: Packing
 
 
 def strain_terms(
@@ -327,161 +287,3 @@ def _relative_residual(
     res = np.linalg.norm(h @ y - b, axis=0)
     nonzero = norms > 0.0
     return float(np.max(res[nonzero] / norms[nonzero], initial=0.0))
-
-
-def finite_strain_shear(
-    packing: Packing,
-    model: ContactModel,
-    strains: ArrayLike = DEFAULT_STRAINS,
-    *,
-    method: Method = "lbfgs",
-    precon: PreconName = "none",
-    rtol: float = 1e-9,
-    maxiter: int = 100_000,
-) -> FiniteStrain:
-    """Shear modulus ``G = d(-sigma_01)/d gamma`` from quasi-static simple shear ``x += gamma y``.
-
-    Each step deforms the previous relaxed configuration by the simple shear increment that
-    reaches the next strain (``Packing.deform``) and relaxes it with :func:`minimize` on a fresh
-    :class:`Objective`; ``G`` is the least-squares slope through the input (``gamma = 0``) and
-    every step.
-
-    Parameters
-    ----------
-    packing : a relaxed configuration (the fit assumes it is at a minimum).
-    model : contact law.
-    strains : ``(k,)`` total shear strains, ``k >= 2``, of one sign, strictly increasing in
-        magnitude (default: the seed's 1e-6 to 1e-5 in 10 steps).
-    method, precon, rtol, maxiter : passed to :func:`~athermal.minimize.minimize` (``rtol`` is
-        relative to the mean contact force at the start of each relaxation).
-    """
-    gammas = _check_strains(strains, lower=-np.inf)
-    dim = packing.dim
-    return _quasi_static(
-        packing,
-        model,
-        gammas,
-        lambda old, new: simple_shear(new - old, dim),
-        lambda contacts, p: shear_stress(stress(contacts, p.cell)),
-        1.0,
-        method,
-        precon,
-        rtol,
-        maxiter,
-    )
-
-
-def finite_strain_bulk(
-    packing: Packing,
-    model: ContactModel,
-    strains: ArrayLike = -DEFAULT_STRAINS,
-    *,
-    method: Method = "lbfgs",
-    precon: PreconName = "none",
-    rtol: float = 1e-9,
-    maxiter: int = 100_000,
-) -> FiniteStrain:
-    """Bulk modulus ``B = -(1/d) dp/de`` from quasi-static isotropic strain at fixed radii.
-
-    Strain ``e`` is the cell map ``D = (1 + e) I`` (``e < 0`` compresses); each step applies
-    ``(1 + e_new) / (1 + e_old) I`` to the previous relaxed configuration and relaxes it. ``B`` is
-    ``-1/d`` times the least-squares slope of the pressure through the input (``e = 0``) and every
-    step; it equals ``-V dp/dV`` to first order in the strain.
-
-    Parameters
-    ----------
-    packing : a relaxed configuration (the fit assumes it is at a minimum).
-    model : contact law.
-    strains : ``(k,)`` total strains, ``k >= 2``, each > -1, of one sign, strictly increasing in
-        magnitude (default: compression by 1e-6 to 1e-5 in 10 steps).
-    method, precon, rtol, maxiter : passed to :func:`~athermal.minimize.minimize`.
-    """
-    strain = _check_strains(strains, lower=-1.0)
-    dim = packing.dim
-    return _quasi_static(
-        packing,
-        model,
-        strain,
-        lambda old, new: isotropic((1.0 + new) / (1.0 + old), dim),
-        lambda contacts, p: pressure(stress(contacts, p.cell)),
-        -1.0 / dim,
-        method,
-        precon,
-        rtol,
-        maxiter,
-    )
-
-
-def _check_strains(strains: ArrayLike, lower: float) -> NDArray[np.float64]:
-    """``strains`` as ``(k,)`` float64: k >= 2, finite, > ``lower``, one sign, increasing size."""
-    values = float_array(strains, "strains", (None,))
-    if values.size < 2:
-        raise InputError(f"strains: need at least 2 for a fit with an error, got {values.size}")
-    if np.any(values <= lower):
-        raise InputError(f"strains: every strain must be > {lower}, got min {values.min()}")
-    if np.any(values == 0.0) or not (np.all(values > 0.0) or np.all(values < 0.0)):
-        raise InputError("strains: must be nonzero and all of one sign")
-    if np.any(np.diff(np.abs(values)) <= 0.0):
-        raise InputError("strains: magnitudes must be strictly increasing")
-    return values
-
-
-def _quasi_static(
-    packing: Packing,
-    model: ContactModel,
-    strains: NDArray[np.float64],
-    increment: Callable[[float, float], NDArray[np.float64]],
-    observe: Callable[[Contacts, Packing], float],
-    scale: float,
-    method: Method,
-    precon: PreconName,
-    rtol: float,
-    maxiter: int,
-) -> FiniteStrain:
-    """Step through ``strains``: deform by ``increment(old, new)``, relax, ``observe``; fit."""
-    contacts = find_contacts(packing, model)
-    first = observe(contacts, packing)
-    first_contacts = int(contacts.i.size)
-    stresses = np.empty(strains.size)
-    iterations = np.empty(strains.size, dtype=np.int64)
-    counts = np.empty(strains.size, dtype=np.int64)
-    converged = True
-    current, old = packing, 0.0
-    for step, new in enumerate(strains):
-        result = minimize(
-            Objective(current.deform(increment(old, float(new))), model),
-            method,
-            precon=precon,
-            rtol=rtol,
-            maxiter=maxiter,
-        )
-        current, old = result.packing, float(new)
-        contacts = find_contacts(current, model)
-        stresses[step] = observe(contacts, current)
-        iterations[step] = result.iterations
-        counts[step] = contacts.i.size
-        converged = converged and result.converged
-    slope, stderr = _fit_slope(
-        np.concatenate([[0.0], strains]), np.concatenate([[first], stresses])
-    )
-    return FiniteStrain(
-        modulus=scale * slope,
-        stderr=abs(scale) * stderr,
-        strains=strains,
-        stresses=stresses,
-        iterations=iterations,
-        contacts=counts,
-        stress_initial=first,
-        contacts_initial=first_contacts,
-        converged=converged,
-        packing=current,
-    )
-
-
-def _fit_slope(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
-    """Least-squares slope of ``y = a + b x`` ``(n,)``, n >= 3, and its standard error."""
-    xc = x - x.mean()
-    sxx = float(xc @ xc)
-    slope = float(xc @ (y - y.mean())) / sxx
-    resid = y - y.mean() - slope * xc
-    return slope, float(np.sqrt(float(resid @ resid) / (x.size - 2) / sxx))

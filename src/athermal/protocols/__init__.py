@@ -9,12 +9,14 @@ from .compress import (
     log_spaced,
     scaling_exponents,
 )
+from .finite_strain import FiniteStrain, finite_strain_bulk, finite_strain_shear
 from .jamming import JammingResult, JammingStep, jam, jamming_steps
 from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
 
 __all__ = [
     "SHEAR_MODES",
     "CompressionStep",
+    "FiniteStrain",
     "JammingResult",
     "JammingStep",
     "Minimizer",
@@ -22,6 +24,8 @@ __all__ = [
     "ShearMode",
     "ShearStep",
     "compression_steps",
+    "finite_strain_bulk",
+    "finite_strain_shear",
     "isostatic_z",
     "jam",
     "jamming_steps",

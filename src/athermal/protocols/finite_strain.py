@@ -1,0 +1,206 @@
+"""The seed's finite-strain moduli: small quasi-static strain steps, each relaxed, and a fit.
+
+"For each relaxed over-jammed configuration, we exert small shear strains from 1e-6 to 1e-5
+quasi-statically, in 10 steps" (seed, section 4.2): the slope of the shear stress gives ``G``
+and the minimizer's iterations per step are the seed's iteration experiment. The bulk modulus is
+measured the same way under isotropic strain of the cell at fixed radii. Both agree with
+:func:`~athermal.moduli.linear_response` to first order in the strain.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .._validate import float_array
+from ..cell import isotropic, simple_shear
+from ..contact import ContactModel, Contacts, find_contacts
+from ..errors import InputError
+from ..objective import Objective
+from ..observables import pressure, shear_stress, stress
+from ..packing import Packing
+from ._relax import GTOL_FLOOR, Minimizer, Relaxer, force_scale
+
+DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
+"""The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
+DEFAULT_STRAINS.setflags(write=False)
+RTOL = 1e-9
+"""Default tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at a step's start."""
+
+
+@dataclass(frozen=True, eq=False)
+class FiniteStrain:
+    """A modulus fitted to quasi-static finite-strain steps.
+
+    Attributes
+    ----------
+    modulus : ``G = d(-sigma_01)/d gamma`` (shear) or ``B = -(1/d) dp/de`` (bulk), the
+        least-squares slope through the start and every step (scaled by ``-1/d`` for bulk).
+    stderr : standard error of ``modulus`` from the fit residuals.
+    strains : ``(k,)`` total strain after each step.
+    stresses : ``(k,)`` shear stress ``-sigma_01`` (shear) or pressure (bulk) after each
+        relaxation.
+    iterations : ``(k,)`` minimizer iterations of each relaxation (the seed's iteration count).
+    contacts : ``(k,)`` number of contacts after each relaxation.
+    stress_initial : the stress of the input packing (strain 0).
+    contacts_initial : number of contacts of the input packing.
+    packing : the relaxed configuration at the last strain.
+    """
+
+    modulus: float
+    stderr: float
+    strains: NDArray[np.float64]
+    stresses: NDArray[np.float64]
+    iterations: NDArray[np.int64]
+    contacts: NDArray[np.int64]
+    stress_initial: float
+    contacts_initial: int
+    packing: Packing
+
+
+def finite_strain_shear(
+    packing: Packing,
+    model: ContactModel,
+    strains: ArrayLike = DEFAULT_STRAINS,
+    *,
+    minimizer: Minimizer | None = None,
+    rtol: float = RTOL,
+) -> FiniteStrain:
+    """Shear modulus ``G = d(-sigma_01)/d gamma`` from quasi-static simple shear ``x += gamma y``.
+
+    Each step deforms the previous relaxed configuration by the simple shear increment that
+    reaches the next strain (``Packing.deform``) and relaxes it on a fresh :class:`Objective`;
+    ``G`` is the least-squares slope through the input (``gamma = 0``) and every step.
+
+    Parameters
+    ----------
+    packing : a relaxed configuration (the fit assumes it is at a minimum).
+    model : contact law.
+    strains : ``(k,)`` total shear strains, ``k >= 2``, of one sign, strictly increasing in
+        magnitude (default: the seed's 1e-6 to 1e-5 in 10 steps).
+    minimizer : how each step is relaxed (default L-BFGS); its iteration limit is fatal
+        (:class:`~athermal.errors.ConvergenceError`).
+    rtol : tolerance relative to the mean contact force at the start of each relaxation,
+        floored at round-off (:data:`~athermal.protocols._relax.GTOL_FLOOR`).
+    """
+    gammas = _check_strains(strains, lower=-np.inf)
+    dim = packing.dim
+    return _quasi_static(
+        packing,
+        model,
+        gammas,
+        lambda old, new: simple_shear(new - old, dim),
+        lambda contacts, p: shear_stress(stress(contacts, p.cell)),
+        1.0,
+        minimizer or Minimizer(),
+        rtol,
+    )
+
+
+def finite_strain_bulk(
+    packing: Packing,
+    model: ContactModel,
+    strains: ArrayLike = -DEFAULT_STRAINS,
+    *,
+    minimizer: Minimizer | None = None,
+    rtol: float = RTOL,
+) -> FiniteStrain:
+    """Bulk modulus ``B = -(1/d) dp/de`` from quasi-static isotropic strain at fixed radii.
+
+    Strain ``e`` is the cell map ``D = (1 + e) I`` (``e < 0`` compresses); each step applies
+    ``(1 + e_new) / (1 + e_old) I`` to the previous relaxed configuration and relaxes it. ``B`` is
+    ``-1/d`` times the least-squares slope of the pressure through the input (``e = 0``) and every
+    step; it equals ``-V dp/dV`` to first order in the strain.
+
+    Parameters
+    ----------
+    packing : a relaxed configuration (the fit assumes it is at a minimum).
+    model : contact law.
+    strains : ``(k,)`` total strains, ``k >= 2``, each > -1, of one sign, strictly increasing in
+        magnitude (default: compression by 1e-6 to 1e-5 in 10 steps).
+    minimizer, rtol : as in :func:`finite_strain_shear`.
+    """
+    strain = _check_strains(strains, lower=-1.0)
+    dim = packing.dim
+    return _quasi_static(
+        packing,
+        model,
+        strain,
+        lambda old, new: isotropic((1.0 + new) / (1.0 + old), dim),
+        lambda contacts, p: pressure(stress(contacts, p.cell)),
+        -1.0 / dim,
+        minimizer or Minimizer(),
+        rtol,
+    )
+
+
+def _check_strains(strains: ArrayLike, lower: float) -> NDArray[np.float64]:
+    """``strains`` as ``(k,)`` float64: k >= 2, finite, > ``lower``, one sign, increasing size."""
+    values = float_array(strains, "strains", (None,))
+    if values.size < 2:
+        raise InputError(f"strains: need at least 2 for a fit with an error, got {values.size}")
+    if np.any(values <= lower):
+        raise InputError(f"strains: every strain must be > {lower}, got min {values.min()}")
+    if np.any(values == 0.0) or not (np.all(values > 0.0) or np.all(values < 0.0)):
+        raise InputError("strains: must be nonzero and all of one sign")
+    if np.any(np.diff(np.abs(values)) <= 0.0):
+        raise InputError("strains: magnitudes must be strictly increasing")
+    return values
+
+
+def _quasi_static(
+    packing: Packing,
+    model: ContactModel,
+    strains: NDArray[np.float64],
+    increment: Callable[[float, float], NDArray[np.float64]],
+    observe: Callable[[Contacts, Packing], float],
+    scale: float,
+    minimizer: Minimizer,
+    rtol: float,
+) -> FiniteStrain:
+    """Step through ``strains``: deform by ``increment(old, new)``, relax, ``observe``; fit."""
+    contacts = find_contacts(packing, model)
+    first = observe(contacts, packing)
+    first_contacts = int(contacts.i.size)
+    stresses = np.empty(strains.size)
+    iterations = np.empty(strains.size, dtype=np.int64)
+    counts = np.empty(strains.size, dtype=np.int64)
+    floor = GTOL_FLOOR * force_scale(packing.radii, model)
+    current, old = packing, 0.0
+    for step, new in enumerate(strains):
+        objective = Objective(current.deform(increment(old, float(new))), model)
+        gtol = max(rtol * objective.mean_contact_force(objective.x0), floor)
+        result = Relaxer(objective, minimizer).relax(
+            objective.x0, gtol=gtol, what=f"finite strain step {step} (strain {new:g})"
+        )
+        current, old = result.packing, float(new)
+        contacts = find_contacts(current, model)
+        stresses[step] = observe(contacts, current)
+        iterations[step] = result.iterations
+        counts[step] = contacts.i.size
+    slope, stderr = _fit_slope(
+        np.concatenate([[0.0], strains]), np.concatenate([[first], stresses])
+    )
+    return FiniteStrain(
+        modulus=scale * slope,
+        stderr=abs(scale) * stderr,
+        strains=strains,
+        stresses=stresses,
+        iterations=iterations,
+        contacts=counts,
+        stress_initial=first,
+        contacts_initial=first_contacts,
+        packing=current,
+    )
+
+
+def _fit_slope(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
+    """Least-squares slope of ``y = a + b x`` ``(n,)``, n >= 3, and its standard error."""
+    xc = x - x.mean()
+    sxx = float(xc @ xc)
+    slope = float(xc @ (y - y.mean())) / sxx
+    resid = y - y.mean() - slope * xc
+    return slope, float(np.sqrt(float(resid @ resid) / (x.size - 2) / sxx))
