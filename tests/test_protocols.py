@@ -1,3 +1,4 @@
+import dataclasses
 import itertools
 
 import numpy as np
@@ -151,3 +152,35 @@ def test_pure_shear_reaches_the_final_strain_exactly_and_flags_stress_drops():
     assert obs.stress_dev == pytest.approx(steps[-1].observables.stress_dev)
     with pytest.raises(InputError, match="step"):
         next(shear_steps(start, model, strain=1e-3, step=1e-2))
+
+
+def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
+    """A line-search failure near the minimum is handed to FIRE; counts add up, the message
+    says so, and a plain non-convergence still raises."""
+    from athermal.errors import ConvergenceError
+    from athermal.objective import Objective
+    from athermal.protocols import _relax
+
+    packing, model = random_packing(64, 0.9, seed=1), ContactModel(2.0)
+    real = _relax.minimize
+    calls = []
+
+    def failing_lbfgs(objective, method, **kw):
+        calls.append(method)
+        if method == "lbfgs":
+            first = real(objective, method, **{**kw, "maxiter": 5})
+            return dataclasses.replace(first, converged=False, message="line search failed: x")
+        return real(objective, method, **kw)
+
+    monkeypatch.setattr(_relax, "minimize", failing_lbfgs)
+    relaxer = _relax.Relaxer(Objective(packing, model), Minimizer("lbfgs"))
+    result = relaxer.relax(relaxer.objective.x0, gtol=1e-12)
+    assert calls == ["lbfgs", "fire"] and result.converged and result.max_gradient <= 1e-12
+    assert result.method == "lbfgs+fire" and "FIRE after" in result.message
+    assert result.iterations == result.history_energy.size - 1 > 5
+
+    monkeypatch.setattr(_relax, "minimize", real)
+    with pytest.raises(ConvergenceError, match="did not converge"):
+        _relax.Relaxer(Objective(packing, model), Minimizer("lbfgs", maxiter=3)).relax(
+            relaxer.objective.x0, gtol=1e-14
+        )

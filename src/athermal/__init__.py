@@ -2,33 +2,63 @@
 
 from .cell import Cell, isotropic, pure_shear, simple_shear
 from .contact import ContactModel, Contacts, find_contacts, hessian, strain_derivative
-from .errors import FileFormatError, InputError
+from .errors import ConvergenceError, FileFormatError, InputError
+from .fitting import PowerLaw, fit_power_law
 from .io import Frame, append_gsd, count_frames, read_gsd, write_gsd
+from .minimize import MinimizeResult, minimize
+from .moduli import LinearResponse, linear_response
 from .neighbors import NeighborList, build_neighbor_list
+from .objective import Objective
 from .observables import Observables, measure
 from .packing import Packing, bidisperse_radii, random_packing
+from .protocols import (
+    Minimizer,
+    compression_steps,
+    finite_strain_bulk,
+    finite_strain_shear,
+    jam,
+    jamming_steps,
+    scaling_exponents,
+    shear_steps,
+)
 
 __all__ = [
     "Cell",
     "ContactModel",
     "Contacts",
+    "ConvergenceError",
     "FileFormatError",
     "Frame",
     "InputError",
+    "LinearResponse",
+    "MinimizeResult",
+    "Minimizer",
     "NeighborList",
+    "Objective",
     "Observables",
     "Packing",
+    "PowerLaw",
     "append_gsd",
     "bidisperse_radii",
     "build_neighbor_list",
+    "compression_steps",
     "count_frames",
     "find_contacts",
+    "finite_strain_bulk",
+    "finite_strain_shear",
+    "fit_power_law",
     "hessian",
     "isotropic",
+    "jam",
+    "jamming_steps",
+    "linear_response",
     "measure",
+    "minimize",
     "pure_shear",
     "random_packing",
     "read_gsd",
+    "scaling_exponents",
+    "shear_steps",
     "simple_shear",
     "strain_derivative",
     "write_gsd",

@@ -3,7 +3,7 @@ kept across steps, and the energy and force scales their tolerances are stated i
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -56,7 +56,10 @@ class Relaxer:
     """An :class:`Objective` and its preconditioner, reused for every relaxation of a protocol.
 
     The preconditioner rebuilds itself by its own rule (displacement since its last build), and
-    the objective's Verlet list by the skin, so small steps cost no rebuild.
+    the objective's Verlet list by the skin, so small steps cost no rebuild. When L-BFGS or CG
+    stops because no Wolfe step exists (it happens within a few times ``gtol`` of a minimum
+    near jamming, where the energy differences of a step are at round-off), FIRE, which needs
+    no line search, finishes the relaxation from there; the result counts both.
     """
 
     def __init__(self, objective: Objective, minimizer: Minimizer) -> None:
@@ -79,6 +82,8 @@ class Relaxer:
             etol=etol,
             maxiter=self.minimizer.maxiter,
         )
+        if not result.converged and result.message.startswith("line search failed"):
+            result = self._finish_with_fire(result, gtol, etol)
         if not result.converged:
             raise ConvergenceError(
                 f"{what}: {self.minimizer.label} did not converge ({result.message}; "
@@ -86,6 +91,30 @@ class Relaxer:
                 "try another method"
             )
         return result
+
+    def _finish_with_fire(self, first: MinimizeResult, gtol: float, etol: float) -> MinimizeResult:
+        self.objective.start_from(first.x)
+        rest = minimize(
+            self.objective,
+            "fire",
+            precon=self.precon if self.precon is not None else "none",
+            gtol=gtol,
+            etol=etol,
+            maxiter=max(1, self.minimizer.maxiter - first.iterations),
+        )
+        return replace(
+            rest,
+            message=f"{rest.message} (FIRE after: {first.message})",
+            method=f"{first.method}+fire",
+            iterations=first.iterations + rest.iterations,
+            evaluations=first.evaluations + rest.evaluations,
+            seconds=first.seconds + rest.seconds,
+            history_energy=np.concatenate([first.history_energy, rest.history_energy[1:]]),
+            history_max_gradient=np.concatenate(
+                [first.history_max_gradient, rest.history_max_gradient[1:]]
+            ),
+            neighbor_rebuilds=first.neighbor_rebuilds + rest.neighbor_rebuilds,
+        )
 
 
 def force_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
