@@ -222,6 +222,9 @@ def test_jam_compress_shear_chain_writes_files_tables_and_contract_keys(tmp_path
     assert float(frame.log["phi_c"]) == summary["phi_c"] == pytest.approx(frame.packing.phi)
     assert frame.seed == 3 and summary["energy"] > 0.0
     assert count_frames(steps) == summary["steps"] == len(read_table(tmp_path / "j.csv"))
+    picture = tmp_path / "j.png"
+    assert summary["picture"] == str(picture)
+    assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and picture.stat().st_size > 10_000
 
     traj = tmp_path / "c.gsd"
     code, out, _ = run(

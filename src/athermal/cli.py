@@ -150,6 +150,12 @@ def _parser() -> argparse.ArgumentParser:
     jam.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy (1e-6)")
     jam.add_argument("-o", "--output", required=True, help="GSD file for the jammed packing")
     jam.add_argument("--trajectory", default=None, help="GSD file for every relaxed step")
+    jam.add_argument(
+        "--picture",
+        default=None,
+        help="PNG of the jammed packing with its contact forces (2D; default: the output "
+        "with .png; 'none' for no picture)",
+    )
     _add_minimizer_options(jam, "of every step")
     _add_protocol_outputs(jam)
     _add_model_options(jam, 2.0)
@@ -378,6 +384,13 @@ def _jam(args: argparse.Namespace) -> None:
     )
     table = _table_path(args)
     write_table(table, rows)
+    picture = None
+    if args.dim == 2 and args.picture != "none":
+        from .plot import packing_figure, save
+
+        picture = args.picture or str(Path(args.output).with_suffix(".png"))
+        title = f"jammed: N = {args.n}, phi_c = {last_jammed.phi:.6f}, z = {obs.z:.3f}"
+        save(packing_figure(last_jammed.packing, model, title=title), picture)
     _print(
         {
             "phi_c": last_jammed.phi,
@@ -394,6 +407,7 @@ def _jam(args: argparse.Namespace) -> None:
             "output": args.output,
             "table": table,
             "trajectory": args.trajectory,
+            "picture": picture,
         },
         args.json,
     )
