@@ -46,16 +46,16 @@ def test_jamming_follows_the_seed_algorithm_and_ends_on_a_narrow_bracket():
 
 def test_jammed_threshold_separates_states_by_energy_not_round_off():
     """Unjammed steps end with E/N at most the stated threshold (epsilon / 10 d)^alpha in
-    units of k <r>^alpha; jammed ones lie far above it."""
+    units of k <r>^alpha and jammed ones above it; the threshold is more than 1e12 times the
+    round-off of an overlap energy, (eps_mach L / <r>)^2 in the same units."""
     model = ContactModel(2.0)
     steps = list(jamming_steps(random_packing(64, 0.8, seed=1), model, epsilon=1e-5))
     threshold = (1e-5 / 20.0) ** 2
     for s in steps:
         per_particle = s.energy / (64 * energy_scale(s.packing.radii, model))
-        if s.jammed:
-            assert per_particle > 10 * threshold
-        else:
-            assert per_particle <= threshold
+        assert (per_particle > threshold) == s.jammed
+    roundoff = (np.finfo(float).eps / steps[0].packing.radii.mean()) ** 2
+    assert threshold > 1e12 * roundoff
 
 
 def test_jam_returns_a_jammed_packing_near_isostaticity(jammed_256):
@@ -184,3 +184,38 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
         _relax.Relaxer(Objective(packing, model), Minimizer("lbfgs", maxiter=3)).relax(
             relaxer.objective.x0, gtol=1e-14
         )
+
+
+def _same_steps(a, b):
+    assert [s.index for s in a] == [s.index for s in b]
+    assert [s.iterations for s in a] == [s.iterations for s in b]
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x.packing.positions, y.packing.positions)
+
+
+def test_jamming_resumed_after_any_step_is_bit_identical():
+    start, model = random_packing(48, 0.8, seed=4), ContactModel(2.0)
+    full = list(jamming_steps(start, model, epsilon=1e-4))
+    assert full[-1].phase == "final"
+    for cut in (1, len(full) // 2, len(full) - 2, len(full) - 1):
+        rest = list(jamming_steps(start, model, epsilon=1e-4, resume=full[:cut]))
+        _same_steps(full[cut:], rest)
+    assert list(jamming_steps(start, model, epsilon=1e-4, resume=full)) == []
+    with pytest.raises(InputError, match="resume"):
+        next(jamming_steps(start, model, epsilon=1e-4, resume=full[1:]))
+
+
+def test_compression_resumed_is_bit_identical(jammed_256):
+    model, deltas = ContactModel(2.0), log_spaced(1e-5, 1e-2, 1)
+    full = list(compression_steps(jammed_256.packing, model, delta_phis=deltas))
+    rest = list(compression_steps(jammed_256.packing, model, delta_phis=deltas, resume=full[:2]))
+    _same_steps(full[2:], rest)
+    assert [s.index for s in rest] == [2, 3]
+
+
+def test_shear_resumed_is_bit_identical():
+    start, model = random_packing(96, 0.87, seed=5), ContactModel(2.0)
+    full = list(shear_steps(start, model, mode="simple", strain=4e-3, step=1e-3))
+    rest = list(shear_steps(start, model, mode="simple", strain=4e-3, step=1e-3, resume=full[:3]))
+    _same_steps(full[3:], rest)
+    assert [s.plastic for s in rest] == [s.plastic for s in full[3:]]

@@ -69,14 +69,10 @@ class NeighborList:
             + np.take(self.shifts(cell), self.code, axis=0)
         )
 
-    def is_current(self, positions: NDArray[np.float64], growth: float = 0.0) -> bool:
-        """True while no particle has moved more than ``skin / 2 - growth`` since the build,
-        ``growth`` (length units, >= 0) being the most any radius has grown since then."""
-        allowed = 0.5 * self.skin - growth
-        if allowed < 0.0:
-            return False
+    def is_current(self, positions: NDArray[np.float64]) -> bool:
+        """True while no particle has moved more than ``skin / 2`` since the build."""
         moved = _kernels.max_displacement_sq(np.asarray(positions), self.reference)
-        return bool(moved <= allowed * allowed)
+        return bool(moved <= 0.25 * self.skin * self.skin)
 
 
 def _bin_layout(cell: Cell, cutoff: float, n: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:

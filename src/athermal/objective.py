@@ -2,10 +2,9 @@
 
 :class:`Objective` maps ``x`` ``(N d,)`` to the contact energy and its gradient, caches the last
 evaluation, counts evaluations and keeps its Verlet list fresh (rebuilt when a particle has moved
-more than half the skin, less what the radii have grown since the build: :meth:`set_radii` lets
-the jamming and compression protocols grow particles without a rebuild). Particles are held
-internally along a space-filling curve (the kernels run 2-3.5x faster at N >= 65536);
-:meth:`Objective.packing` gives them back in the caller's order.
+more than half the skin). Particles are held internally along a space-filling curve (the
+kernels run 2-3.5x faster at N >= 65536); :meth:`Objective.packing` gives them back in the
+caller's order.
 """
 
 from __future__ import annotations
@@ -14,7 +13,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _kernels
-from ._validate import float_array
 from .contact import ContactModel, energy_gradient, find_contacts
 from .errors import InputError
 from .neighbors import NeighborList, build_neighbor_list, default_skin
@@ -47,8 +45,6 @@ class Objective:
         self.x0 = np.ascontiguousarray(inner.positions).ravel().copy()
         self._typeid = model.typeid(inner)
         self._nlist: NeighborList | None = None
-        self._list_radii = self.radii
-        self._growth = 0.0  # largest radius growth since the list was built
         self._shifts = np.zeros((1, self.dim))
         self._last_x: NDArray[np.float64] | None = None
         self._last: tuple[float, NDArray[np.float64]] = (0.0, np.zeros(0))
@@ -63,10 +59,9 @@ class Objective:
     def neighbor_list(self, x: NDArray[np.float64]) -> NeighborList:
         """The Verlet list, rebuilt first if ``x`` moved a particle more than ``skin / 2``."""
         positions = x.reshape(self.n, self.dim)
-        if self._nlist is None or not self._nlist.is_current(positions, self._growth):
+        if self._nlist is None or not self._nlist.is_current(positions):
             self._nlist = build_neighbor_list(positions, self.radii, self.cell, self.skin)
             self._shifts = self._nlist.shifts(self.cell)
-            self._list_radii, self._growth = self.radii, 0.0
             self.n_rebuilds += 1
         return self._nlist
 
@@ -75,19 +70,6 @@ class Objective:
         if np.shape(x) != (self.n_dof,):
             raise InputError(f"x: expected shape ({self.n_dof},), got {np.shape(x)}")
         self.x0 = np.array(x, dtype=np.float64, copy=True)
-
-    def set_radii(self, radii: NDArray[np.float64]) -> None:
-        """Replace the radii ``(N,)`` (caller's order, length units); positions and cell stay.
-
-        The cached evaluation is dropped; the Verlet list is kept while still complete (radius
-        growth ``g`` uses up ``g`` of each particle's ``skin / 2`` displacement allowance).
-        """
-        new = float_array(radii, "radii", (self.n,))
-        if np.any(new <= 0.0):
-            raise InputError(f"radii: must be > 0 (found {int(np.sum(new <= 0.0))} that are not)")
-        self.radii = np.ascontiguousarray(new[self.order])
-        self._growth = max(0.0, float(np.max(self.radii - self._list_radii)))
-        self._last_x = None
 
     def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         """Energy and gradient ``(N d,)`` at ``x``; repeated calls at the same ``x`` are free."""

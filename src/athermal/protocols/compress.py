@@ -108,6 +108,7 @@ def compression_steps(
     delta_phis: ArrayLike | None = None,
     minimizer: Minimizer | None = None,
     rtol: float = RTOL,
+    resume: Sequence[CompressionStep] = (),
 ) -> Iterator[CompressionStep]:
     """Compress ``jammed`` quasi-statically, yielding each relaxed step.
 
@@ -120,6 +121,9 @@ def compression_steps(
     minimizer : how each step is relaxed (default L-BFGS).
     rtol : tolerance relative to the mean contact force at each step's start, floored at
         ``GTOL_FLOOR`` x ``k <r>^(alpha-1)`` (round-off).
+    resume : the steps already done by an interrupted run with the same arguments; the run
+        continues after the last one. Each step builds its objective from the previous step's
+        packing alone, so the continued run matches an uninterrupted one bit for bit.
     """
     targets = float_array(log_spaced() if delta_phis is None else delta_phis, "delta_phis", (None,))
     if targets.size == 0 or np.any(targets <= 0.0) or np.any(np.diff(targets) <= 0.0):
@@ -129,30 +133,36 @@ def compression_steps(
         raise InputError(f"phi_c: must lie in (0, phi of the packing = {jammed.phi:.9g}]")
     if phi_ref + targets[-1] >= 1.0:
         raise InputError(f"delta_phis: phi_c + {targets[-1]:g} reaches 1")
-    objective = Objective(jammed, model)
-    relaxer = Relaxer(objective, minimizer or Minimizer())
+    config = minimizer or Minimizer()
     base, phi0 = jammed.radii, jammed.phi
-    x = objective.x0
-    for index, dphi in enumerate(targets):
+    current = jammed
+    first = 0
+    if resume:
+        if [s.index for s in resume] != list(range(len(resume))) or len(resume) > targets.size:
+            raise InputError("resume: steps must be this run's steps 0, 1, ... in order")
+        current, first = resume[-1].packing, len(resume)
+    for index in range(first, targets.size):
+        dphi = float(targets[index])
         t0 = time.perf_counter()
-        phi = phi_ref + float(dphi)
+        phi = phi_ref + dphi
         if phi < phi0 - 1e-12:
             raise InputError(
                 f"delta_phis: phi_c + {dphi:g} is below the jammed packing's phi {phi0:.9g}"
             )
         radii = base * (phi / phi0) ** (1.0 / jammed.dim)
-        objective.set_radii(radii)
-        objective.start_from(x)
-        f0 = objective.mean_contact_force(x)
+        objective = Objective(Packing(current.positions, radii, jammed.cell), model)
+        f0 = objective.mean_contact_force(objective.x0)
         gtol = max(rtol * f0, GTOL_FLOOR * force_scale(radii, model))
-        result = relaxer.relax(x, gtol=gtol, what=f"compression step {index} (delta phi {dphi:g})")
-        x = result.x
-        obs = measure(result.packing, model)
-        moduli = linear_response(result.packing, model)
+        result = Relaxer(objective, config).relax(
+            objective.x0, gtol=gtol, what=f"compression step {index} (delta phi {dphi:g})"
+        )
+        current = result.packing
+        obs = measure(current, model)
+        moduli = linear_response(current, model)
         n_live = obs.n - obs.n_rattlers
         yield CompressionStep(
             index=index,
-            delta_phi=float(dphi),
+            delta_phi=dphi,
             phi=phi,
             energy=obs.energy,
             pressure=obs.pressure,
@@ -166,7 +176,7 @@ def compression_steps(
             iterations=result.iterations,
             evaluations=result.evaluations,
             seconds=time.perf_counter() - t0,
-            packing=result.packing,
+            packing=current,
         )
 
 

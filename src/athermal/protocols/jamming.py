@@ -4,14 +4,21 @@ From a start packing at ``phi_init`` the radii grow by ``dphi`` (in packing frac
 packing is relaxed, until a relaxed state is jammed; then ``phi`` is bisected between the last
 unjammed and the first jammed fraction, each trial relaxed from the last unjammed
 configuration, until the bracket is below ``epsilon``. Radii are always
-``r0 (phi / phi_init)^(1/d)`` from the start radii, so a step depends on its ``phi`` alone and
-not on the path that led there.
+``r0 (phi / phi_init)^(1/d)`` from the start radii, and every step builds its own objective and
+preconditioner from its start configuration: a step is a function of that configuration and its
+``phi`` alone, which is what lets an interrupted run resume bit for bit (``resume``).
 
 **Jammed** means: the relaxed energy per particle exceeds ``energy_tol`` x ``k <r>^alpha`` and
-the pressure is positive. Relaxations stop as soon as the energy falls to that threshold (the
-packing is unjammed) or when ``max_i |grad_i| <= gtol`` x ``k <r>^(alpha-1)`` (a mechanically
-stable state). A packing jammed by ``Delta phi`` has overlaps ``delta ~ <r> Delta phi / (d phi)``
-and ``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``, so the default threshold
+the pressure is positive. A trial relaxation stops as soon as the energy falls to that
+threshold (the packing is unjammed) or when ``max_i |grad_i|`` is below ``rtol`` (1e-6) times
+the mean contact force at its start (a mechanically stable state, up to that balance), but never
+above a tenth of the force of an overlap that holds the threshold energy, so that a packing far
+from balance cannot stop there with an energy above the threshold; the
+jammed packing that ends the bisection is then relaxed once more to ``max_i |grad_i| <= gtol``
+x ``k <r>^(alpha-1)`` (1e-12), the ``final`` step.
+
+A packing jammed by ``Delta phi`` has overlaps ``delta ~ <r> Delta phi / (d phi)`` and
+``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``, so the default threshold
 ``(epsilon / (10 d))^alpha`` separates states jammed by more than ~``epsilon / 10`` from
 unjammed ones (2.5e-15 for ``alpha = 2`` and ``epsilon = 1e-6``; a packing jammed by
 ``epsilon`` has ~3.5e-13) while sparing the slowest part of relaxing an unjammed packing near
@@ -22,12 +29,11 @@ unjammed ones (2.5e-15 for ``alpha = 2`` and ``epsilon = 1e-6``; a packing jamme
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from numpy.typing import NDArray
 
 from .._validate import positive_scalar
 from ..contact import ContactModel, find_contacts
@@ -35,12 +41,15 @@ from ..errors import ConvergenceError, InputError
 from ..objective import Objective
 from ..observables import Observables, measure, pressure, stress
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, energy_scale, force_scale
+from ._relax import GTOL_FLOOR, Minimizer, Relaxer, energy_scale, force_scale
 
+RTOL = 1e-6
+"""Default force tolerance of the trial steps, relative to the mean contact force at a step's
+start."""
 GTOL = 1e-12
-"""Default tolerance on ``max_i |grad_i|`` in units of ``k <r>^(alpha-1)``."""
+"""Default force tolerance of the final step, in units of ``k <r>^(alpha-1)``."""
 
-Phase = Literal["start", "increment", "bisection"]
+Phase = Literal["start", "increment", "bisection", "final"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,9 +110,14 @@ def jamming_steps(
     epsilon: float = 1e-6,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
+    rtol: float = RTOL,
     gtol: float = GTOL,
+    resume: Sequence[JammingStep] = (),
 ) -> Iterator[JammingStep]:
     """Run the jamming protocol from ``start``, yielding every relaxed step.
+
+    The last step (phase ``final``) relaxes the jammed packing at the top of the final bracket
+    to the tight tolerance ``gtol``; it is the protocol's result.
 
     Parameters
     ----------
@@ -111,42 +125,56 @@ def jamming_steps(
     model : contact law.
     dphi : growth increment in packing fraction (> 0).
     epsilon : bisection stops when the bracket is at most this wide (> 0).
-    minimizer : how each step is relaxed (default L-BFGS); one objective and one
-        preconditioner serve all steps.
+    minimizer : how each step is relaxed (default L-BFGS).
     energy_tol : jamming threshold on ``E / N`` in units of ``k <r>^alpha``; default
         ``(epsilon / (10 d))^alpha`` (module docstring).
-    gtol : force tolerance in units of ``k <r>^(alpha-1)``.
+    rtol : force tolerance of the trial steps, relative to the mean contact force at the
+        step's start (module docstring).
+    gtol : force tolerance of the final step in units of ``k <r>^(alpha-1)``.
+    resume : the steps already done by an interrupted run with the same arguments (as read
+        back from its trajectory); the run continues after the last of them and yields the
+        same steps, bit for bit, as an uninterrupted run.
 
     Raises
     ------
-    InputError : bad parameters, or a start packing that is already jammed.
-    ConvergenceError : a relaxation reached its iteration limit, or no jamming below phi = 1.
+    InputError : bad parameters, a start packing that is already jammed, or ``resume`` steps
+        that do not belong to this run.
+    ConvergenceError : a relaxation reached its iteration limit, no jamming below phi = 1,
+        or the final relaxation unjammed the packing.
     """
     dphi = positive_scalar(dphi, "dphi")
     epsilon = positive_scalar(epsilon, "epsilon")
     if energy_tol is None:
         energy_tol = (epsilon / (10.0 * start.dim)) ** model.alpha
     energy_tol = positive_scalar(energy_tol, "energy_tol")
+    rtol = positive_scalar(rtol, "rtol")
     gtol = positive_scalar(gtol, "gtol")
-    objective = Objective(start, model)
-    relaxer = Relaxer(objective, minimizer or Minimizer())
+    config = minimizer or Minimizer()
     phi_init, base = start.phi, start.radii
     largest = 0.5 * float(start.cell.widths.min())
 
     def relax(
-        phi: float, x: NDArray[np.float64], index: int, phase: Phase, low: float, high: float
-    ) -> tuple[JammingStep, NDArray[np.float64]]:
+        phi: float, origin: Packing, index: int, phase: Phase, low: float, high: float
+    ) -> JammingStep:
         t0 = time.perf_counter()
         radii = base * (phi / phi_init) ** (1.0 / start.dim)
         if radii.max() >= largest:
             raise InputError(f"phi: at {phi:.6g} the largest particle no longer fits the cell")
-        objective.set_radii(radii)
+        objective = Objective(Packing(origin.positions, radii, start.cell), model)
         e_min = energy_tol * start.n * energy_scale(radii, model)
-        result = relaxer.relax(
-            x,
-            gtol=gtol * force_scale(radii, model),
-            etol=e_min,
-            what=f"jamming step {index} at phi = {phi:.9g}",
+        # a tenth of the force of one overlap holding the threshold energy per particle
+        f_cap = (
+            0.1
+            * force_scale(radii, model)
+            * (model.alpha * energy_tol) ** (1.0 - 1.0 / model.alpha)
+        )
+        floor = GTOL_FLOOR * force_scale(radii, model)
+        if phase == "final":
+            tol = max(gtol * force_scale(radii, model), floor)
+        else:
+            tol = max(min(rtol * objective.mean_contact_force(objective.x0), f_cap), floor)
+        result = Relaxer(objective, config).relax(
+            objective.x0, gtol=tol, etol=e_min, what=f"jamming step {index} at phi = {phi:.9g}"
         )
         contacts = find_contacts(result.packing, model)
         p = pressure(stress(contacts, start.cell))
@@ -155,7 +183,7 @@ def jamming_steps(
             high = min(high, phi)
         else:
             low = max(low, phi)
-        step = JammingStep(
+        return JammingStep(
             index=index,
             phase=phase,
             phi=phi,
@@ -170,32 +198,56 @@ def jamming_steps(
             phi_high=high,
             packing=result.packing,
         )
-        return step, result.x
 
-    step, x_low = relax(phi_init, objective.x0, 0, "start", 0.0, np.inf)
-    if step.jammed:
-        raise InputError(
-            f"phi_init: the start packing is jammed after relaxation at phi = {phi_init:.6g} "
-            f"(E = {step.energy:.3e}); start from a lower packing fraction"
+    if resume:
+        _check_resume(resume, start)
+        last = resume[-1]
+        if last.phase == "final":
+            return
+        index, low, high = last.index + 1, last.phi_low, last.phi_high
+        low_step = max((s for s in resume if not s.jammed), key=lambda s: s.phi)
+        jammed_steps = [s for s in resume if s.jammed]
+        high_step = min(jammed_steps, key=lambda s: s.phi) if jammed_steps else None
+    else:
+        low_step = relax(phi_init, start, 0, "start", 0.0, np.inf)
+        if low_step.jammed:
+            raise InputError(
+                f"phi_init: the start packing is jammed after relaxation at phi = "
+                f"{phi_init:.6g} (E = {low_step.energy:.3e}); start from a lower packing "
+                "fraction"
+            )
+        yield low_step
+        index, low, high, high_step = 1, phi_init, np.inf, None
+    while np.isinf(high) or high - low > epsilon:
+        if np.isinf(high):
+            phi, phase = low + dphi, "increment"
+            if phi >= 1.0:
+                raise ConvergenceError(f"no jammed state found below phi = 1 (last {low:.6g})")
+        else:
+            phi, phase = 0.5 * (low + high), "bisection"
+        step = relax(phi, low_step.packing, index, phase, low, high)  # type: ignore[arg-type]
+        low, high, index = step.phi_low, step.phi_high, index + 1
+        if step.jammed:
+            high_step = step
+        else:
+            low_step = step
+        yield step
+    assert high_step is not None  # the loop ends only with a jammed top of the bracket
+    final = relax(high, high_step.packing, index, "final", low, high)
+    if not final.jammed:
+        raise ConvergenceError(
+            f"jamming: the state at phi = {high:.9g}, jammed at the trial tolerance, unjammed "
+            f"when relaxed further (E = {final.energy:.3e}); rerun with a smaller rtol"
         )
-    yield step
-    index, low, high = 1, phi_init, np.inf
-    while np.isinf(high):
-        phi = low + dphi
-        if phi >= 1.0:
-            raise ConvergenceError(f"no jammed state found below phi = 1 (last {low:.6g})")
-        step, x = relax(phi, x_low, index, "increment", low, high)
-        low, high, index = step.phi_low, step.phi_high, index + 1
-        if not step.jammed:
-            x_low = x
-        yield step
-    while high - low > epsilon:
-        phi = 0.5 * (low + high)
-        step, x = relax(phi, x_low, index, "bisection", low, high)
-        low, high, index = step.phi_low, step.phi_high, index + 1
-        if not step.jammed:
-            x_low = x
-        yield step
+    yield final
+
+
+def _check_resume(steps: Sequence[JammingStep], start: Packing) -> None:
+    """Resumed steps must start with the relaxed start packing and be numbered 0, 1, ..."""
+    if [s.index for s in steps] != list(range(len(steps))) or steps[0].phase != "start":
+        raise InputError("resume: steps must be this run's steps 0, 1, ... in order")
+    if steps[0].packing.n != start.n or not np.isclose(steps[0].phi, start.phi, rtol=1e-12):
+        raise InputError("resume: the steps belong to another start packing")
 
 
 def jam(
@@ -206,9 +258,10 @@ def jam(
     epsilon: float = 1e-6,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
+    rtol: float = RTOL,
     gtol: float = GTOL,
 ) -> JammingResult:
-    """Run :func:`jamming_steps` to the end and return the jammed packing.
+    """Run :func:`jamming_steps` to the end and return the jammed packing (its final step).
 
     Examples
     --------
@@ -226,10 +279,11 @@ def jam(
             epsilon=epsilon,
             minimizer=minimizer,
             energy_tol=energy_tol,
+            rtol=rtol,
             gtol=gtol,
         )
     )
-    final = next(s for s in reversed(history) if s.jammed)
+    final = history[-1]
     return JammingResult(
         phi_c=final.phi,
         packing=final.packing,

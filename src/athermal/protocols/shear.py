@@ -15,7 +15,7 @@ preconditioner: a step depends on its start configuration alone.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -103,6 +103,7 @@ def shear_steps(
     step: float = 1e-4,
     minimizer: Minimizer | None = None,
     rtol: float = RTOL,
+    resume: Sequence[ShearStep] = (),
 ) -> Iterator[ShearStep]:
     """Shear ``start`` quasi-statically to ``strain`` in increments ``step``, yielding steps.
 
@@ -116,6 +117,8 @@ def shear_steps(
     minimizer : how each step is relaxed (default L-BFGS).
     rtol : tolerance relative to the mean contact force at each step's start (floored at
         round-off, see :data:`~athermal.protocols._relax.GTOL_FLOOR`).
+    resume : the steps already done by an interrupted run with the same arguments; the run
+        continues after the last one, bit for bit as an uninterrupted run.
     """
     choice(mode, "mode", SHEAR_MODES)
     strain = positive_scalar(strain, "strain")
@@ -125,12 +128,17 @@ def shear_steps(
     n_steps = int(np.ceil(strain / step - 1e-9))
     strains = np.minimum(np.arange(n_steps + 1) * step, strain)
     config = minimizer or Minimizer()
-    packing, tau_prev = start, np.nan
-    gamma_prev = 0.0
-    for index, gamma in enumerate(strains):
+    packing, tau_prev, gamma_prev, first = start, np.nan, 0.0, 0
+    if resume:
+        if [s.index for s in resume] != list(range(len(resume))) or len(resume) > strains.size:
+            raise InputError("resume: steps must be this run's steps 0, 1, ... in order")
+        last = resume[-1]
+        packing, tau_prev, gamma_prev, first = last.packing, last.tau, last.strain, len(resume)
+    for index in range(first, strains.size):
+        gamma = float(strains[index])
         t0 = time.perf_counter()
         if index:
-            total_new = deformation(mode, float(gamma), start.dim)
+            total_new = deformation(mode, gamma, start.dim)
             total_old = deformation(mode, gamma_prev, start.dim)
             packing = packing.deform(total_new @ np.linalg.inv(total_old))
         objective = Objective(packing, model)
@@ -145,7 +153,7 @@ def shear_steps(
         drop = tau_prev - tau if index else 0.0
         yield ShearStep(
             index=index,
-            strain=float(gamma),
+            strain=gamma,
             tau=tau,
             stress_drop=drop,
             plastic=bool(index and drop > DROP_TOL * abs(obs.pressure)),
@@ -155,4 +163,4 @@ def shear_steps(
             seconds=time.perf_counter() - t0,
             packing=packing,
         )
-        tau_prev, gamma_prev = tau, float(gamma)
+        tau_prev, gamma_prev = tau, gamma
