@@ -9,32 +9,16 @@ import json
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from . import bench
-from .contact import ContactModel
+from . import bench, commands
 from .errors import ConvergenceError, InputError
-from .io import append_gsd, read_gsd, write_gsd
+from .io import read_gsd, write_gsd
 from .minimize import METHODS, PRECONDITIONERS, minimize
 from .objective import Objective
 from .observables import Observables, measure
-from .packing import Packing, random_packing
-from .protocols import (
-    SHEAR_MODES,
-    Minimizer,
-    compression_steps,
-    jamming_steps,
-    log_spaced,
-    scaling_exponents,
-    shear_steps,
-)
-from .tables import write_table
-
-PHI_INIT = {2: 0.8, 3: 0.6}
-"""Default start fraction of ``athermal jam``: unjammed after relaxation (phi_c ~ 0.84 / 0.64)."""
+from .packing import random_packing
+from .protocols import SHEAR_MODES
 
 
 def _add_model_options(parser: argparse.ArgumentParser, default: float | None) -> None:
@@ -56,7 +40,9 @@ def _add_model_options(parser: argparse.ArgumentParser, default: float | None) -
     )
 
 
-def _add_minimizer_options(parser: argparse.ArgumentParser, what: str) -> None:
+def _add_minimizer_options(
+    parser: argparse.ArgumentParser, what: str, maxiter: int = 100_000
+) -> None:
     parser.add_argument(
         "--method",
         default="lbfgs",
@@ -73,7 +59,7 @@ def _add_minimizer_options(parser: argparse.ArgumentParser, what: str) -> None:
         choices=("auto", "direct", "amg"),
         help="linear solver of the preconditioner (default auto)",
     )
-    parser.add_argument("--maxiter", type=int, default=100_000, help="iteration limit (100000)")
+    parser.add_argument("--maxiter", type=int, default=maxiter, help=f"iteration limit ({maxiter})")
 
 
 def _add_protocol_outputs(parser: argparse.ArgumentParser) -> None:
@@ -81,6 +67,13 @@ def _add_protocol_outputs(parser: argparse.ArgumentParser) -> None:
         "--table", default=None, help="per-step CSV table (default: the output with .csv)"
     )
     parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    again = parser.add_mutually_exclusive_group()
+    again.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the interrupted run that wrote the trajectory (same arguments)",
+    )
+    again.add_argument("--overwrite", action="store_true", help="replace an existing trajectory")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -149,14 +142,18 @@ def _parser() -> argparse.ArgumentParser:
     jam.add_argument("--dphi", type=float, default=1e-3, help="growth increment (1e-3)")
     jam.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy (1e-6)")
     jam.add_argument("-o", "--output", required=True, help="GSD file for the jammed packing")
-    jam.add_argument("--trajectory", default=None, help="GSD file for every relaxed step")
+    jam.add_argument(
+        "--trajectory",
+        default=None,
+        help="GSD trajectory of every relaxed step (default: the output with .steps.gsd)",
+    )
     jam.add_argument(
         "--picture",
         default=None,
         help="PNG of the jammed packing with its contact forces (2D; default: the output "
         "with .png; 'none' for no picture)",
     )
-    _add_minimizer_options(jam, "of every step")
+    _add_minimizer_options(jam, "of every step", 1_000_000)
     _add_protocol_outputs(jam)
     _add_model_options(jam, 2.0)
 
@@ -177,7 +174,7 @@ def _parser() -> argparse.ArgumentParser:
     com.add_argument("--to", dest="dphi_max", type=float, default=1e-1, help="largest (1e-1)")
     com.add_argument("--per-decade", type=int, default=4, help="steps per decade (4)")
     com.add_argument("--rtol", type=float, default=1e-9, help="force tolerance (1e-9 x mean)")
-    _add_minimizer_options(com, "of every step")
+    _add_minimizer_options(com, "of every step", 1_000_000)
     _add_protocol_outputs(com)
     _add_model_options(com, None)
 
@@ -194,7 +191,7 @@ def _parser() -> argparse.ArgumentParser:
     she.add_argument("--strain", type=float, default=0.02, help="final strain (0.02)")
     she.add_argument("--step", type=float, default=1e-4, help="strain increment (1e-4)")
     she.add_argument("--rtol", type=float, default=1e-9, help="force tolerance (1e-9 x mean)")
-    _add_minimizer_options(she, "of every step")
+    _add_minimizer_options(she, "of every step", 1_000_000)
     _add_protocol_outputs(she)
     _add_model_options(she, None)
 
@@ -240,16 +237,6 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _model(
-    alpha: float | None, stiffness: float | None, fallback: ContactModel | None
-) -> ContactModel:
-    base = fallback if fallback is not None else ContactModel()
-    return ContactModel(
-        alpha=base.alpha if alpha is None else alpha,
-        stiffness=base.stiffness if stiffness is None else stiffness,
-    )
-
-
 def _report(obs: Observables, extra: dict[str, Any], as_json: bool) -> None:
     data = {**obs.to_dict(), **extra}
     if as_json:
@@ -276,14 +263,18 @@ def _report(obs: Observables, extra: dict[str, Any], as_json: bool) -> None:
 
 def _run(args: argparse.Namespace) -> None:
     if args.command == "random":
-        model = _model(args.alpha, args.stiffness, None)
+        model = commands.model_from(args, None)
         start = time.perf_counter()
         packing = random_packing(
             args.n, args.phi, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
         )
         obs = measure(packing, model)
         write_gsd(
-            args.output, packing, model=model, seed=args.seed, observables=_file_observables(obs)
+            args.output,
+            packing,
+            model=model,
+            seed=args.seed,
+            observables=commands.file_observables(obs),
         )
         _report(
             obs,
@@ -296,209 +287,18 @@ def _run(args: argparse.Namespace) -> None:
         )
     elif args.command == "measure":
         frame = read_gsd(args.input, frame=args.frame)
-        model = _model(args.alpha, args.stiffness, frame.model)
+        model = commands.model_from(args, frame.model)
         _report(measure(frame.packing, model), {"alpha": model.alpha}, args.json)
     elif args.command == "relax":
         _relax(args)
     elif args.command == "bench":
         _bench(args)
     elif args.command == "jam":
-        _jam(args)
+        commands.jam(args)
     elif args.command == "compress":
-        _compress(args)
+        commands.compress(args)
     elif args.command == "shear":
-        _shear(args)
-
-
-class _Progress:
-    """One live line on stderr (a terminal only, unless ``--quiet``)."""
-
-    def __init__(self, quiet: bool) -> None:
-        self.show = not quiet and sys.stderr.isatty()
-
-    def __call__(self, text: str) -> None:
-        if self.show:
-            print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
-
-    def close(self) -> None:
-        if self.show:
-            print(file=sys.stderr, flush=True)
-
-
-def _minimizer(args: argparse.Namespace) -> Minimizer:
-    return Minimizer(args.method, args.precon, args.A, args.solver, args.maxiter)
-
-
-def _table_path(args: argparse.Namespace) -> str:
-    return args.table if args.table is not None else str(Path(args.output).with_suffix(".csv"))
-
-
-def _print(summary: dict[str, Any], as_json: bool) -> None:
-    if as_json:
-        print(json.dumps(summary))
-        return
-    width = max(len(k) for k in summary)
-    for key, value in summary.items():
-        print(f"{key:<{width}}  {value}")
-
-
-def _jam(args: argparse.Namespace) -> None:
-    model = _model(args.alpha, args.stiffness, None)
-    phi_init = PHI_INIT[args.dim] if args.phi_init is None else args.phi_init
-    start = random_packing(
-        args.n, phi_init, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
-    )
-    progress, t0 = _Progress(args.quiet), time.perf_counter()
-    rows, last_jammed, iterations = [], None, 0
-    for step in jamming_steps(
-        start, model, dphi=args.dphi, epsilon=args.epsilon, minimizer=_minimizer(args)
-    ):
-        iterations += step.iterations
-        row = {k: v for k, v in dataclasses.asdict(step).items() if k != "packing"}
-        row["jammed"] = int(step.jammed)
-        rows.append(row)
-        if args.trajectory is not None:
-            append_gsd(
-                args.trajectory,
-                step.packing,
-                model=model,
-                seed=args.seed,
-                observables={"phi": step.phi, "energy": step.energy, "pressure": step.pressure},
-            )
-        if step.jammed:
-            last_jammed = step
-        progress(
-            f"step {step.index} {step.phase} phi {step.phi:.9f} "
-            f"{'jammed' if step.jammed else 'unjammed'} E {step.energy:.3e} "
-            f"iterations {step.iterations}"
-        )
-    progress.close()
-    assert last_jammed is not None  # the protocol ends on a bracket with a jammed top
-    obs = measure(last_jammed.packing, model)
-    write_gsd(
-        args.output,
-        last_jammed.packing,
-        model=model,
-        seed=args.seed,
-        observables={**_file_observables(obs), "phi_c": last_jammed.phi},
-    )
-    table = _table_path(args)
-    write_table(table, rows)
-    picture = None
-    if args.dim == 2 and args.picture != "none":
-        from .plot import packing_figure, save
-
-        picture = args.picture or str(Path(args.output).with_suffix(".png"))
-        title = f"jammed: N = {args.n}, phi_c = {last_jammed.phi:.6f}, z = {obs.z:.3f}"
-        save(packing_figure(last_jammed.packing, model, title=title), picture)
-    _print(
-        {
-            "phi_c": last_jammed.phi,
-            "energy": obs.energy,
-            "pressure": obs.pressure,
-            "z": obs.z,
-            "n_rattlers": obs.n_rattlers,
-            "contacts": obs.contacts,
-            "steps": len(rows),
-            "iterations": iterations,
-            "seconds": round(time.perf_counter() - t0, 3),
-            "seed": args.seed,
-            "method": _minimizer(args).label,
-            "output": args.output,
-            "table": table,
-            "trajectory": args.trajectory,
-            "picture": picture,
-        },
-        args.json,
-    )
-
-
-def _start(args: argparse.Namespace) -> tuple[Packing, ContactModel, Any]:
-    frame = read_gsd(args.input)
-    return frame.packing, _model(args.alpha, args.stiffness, frame.model), frame
-
-
-def _compress(args: argparse.Namespace) -> None:
-    packing, model, frame = _start(args)
-    phi_c = args.phi_c
-    if phi_c is None and "phi_c" in frame.log:
-        phi_c = float(frame.log["phi_c"].reshape(-1)[0])
-    deltas = log_spaced(args.dphi_min, args.dphi_max, args.per_decade)
-    progress, t0 = _Progress(args.quiet), time.perf_counter()
-    Path(args.output).unlink(missing_ok=True)
-    steps = []
-    for step in compression_steps(
-        packing, model, phi_c=phi_c, delta_phis=deltas, minimizer=_minimizer(args), rtol=args.rtol
-    ):
-        steps.append(step)
-        append_gsd(args.output, step.packing, model=model, seed=frame.seed, observables=step.row())
-        progress(
-            f"step {step.index + 1}/{deltas.size} delta phi {step.delta_phi:.1e} "
-            f"p {step.pressure:.3e} G {step.shear_modulus:.3e} iterations {step.iterations}"
-        )
-    progress.close()
-    table = _table_path(args)
-    write_table(table, [s.row() for s in steps])
-    fits = scaling_exponents(steps)
-    exponents = {
-        name: None if fit is None else {"exponent": fit.exponent, "stderr": fit.stderr}
-        for name, fit in vars(fits).items()
-    }
-    _print(
-        {
-            "table": table,
-            "exponents": exponents,
-            "phi_c": steps[0].phi - steps[0].delta_phi,
-            "steps": len(steps),
-            "iterations": sum(s.iterations for s in steps),
-            "seconds": round(time.perf_counter() - t0, 3),
-            "output": args.output,
-        },
-        args.json,
-    )
-
-
-def _shear(args: argparse.Namespace) -> None:
-    packing, model, frame = _start(args)
-    progress, t0 = _Progress(args.quiet), time.perf_counter()
-    Path(args.output).unlink(missing_ok=True)
-    rows = []
-    for step in shear_steps(
-        packing,
-        model,
-        mode=args.mode,
-        strain=args.strain,
-        step=args.step,
-        minimizer=_minimizer(args),
-        rtol=args.rtol,
-    ):
-        rows.append(step.row())
-        append_gsd(
-            args.output,
-            step.packing,
-            model=model,
-            seed=frame.seed,
-            observables={**_file_observables(step.observables), **step.row()},
-        )
-        progress(
-            f"step {step.index} strain {step.strain:.2e} tau {step.tau:.3e} "
-            f"{'plastic ' if step.plastic else ''}iterations {step.iterations}"
-        )
-    progress.close()
-    table = _table_path(args)
-    write_table(table, rows)
-    _print(
-        {
-            "table": table,
-            "mode": args.mode,
-            "steps": len(rows),
-            "plastic_events": sum(int(r["plastic"]) for r in rows),
-            "iterations": sum(int(r["iterations"]) for r in rows),
-            "seconds": round(time.perf_counter() - t0, 3),
-            "output": args.output,
-        },
-        args.json,
-    )
+        commands.shear(args)
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -524,7 +324,7 @@ def _bench(args: argparse.Namespace) -> None:
 
 def _relax(args: argparse.Namespace) -> None:
     frame = read_gsd(args.input)
-    model = _model(args.alpha, args.stiffness, frame.model)
+    model = commands.model_from(args, frame.model)
     rtol = 1e-9 if args.gtol is None and args.rtol is None else args.rtol
     res = minimize(
         Objective(frame.packing, model),
@@ -538,7 +338,11 @@ def _relax(args: argparse.Namespace) -> None:
     )
     obs = measure(res.packing, model)
     write_gsd(
-        args.output, res.packing, model=model, seed=frame.seed, observables=_file_observables(obs)
+        args.output,
+        res.packing,
+        model=model,
+        seed=frame.seed,
+        observables=commands.file_observables(obs),
     )
     summary = {
         "method": res.method,
@@ -560,17 +364,6 @@ def _relax(args: argparse.Namespace) -> None:
 
 class NotConverged(RuntimeError):
     """A minimization that stopped short of its tolerance (its result was still written)."""
-
-
-def _file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
-    return {
-        "energy": obs.energy,
-        "pressure": obs.pressure,
-        "stress": obs.stress,
-        "fabric": obs.fabric,
-        "phi": obs.phi,
-        "z": obs.z,
-    }
 
 
 def main(argv: Sequence[str] | None = None) -> int:

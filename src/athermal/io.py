@@ -41,7 +41,7 @@ _RESERVED = (*_STATE, "alpha", "stiffness", "seed")
 # that float32 rounding of positions and box never puts a particle on or outside a face.
 _FACE_MARGIN = 2.0**-20
 # What gsd raises for unreadable, corrupt or non-HOOMD files.
-_GSD_ERRORS = (RuntimeError, ValueError, OSError)
+_GSD_ERRORS = (RuntimeError, ValueError, OSError, KeyError)
 
 
 @dataclass(frozen=True, eq=False)

@@ -38,7 +38,7 @@ class Minimizer:
     precon: PreconName = "none"
     A: float = 0.0
     solver: SolverName = "auto"
-    maxiter: int = 100_000
+    maxiter: int = 1_000_000
 
     def __post_init__(self) -> None:
         resolve_method(self.method, self.precon)

@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -76,6 +76,23 @@ class JammingStep:
     phi_high: float
     packing: Packing
 
+    def row(self) -> dict[str, float | int | str]:
+        """The step's numbers (no packing), for tables."""
+        return {
+            "index": self.index,
+            "phase": self.phase,
+            "phi": self.phi,
+            "jammed": int(self.jammed),
+            "energy": self.energy,
+            "pressure": self.pressure,
+            "contacts": self.contacts,
+            "iterations": self.iterations,
+            "evaluations": self.evaluations,
+            "seconds": self.seconds,
+            "phi_low": self.phi_low,
+            "phi_high": self.phi_high,
+        }
+
     @property
     def bracket(self) -> float:
         """Width ``phi_high - phi_low`` of the bracket (``inf`` before the first jammed step)."""
@@ -117,7 +134,9 @@ def jamming_steps(
     """Run the jamming protocol from ``start``, yielding every relaxed step.
 
     The last step (phase ``final``) relaxes the jammed packing at the top of the final bracket
-    to the tight tolerance ``gtol``; it is the protocol's result.
+    to the tight tolerance ``gtol``; it is the protocol's result. Should that packing unjam when
+    relaxed further (it was jammed only at the trial tolerance), the ``final`` step is reported
+    unjammed, becomes the bottom of an open bracket, and growth and bisection go on from it.
 
     Parameters
     ----------
@@ -139,8 +158,7 @@ def jamming_steps(
     ------
     InputError : bad parameters, a start packing that is already jammed, or ``resume`` steps
         that do not belong to this run.
-    ConvergenceError : a relaxation reached its iteration limit, no jamming below phi = 1,
-        or the final relaxation unjammed the packing.
+    ConvergenceError : a relaxation reached its iteration limit, or no jamming below phi = 1.
     """
     dphi = positive_scalar(dphi, "dphi")
     epsilon = positive_scalar(epsilon, "epsilon")
@@ -202,12 +220,11 @@ def jamming_steps(
     if resume:
         _check_resume(resume, start)
         last = resume[-1]
-        if last.phase == "final":
+        if last.phase == "final" and last.jammed:
             return
         index, low, high = last.index + 1, last.phi_low, last.phi_high
-        low_step = max((s for s in resume if not s.jammed), key=lambda s: s.phi)
-        jammed_steps = [s for s in resume if s.jammed]
-        high_step = min(jammed_steps, key=lambda s: s.phi) if jammed_steps else None
+        low_step = next(s for s in reversed(resume) if not s.jammed and s.phi == low)
+        high_step = next((s for s in reversed(resume) if s.jammed and s.phi == high), None)
     else:
         low_step = relax(phi_init, start, 0, "start", 0.0, np.inf)
         if low_step.jammed:
@@ -218,28 +235,28 @@ def jamming_steps(
             )
         yield low_step
         index, low, high, high_step = 1, phi_init, np.inf, None
-    while np.isinf(high) or high - low > epsilon:
-        if np.isinf(high):
-            phi, phase = low + dphi, "increment"
+    while True:
+        if high_step is not None and high - low <= epsilon:
+            step = relax(high, high_step.packing, index, "final", low, high)
+            if step.jammed:
+                yield step
+                return
+            # jammed only at the trial tolerance: it unjams when relaxed further, so it is the
+            # new bottom of an open bracket and the growth goes on from it
+            step = replace(step, phi_high=np.inf)
+        elif np.isinf(high):
+            phi = low + dphi
             if phi >= 1.0:
                 raise ConvergenceError(f"no jammed state found below phi = 1 (last {low:.6g})")
+            step = relax(phi, low_step.packing, index, "increment", low, high)
         else:
-            phi, phase = 0.5 * (low + high), "bisection"
-        step = relax(phi, low_step.packing, index, phase, low, high)  # type: ignore[arg-type]
+            step = relax(0.5 * (low + high), low_step.packing, index, "bisection", low, high)
         low, high, index = step.phi_low, step.phi_high, index + 1
         if step.jammed:
             high_step = step
         else:
             low_step = step
         yield step
-    assert high_step is not None  # the loop ends only with a jammed top of the bracket
-    final = relax(high, high_step.packing, index, "final", low, high)
-    if not final.jammed:
-        raise ConvergenceError(
-            f"jamming: the state at phi = {high:.9g}, jammed at the trial tolerance, unjammed "
-            f"when relaxed further (E = {final.energy:.3e}); rerun with a smaller rtol"
-        )
-    yield final
 
 
 def _check_resume(steps: Sequence[JammingStep], start: Packing) -> None:

@@ -1,0 +1,368 @@
+"""The protocol subcommands of ``athermal``: ``jam``, ``compress`` and ``shear``.
+
+Each appends every completed step to its GSD trajectory (:mod:`athermal.checkpoint`), keeps the
+per-step CSV table current, shows a live line on stderr and prints a summary (``--json``: one
+object on stdout). ``--resume`` continues an interrupted run from its trajectory, bit for bit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator
+from pathlib import Path
+from typing import Any, TypeVar
+
+import numpy as np
+
+from .checkpoint import Trajectory, compression_step, jamming_step, run_id, shear_step
+from .contact import ContactModel
+from .io import read_gsd, write_gsd
+from .observables import Observables, measure
+from .packing import Packing, random_packing
+from .protocols import (
+    Minimizer,
+    compression_steps,
+    jamming_steps,
+    log_spaced,
+    scaling_exponents,
+    shear_steps,
+)
+from .tables import Row, write_table
+
+PHI_INIT = {2: 0.8, 3: 0.6}
+"""Default start fraction of ``athermal jam``: unjammed after relaxation (phi_c ~ 0.84 / 0.64)."""
+
+S = TypeVar("S")
+
+
+class Progress:
+    """One live line on stderr; shown only on a terminal and without ``--quiet``."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.show = not quiet and sys.stderr.isatty()
+
+    def __call__(self, text: str) -> None:
+        if self.show:
+            print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.show:
+            print(file=sys.stderr, flush=True)
+
+
+def model_from(args: argparse.Namespace, fallback: ContactModel | None) -> ContactModel:
+    """The contact model of ``--alpha`` / ``--stiffness``, else ``fallback``'s, else the default."""
+    base = fallback if fallback is not None else ContactModel()
+    return ContactModel(
+        alpha=base.alpha if args.alpha is None else args.alpha,
+        stiffness=base.stiffness if args.stiffness is None else args.stiffness,
+    )
+
+
+def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
+    """The observables written with a configuration."""
+    return {
+        "energy": obs.energy,
+        "pressure": obs.pressure,
+        "stress": obs.stress,
+        "fabric": obs.fabric,
+        "phi": obs.phi,
+        "z": obs.z,
+    }
+
+
+def emit(summary: dict[str, Any], as_json: bool) -> None:
+    """Print ``summary``: one JSON object, or aligned ``key  value`` lines."""
+    if as_json:
+        print(json.dumps(summary))
+        return
+    width = max(len(k) for k in summary)
+    for key, value in summary.items():
+        print(f"{key:<{width}}  {value}")
+
+
+def _minimizer(args: argparse.Namespace) -> Minimizer:
+    return Minimizer(args.method, args.precon, args.A, args.solver, args.maxiter)
+
+
+def _table_path(args: argparse.Namespace, trajectory: str) -> str:
+    return args.table if args.table is not None else str(Path(trajectory).with_suffix(".csv"))
+
+
+def _fingerprint(packing: Packing) -> str:
+    """Digest of a start configuration, so a resumed run checks it starts from the same one."""
+    digest = hashlib.sha256()
+    for arr in (packing.positions, packing.radii, packing.cell.h):
+        digest.update(np.ascontiguousarray(arr).tobytes())
+    return digest.hexdigest()
+
+
+def _parameters(args: argparse.Namespace, model: ContactModel, **extra: Any) -> dict[str, Any]:
+    return {
+        "alpha": model.alpha,
+        "stiffness": model.kmat.tolist(),
+        "minimizer": [args.method, args.precon, args.A, args.solver, args.maxiter],
+        **extra,
+    }
+
+
+def _run(
+    trajectory: Trajectory,
+    resumed: list[S],
+    steps: Iterable[S],
+    table: str,
+    row: Callable[[S], Row],
+    describe: Callable[[S], str],
+    quiet: bool,
+) -> Iterator[S]:
+    """Stream ``resumed`` then ``steps``; append and tabulate each new step as it completes."""
+    progress = Progress(quiet)
+    rows = [row(s) for s in resumed]
+    yield from resumed
+    for step in steps:
+        trajectory.append(step)  # type: ignore[arg-type]
+        rows.append(row(step))
+        write_table(table, rows)
+        progress(describe(step))
+        yield step
+    progress.close()
+    if rows:
+        write_table(table, rows)
+
+
+def jam(args: argparse.Namespace) -> None:
+    """``athermal jam``: random packing, jamming by growth and bisection, the jammed packing."""
+    t0 = time.perf_counter()
+    model = model_from(args, None)
+    phi_init = PHI_INIT[args.dim] if args.phi_init is None else args.phi_init
+    start = random_packing(
+        args.n, phi_init, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
+    )
+    trajectory_path = args.trajectory or str(Path(args.output).with_suffix(".steps.gsd"))
+    identity = run_id(
+        "jam",
+        _parameters(
+            args,
+            model,
+            n=args.n,
+            dim=args.dim,
+            size_ratio=args.size_ratio,
+            seed=args.seed,
+            phi_init=phi_init,
+            dphi=args.dphi,
+            epsilon=args.epsilon,
+        ),
+    )
+    trajectory = Trajectory(
+        trajectory_path,
+        identity,
+        model=model,
+        seed=args.seed,
+        resume=args.resume,
+        overwrite=args.overwrite,
+    )
+    done = [jamming_step(f) for f in trajectory.frames]
+    table = _table_path(args, args.output)
+    steps = list(
+        _run(
+            trajectory,
+            done,
+            jamming_steps(
+                start,
+                model,
+                dphi=args.dphi,
+                epsilon=args.epsilon,
+                minimizer=_minimizer(args),
+                resume=done,
+            ),
+            table,
+            lambda s: s.row(),
+            lambda s: (
+                f"step {s.index} {s.phase} phi {s.phi:.9f} "
+                f"{'jammed' if s.jammed else 'unjammed'} E {s.energy:.3e} "
+                f"iterations {s.iterations}"
+            ),
+            args.quiet,
+        )
+    )
+    final = steps[-1]
+    obs = measure(final.packing, model)
+    write_gsd(
+        args.output,
+        final.packing,
+        model=model,
+        seed=args.seed,
+        observables={**file_observables(obs), "phi_c": final.phi},
+    )
+    picture = None
+    if args.dim == 2 and args.picture != "none":
+        from .plot import packing_figure, save
+
+        picture = args.picture or str(Path(args.output).with_suffix(".png"))
+        title = f"jammed: N = {args.n}, phi_c = {final.phi:.6f}, z = {obs.z:.3f}"
+        save(packing_figure(final.packing, model, title=title), picture)
+    emit(
+        {
+            "phi_c": final.phi,
+            "energy": obs.energy,
+            "pressure": obs.pressure,
+            "z": obs.z,
+            "n_rattlers": obs.n_rattlers,
+            "contacts": obs.contacts,
+            "steps": len(steps),
+            "resumed_steps": len(done),
+            "iterations": sum(s.iterations for s in steps),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "seed": args.seed,
+            "method": _minimizer(args).label,
+            "output": args.output,
+            "trajectory": trajectory_path,
+            "table": table,
+            "picture": picture,
+        },
+        args.json,
+    )
+
+
+def _start(args: argparse.Namespace) -> tuple[Packing, ContactModel, Any]:
+    frame = read_gsd(args.input)
+    return frame.packing, model_from(args, frame.model), frame
+
+
+def compress(args: argparse.Namespace) -> None:
+    """``athermal compress``: quasi-static compression of a jammed packing, with fits."""
+    t0 = time.perf_counter()
+    packing, model, frame = _start(args)
+    phi_c = args.phi_c
+    if phi_c is None and "phi_c" in frame.log:
+        phi_c = float(frame.log["phi_c"].reshape(-1)[0])
+    deltas = log_spaced(args.dphi_min, args.dphi_max, args.per_decade)
+    identity = run_id(
+        "compress",
+        _parameters(
+            args,
+            model,
+            start=_fingerprint(packing),
+            phi_c=phi_c,
+            deltas=deltas.tolist(),
+            rtol=args.rtol,
+        ),
+    )
+    trajectory = Trajectory(
+        args.output,
+        identity,
+        model=model,
+        seed=frame.seed,
+        resume=args.resume,
+        overwrite=args.overwrite,
+    )
+    done = [compression_step(f) for f in trajectory.frames]
+    table = _table_path(args, args.output)
+    steps = list(
+        _run(
+            trajectory,
+            done,
+            compression_steps(
+                packing,
+                model,
+                phi_c=phi_c,
+                delta_phis=deltas,
+                minimizer=_minimizer(args),
+                rtol=args.rtol,
+                resume=done,
+            ),
+            table,
+            lambda s: s.row(),
+            lambda s: (
+                f"step {s.index + 1}/{deltas.size} delta phi {s.delta_phi:.1e} "
+                f"p {s.pressure:.3e} G {s.shear_modulus:.3e} iterations {s.iterations}"
+            ),
+            args.quiet,
+        )
+    )
+    fits = scaling_exponents(steps)
+    exponents = {
+        name: None if fit is None else {"exponent": fit.exponent, "stderr": fit.stderr}
+        for name, fit in vars(fits).items()
+    }
+    emit(
+        {
+            "table": table,
+            "exponents": exponents,
+            "phi_c": steps[0].phi - steps[0].delta_phi,
+            "steps": len(steps),
+            "resumed_steps": len(done),
+            "iterations": sum(s.iterations for s in steps),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "output": args.output,
+        },
+        args.json,
+    )
+
+
+def shear(args: argparse.Namespace) -> None:
+    """``athermal shear``: quasi-static simple or pure shear."""
+    t0 = time.perf_counter()
+    packing, model, frame = _start(args)
+    identity = run_id(
+        "shear",
+        _parameters(
+            args,
+            model,
+            start=_fingerprint(packing),
+            mode=args.mode,
+            strain=args.strain,
+            step=args.step,
+            rtol=args.rtol,
+        ),
+    )
+    trajectory = Trajectory(
+        args.output,
+        identity,
+        model=model,
+        seed=frame.seed,
+        resume=args.resume,
+        overwrite=args.overwrite,
+    )
+    done = [shear_step(f, model) for f in trajectory.frames]
+    table = _table_path(args, args.output)
+    steps = list(
+        _run(
+            trajectory,
+            done,
+            shear_steps(
+                packing,
+                model,
+                mode=args.mode,
+                strain=args.strain,
+                step=args.step,
+                minimizer=_minimizer(args),
+                rtol=args.rtol,
+                resume=done,
+            ),
+            table,
+            lambda s: s.row(),
+            lambda s: (
+                f"step {s.index} strain {s.strain:.2e} tau {s.tau:.3e} "
+                f"{'plastic ' if s.plastic else ''}iterations {s.iterations}"
+            ),
+            args.quiet,
+        )
+    )
+    emit(
+        {
+            "table": table,
+            "mode": args.mode,
+            "steps": len(steps),
+            "resumed_steps": len(done),
+            "plastic_events": sum(int(s.plastic) for s in steps),
+            "iterations": sum(s.iterations for s in steps),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "output": args.output,
+        },
+        args.json,
+    )
