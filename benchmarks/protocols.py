@@ -20,6 +20,7 @@ import argparse
 import json
 import os
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -76,6 +77,7 @@ def write_atomic(path: Path, text: str) -> None:
 
 def save(name: str, data: dict[str, Any], markdown: str) -> None:
     data["machine"] = machine()
+    markdown += f"\nRun: {data['machine']}.\n"
     write_atomic(RESULTS / f"{name}.json", json.dumps(data, indent=1) + "\n")
     write_atomic(RESULTS / f"{name}.md", markdown)
     log(markdown)
@@ -84,7 +86,13 @@ def save(name: str, data: dict[str, Any], markdown: str) -> None:
 def machine() -> str:
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else "n/a"
-    return f"{stamp}; {os.cpu_count()} cores, pinned to {cores}"
+    try:
+        commit = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+        ).stdout.strip()
+    except OSError:
+        commit = "unknown"
+    return f"{stamp}; commit {commit}; {os.cpu_count()} cores, pinned to {cores}"
 
 
 def jammed(
@@ -153,8 +161,8 @@ def run_phic(args: argparse.Namespace) -> None:
 def run_scaling(args: argparse.Namespace) -> None:
     model = ContactModel(args.alpha)
     deltas = log_spaced(1e-7, 1e-1, 4)
-    per_seed, pooled = [], {"delta_phi": [], "pressure": [], "shear": [], "z_excess": []}
-    agreement = []
+    per_seed, agreement = [], []
+    pooled: dict[str, list[float]] = {"dphi": [], "pressure": [], "shear": [], "z_excess": []}
     for seed in range(args.seeds):
         packing, phi_c, _ = jammed(args.cache, args.n, 2, args.alpha, seed)
         steps = list(compression_steps(packing, model, phi_c=phi_c, delta_phis=deltas))
@@ -163,34 +171,37 @@ def run_scaling(args: argparse.Namespace) -> None:
         per_seed.append(
             {
                 "seed": seed,
-                "phi_c": phi_c,
+                "phi_c_protocol": phi_c,
+                "phi_c_fitted": fits.phi_c,
+                "branch": fits.branch,
                 "p": fits.pressure.__dict__ if fits.pressure else None,
                 "G": fits.shear_modulus.__dict__ if fits.shear_modulus else None,
                 "z": z_fit.__dict__ if z_fit else None,
                 "steps": [s.row() for s in steps],
             }
         )
-        for s in steps:
-            pooled["delta_phi"].append(s.delta_phi)
+        for s in steps[len(steps) - fits.branch :]:
+            pooled["dphi"].append(s.phi - fits.phi_c)
             pooled["pressure"].append(s.pressure)
             pooled["shear"].append(s.shear_modulus)
             pooled["z_excess"].append(s.z_excess)
-        near = min(steps, key=lambda s: abs(np.log(s.delta_phi / 1e-2)))
-        fs = finite_strain_shear(near.packing, model)
-        lr = linear_response(near.packing, model)
-        agreement.append(
-            {
-                "seed": seed,
-                "delta_phi": near.delta_phi,
-                "G_finite": fs.modulus,
-                "G_finite_stderr": fs.stderr,
-                "G_linear": lr.shear,
-                "relative_difference": (fs.modulus - lr.shear) / lr.shear,
-                "contacts_changed": bool(np.any(fs.contacts != fs.contacts_initial)),
-            }
-        )
+        for target in (1e-2, 1e-1):
+            near = min(steps, key=lambda s: abs(np.log(s.delta_phi / target)))
+            fs = finite_strain_shear(near.packing, model)
+            lr = linear_response(near.packing, model)
+            agreement.append(
+                {
+                    "seed": seed,
+                    "delta_phi": near.delta_phi,
+                    "G_finite": fs.modulus,
+                    "G_finite_stderr": fs.stderr,
+                    "G_linear": lr.shear,
+                    "relative_difference": (fs.modulus - lr.shear) / lr.shear,
+                    "contacts_changed": bool(np.any(fs.contacts != fs.contacts_initial)),
+                }
+            )
         log(f"seed {seed}: p {fits.pressure} G {fits.shear_modulus} z {z_fit}")
-    x = pooled["delta_phi"]
+    x = pooled["dphi"]
     p_all = fit_power_law(x, pooled["pressure"], lower=args.lower)
     g_all = fit_power_law(x, pooled["shear"], lower=args.lower)
     z_all = fit_power_law(x, pooled["z_excess"], lower=args.z_lower)
@@ -198,9 +209,12 @@ def run_scaling(args: argparse.Namespace) -> None:
     lines = [
         f"# Compression scaling: 2D, N = {args.n}, alpha = {args.alpha:g}, {args.seeds} seeds",
         "",
-        f"Delta phi from 1e-7 to 1e-1, 4 per decade; p and G fitted for Delta phi >= "
-        f"{args.lower:g}, z - z_iso for Delta phi >= {args.z_lower:g} (below it N'(z - z_iso) "
-        "counts single contacts).",
+        "Delta phi from 1e-7 to 1e-1 above the jammed packing (epsilon = 1e-6), 4 per decade. "
+        "Per seed, the jammed branch (steps after the last unjammed one) is fitted with "
+        "p = a (phi - phi_c)^b, phi_c free (`scaling_exponents`, refine); G and z - z_iso are "
+        f"fitted against phi - phi_c for phi - phi_c >= {args.lower:g} and >= "
+        f"{args.z_lower:g} (below it N'(z - z_iso) counts single contacts). The pooled fit "
+        "uses every seed's branch points against its own phi_c.",
         "",
         "| quantity | expected | pooled fit | per seed (exponent ± stderr) |",
         "|---|---:|---:|---|",
@@ -215,14 +229,24 @@ def run_scaling(args: argparse.Namespace) -> None:
         )
     lines += [
         "",
+        "| seed | phi_c (protocol) | phi_c (fitted) | branch steps |",
+        "|---:|---:|---:|---:|",
+    ]
+    lines += [
+        f"| {r['seed']} | {r['phi_c_protocol']:.7f} | {r['phi_c_fitted']:.7f} | {r['branch']} |"
+        for r in per_seed
+    ]
+    lines += [
+        "",
         "Shear modulus two ways (finite strain 1e-6 ... 1e-5 in 10 steps vs linear response):",
         "",
-        "| seed | Delta phi | G finite strain | G linear response | relative difference |",
-        "|---:|---:|---:|---:|---:|",
+        "| seed | Delta phi | G finite strain | G linear response | relative difference "
+        "| contacts changed |",
+        "|---:|---:|---:|---:|---:|---|",
     ]
     lines += [
         f"| {a['seed']} | {a['delta_phi']:.2e} | {a['G_finite']:.6e} | {a['G_linear']:.6e} | "
-        f"{a['relative_difference']:+.2e} |"
+        f"{a['relative_difference']:+.2e} | {'yes' if a['contacts_changed'] else 'no'} |"
         for a in agreement
     ]
     data = {
@@ -270,7 +294,8 @@ def run_iterations(args: argparse.Namespace) -> None:
 
 def run_timing(args: argparse.Namespace) -> None:
     model = ContactModel(2.0)
-    rows = []
+    name = f"timing_n{args.n}_s{args.seed}"
+    rows: list[dict[str, Any]] = []
     for label, minimizer in TIMING_METHODS.items():
         if args.methods and label not in args.methods:
             continue
@@ -294,9 +319,18 @@ def run_timing(args: argparse.Namespace) -> None:
             }
         )
         log(f"{label}: {rows[-1]}")
+    previous = RESULTS / f"{name}.json"  # keep the rows of methods not rerun
+    if previous.exists():
+        rerun = {r["method"] for r in rows}
+        kept = [r for r in json.loads(previous.read_text())["rows"] if r["method"] not in rerun]
+        order = list(TIMING_METHODS)
+        rows = sorted(kept + rows, key=lambda r: order.index(r["method"]))
     lines = [
         f"# Jamming run timing: 2D, N = {args.n}, alpha = 2, seed {args.seed}, phi_init 0.8, "
         "dphi 1e-3, epsilon = 1e-6, one core",
+        "",
+        "Rows may come from different runs of this script (methods rerun replace their row); "
+        "the machine line is the latest run's.",
         "",
         "| minimizer | phi_c | steps | iterations | evaluations | seconds |",
         "|---|---:|---:|---:|---:|---:|",
@@ -309,7 +343,7 @@ def run_timing(args: argparse.Namespace) -> None:
                 f"| {r['method']} | {r['phi_c']:.7f} | {r['steps']} | {r['iterations']} | "
                 f"{r['evaluations']} | {r['seconds']:.1f} |"
             )
-    save(f"timing_n{args.n}_s{args.seed}", {"rows": rows}, "\n".join(lines) + "\n")
+    save(name, {"rows": rows}, "\n".join(lines) + "\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -325,7 +359,7 @@ def main(argv: list[str] | None = None) -> int:
     scaling = sub.add_parser("scaling")
     scaling.add_argument("--n", type=int, default=1024)
     scaling.add_argument("--alpha", type=float, default=2.0)
-    scaling.add_argument("--seeds", type=int, default=3)
+    scaling.add_argument("--seeds", type=int, default=5)
     scaling.add_argument("--lower", type=float, default=1e-6)
     scaling.add_argument("--z-lower", type=float, default=1e-4)
     iters = sub.add_parser("iterations")

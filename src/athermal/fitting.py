@@ -58,3 +58,45 @@ def fit_power_law(
         prefactor=float(np.exp(coef[1])),
         points=int(lx.size),
     )
+
+
+def fit_jamming_point(phi: ArrayLike, pressure: ArrayLike) -> tuple[float, PowerLaw]:
+    """Fit ``p = a (phi - phi_0)^b`` with the jamming point ``phi_0`` free.
+
+    Least squares in ``log p`` over ``(log a, b, log(min(phi) - phi_0))``, started from the
+    two-parameter fit with ``phi_0`` just below the smallest ``phi``. Returns ``phi_0`` and the
+    power law in ``phi - phi_0`` (``stderr`` of ``b`` from the Jacobian at the optimum).
+    Needs at least 4 points with ``p > 0``.
+    """
+    from scipy.optimize import least_squares
+
+    x = float_array(phi, "phi", (None,))
+    y = float_array(pressure, "pressure", (x.size,))
+    keep = y > 0.0
+    x, y = x[keep], y[keep]
+    if x.size < 4:
+        raise InputError(f"fit_jamming_point: need at least 4 points with p > 0, got {x.size}")
+    lowest = float(x.min())
+    spread = float(x.max()) - lowest
+    if spread <= 0.0:
+        raise InputError("fit_jamming_point: the packing fractions must not all be equal")
+    start_gap = 1e-3 * spread
+    first = fit_power_law(x - lowest + start_gap, y)
+    ly = np.log(y)
+
+    def residual(q: np.ndarray) -> np.ndarray:
+        return np.asarray(q[0] + q[1] * np.log(x - lowest + np.exp(q[2])) - ly)
+
+    q0 = np.array([np.log(first.prefactor), first.exponent, np.log(start_gap)])
+    sol = least_squares(residual, q0, method="lm")
+    dof = x.size - 3
+    variance = float(sol.fun @ sol.fun) / dof if dof > 0 else 0.0
+    try:
+        cov = variance * np.linalg.inv(sol.jac.T @ sol.jac)
+        stderr = float(np.sqrt(max(cov[1, 1], 0.0)))
+    except np.linalg.LinAlgError:
+        stderr = float("inf")
+    law = PowerLaw(
+        exponent=float(sol.x[1]), stderr=stderr, prefactor=float(np.exp(sol.x[0])), points=x.size
+    )
+    return lowest - float(np.exp(sol.x[2])), law

@@ -25,7 +25,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._validate import float_array
 from ..contact import ContactModel
 from ..errors import InputError
-from ..fitting import PowerLaw, fit_power_law
+from ..fitting import PowerLaw, fit_jamming_point, fit_power_law
 from ..moduli import linear_response
 from ..objective import Objective
 from ..observables import measure
@@ -59,7 +59,8 @@ class CompressionStep:
     """One relaxed state of the compression (units: ``k`` and the cell's lengths).
 
     ``bulk_modulus`` is ``phi dp/dphi`` along the protocol, ``shear_modulus`` the simple-shear
-    ``G``, both by linear response; ``z_excess = z - z_iso`` over the non-rattlers.
+    ``G``, both by linear response; ``z_excess = z - z_iso`` over the non-rattlers (``-2 d``
+    when every particle is a rattler).
     """
 
     index: int
@@ -169,7 +170,7 @@ def compression_steps(
             shear_stress=obs.shear_stress,
             contacts=obs.contacts,
             z=obs.z,
-            z_excess=obs.z - isostatic_z(n_live, jammed.dim) if n_live else 0.0,
+            z_excess=obs.z - isostatic_z(n_live, jammed.dim) if n_live else -2.0 * jammed.dim,
             n_rattlers=obs.n_rattlers,
             bulk_modulus=moduli.bulk + (model.alpha - jammed.dim) * obs.pressure / jammed.dim,
             shear_modulus=moduli.shear,
@@ -182,19 +183,55 @@ def compression_steps(
 
 @dataclass(frozen=True)
 class ScalingExponents:
-    """Power laws fitted to a compression: ``p``, ``G`` and ``z - z_iso`` vs ``Delta phi``.
-    ``None`` where fewer than 3 usable points fell in the window."""
+    """Power laws fitted to a compression: ``p``, ``G`` and ``z - z_iso`` against
+    ``phi - phi_c``; ``None`` where fewer than 3 usable points fell in the window.
+
+    ``phi_c`` is the jamming point the fits use: the protocol's, or (``refine``) the one of
+    the fitted ``p = a (phi - phi_c)^b``; ``branch`` the steps fitted (see
+    :func:`scaling_exponents`).
+    """
 
     pressure: PowerLaw | None
     shear_modulus: PowerLaw | None
     z_excess: PowerLaw | None
+    phi_c: float
+    branch: int
+
+
+def jammed_branch(steps: Sequence[CompressionStep]) -> list[CompressionStep]:
+    """The steps after the last unjammed one (no pressure, or fewer contacts than isostatic):
+    a finite packing can unjam during a compression step and jam again later, in another basin
+    with its own jamming point."""
+    last_free = max(
+        (k for k, s in enumerate(steps) if not (s.pressure > 0.0 and s.z_excess > -1e-9)),
+        default=-1,
+    )
+    return list(steps[last_free + 1 :])
 
 
 def scaling_exponents(
-    steps: Sequence[CompressionStep], *, lower: float = 0.0, upper: float = np.inf
+    steps: Sequence[CompressionStep],
+    *,
+    lower: float = 0.0,
+    upper: float = np.inf,
+    refine: bool = True,
 ) -> ScalingExponents:
-    """Fit the three power laws over the steps with ``lower <= Delta phi <= upper``."""
-    dphi = np.array([s.delta_phi for s in steps])
+    """Fit the three power laws to the jammed branch (:func:`jammed_branch`) of ``steps``.
+
+    With ``refine`` the jamming point is fitted too, ``p = a (phi - phi_c)^b`` with ``phi_c``
+    free (:func:`~athermal.fitting.fit_jamming_point`, all branch points): the bisection leaves
+    the jammed packing up to ~10 epsilon above the jamming point of its own basin, which bends
+    ``p`` at ``Delta phi`` below ~1e-5. ``G`` and ``z - z_iso`` are then fitted against
+    ``phi - phi_c`` within ``[lower, upper]``; without ``refine`` all three use the protocol's
+    ``Delta phi`` and the window.
+    """
+    branch = jammed_branch(steps)
+    phi = np.array([s.phi for s in branch])
+    phi_c = float(branch[0].phi - branch[0].delta_phi) if branch else np.nan
+    pressure_fit: PowerLaw | None = None
+    if refine and len(branch) >= 4:
+        phi_c, pressure_fit = fit_jamming_point(phi, [s.pressure for s in branch])
+    dphi = phi - phi_c
 
     def fit(values: list[float]) -> PowerLaw | None:
         try:
@@ -203,7 +240,9 @@ def scaling_exponents(
             return None
 
     return ScalingExponents(
-        pressure=fit([s.pressure for s in steps]),
-        shear_modulus=fit([s.shear_modulus for s in steps]),
-        z_excess=fit([s.z_excess for s in steps]),
+        pressure=pressure_fit or fit([s.pressure for s in branch]),
+        shear_modulus=fit([s.shear_modulus for s in branch]),
+        z_excess=fit([s.z_excess for s in branch]),
+        phi_c=phi_c,
+        branch=len(branch),
     )
