@@ -2,14 +2,12 @@
 of an uninterrupted run, bit for bit; foreign, truncated and existing files get clear errors."""
 
 import json
-import os
 import signal
 import subprocess
 import sys
 import time
 
 import numpy as np
-import pytest
 
 from athermal.cli import main
 from athermal.io import count_frames, read_gsd
