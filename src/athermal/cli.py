@@ -195,6 +195,24 @@ def _parser() -> argparse.ArgumentParser:
     _add_protocol_outputs(she)
     _add_model_options(she, None)
 
+    pap = sub.add_parser(
+        "paper",
+        help="reproduce the seed paper's figures, Table and exponents",
+        description="Jamming snapshots, the convergence of one relaxation, the scaling "
+        "laws of p, G and z for alpha = 2 and 2.5, the iteration experiment, the pure-shear "
+        "test and the Table, written as PNG figures and report.md into DIR. --quick (the "
+        "default) runs at N = 1024 in minutes; --full at the seed's N = 4096 (hours).",
+    )
+    pap.add_argument("-o", "--output", required=True, help="directory to write into")
+    size = pap.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="N = 1024 (default)")
+    size.add_argument("--full", action="store_true", help="the seed's N = 4096")
+    pap.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    pap.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    pap.add_argument(
+        "--json", action="store_true", help="print one JSON object on stdout and nothing else"
+    )
+
     ben = sub.add_parser(
         "bench",
         help="the seed's Table benchmark (BENCHMARKS.md, B1)",
@@ -293,6 +311,8 @@ def _run(args: argparse.Namespace) -> None:
         _relax(args)
     elif args.command == "bench":
         _bench(args)
+    elif args.command == "paper":
+        commands.paper(args)
     elif args.command == "jam":
         commands.jam(args)
     elif args.command == "compress":

@@ -1,4 +1,4 @@
-"""The protocol subcommands of ``athermal``: ``jam``, ``compress`` and ``shear``.
+"""The long-running subcommands of ``athermal``: ``jam``, ``compress``, ``shear``, ``paper``.
 
 Each appends every completed step to its GSD trajectory (:mod:`athermal.checkpoint`), keeps the
 per-step CSV table current, shows a live line on stderr and prints a summary (``--json``: one
@@ -363,6 +363,26 @@ def shear(args: argparse.Namespace) -> None:
             "iterations": sum(s.iterations for s in steps),
             "seconds": round(time.perf_counter() - t0, 3),
             "output": args.output,
+        },
+        args.json,
+    )
+
+
+def paper(args: argparse.Namespace) -> None:
+    """``athermal paper``: every figure, the Table and the exponents of the seed paper."""
+    from .paper import FULL, QUICK, reproduce
+
+    progress = Progress(args.quiet)
+    settings = FULL if args.full else QUICK
+    result = reproduce(args.output, settings, seed=args.seed, progress=progress)
+    progress.close()
+    emit(
+        {
+            "figures": result.figures,
+            "report": result.report,
+            "exponents": result.exponents,
+            "phi_c": result.phi_c,
+            "seconds": round(result.seconds, 1),
         },
         args.json,
     )

@@ -1,0 +1,52 @@
+import pytest
+
+from athermal.cli import main
+from athermal.paper import Settings, reproduce
+
+TINY = Settings(
+    n=96,
+    per_decade=1,
+    table_cases=(3,),
+    realizations=2,
+    realization_n=48,
+    table_alphas=(2.0,),
+    table_methods=("L-BFGS",),
+    table_repeats=1,
+    shear_delta_phi=1e-1,
+)
+PNG = b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.slow
+def test_every_figure_and_the_report_are_written(tmp_path):
+    result = reproduce(tmp_path, TINY, seed=1)
+    expected = {
+        "jamming_initial",
+        "jamming_intermediate",
+        "jamming_jammed",
+        "convergence",
+        "scaling_p",
+        "scaling_G",
+        "scaling_z",
+        "iterations",
+        "pure_shear",
+    }
+    assert set(result.figures) == expected
+    for path in result.figures.values():
+        data = open(path, "rb").read()
+        assert data[:8] == PNG and len(data) > 5_000
+    report = open(result.report).read()
+    for alpha in ("2", "2.5"):
+        assert set(result.exponents[alpha]) >= {"p", "G"}
+        for fit in result.exponents[alpha].values():
+            assert f"{fit['exponent']:.3f}" in report
+    assert "| alpha | case | method |" in report and "![convergence](convergence.png)" in report
+    assert 0.8 < result.phi_c < 0.9
+
+
+def test_paper_refuses_a_file_as_directory(tmp_path, capsys):
+    target = tmp_path / "f"
+    target.write_text("x")
+    assert main(["paper", "-o", str(target), "--json"]) == 2
+    out, err = capsys.readouterr()
+    assert out == "" and "not a directory" in err
