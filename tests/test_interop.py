@@ -1,0 +1,68 @@
+"""The GSD files athermal writes, opened by OVITO and freud (where those packages install:
+``pip install -e ".[interop]"``): the box (tilt included), radii and positions they see are
+athermal's, to float32 precision."""
+
+import gsd.hoomd
+import numpy as np
+import pytest
+
+from athermal.cell import simple_shear
+from athermal.contact import ContactModel, find_contacts
+from athermal.io import write_gsd
+from athermal.packing import random_packing
+
+F32 = 2e-6  # relative precision of HOOMD's float32 chunks
+
+
+@pytest.fixture(params=[2, 3])
+def written(request, tmp_path):
+    dim = request.param
+    packing = random_packing(200, 0.85 if dim == 2 else 0.62, dim=dim, seed=4)
+    packing = packing.deform(simple_shear(0.3, dim))  # a tilted box
+    path = tmp_path / f"p{dim}.gsd"
+    write_gsd(path, packing, model=ContactModel(2.0), seed=4)
+    return path, packing
+
+
+def test_ovito_reads_box_radii_and_positions(written):
+    io = pytest.importorskip("ovito.io")
+    path, packing = written
+    data = io.import_file(str(path)).compute()
+    d = packing.dim
+    cell = np.asarray(data.cell[...])  # (3, 4): cell vectors as columns, then the origin
+    np.testing.assert_allclose(cell[:d, :d], packing.cell.h, rtol=F32, atol=F32)
+    radii = np.asarray(data.particles["Radius"])
+    np.testing.assert_allclose(radii, packing.radii, rtol=F32)
+    seen = np.asarray(data.particles.positions)[:, :d]
+    wrapped = packing.wrapped().positions
+    np.testing.assert_allclose(seen, wrapped, atol=F32 * float(np.abs(cell).max()))
+
+
+@pytest.mark.filterwarnings("ignore:Specifying z-dimensions")  # our 2D boxes carry Lz = 1
+def test_freud_sees_the_same_contacts(written):
+    freud = pytest.importorskip("freud")
+    path, packing = written
+    with gsd.hoomd.open(str(path)) as traj:
+        frame = traj[0]
+    d = packing.dim
+    box = freud.box.Box.from_box(frame.configuration.box, dimensions=d)
+    np.testing.assert_allclose(box.to_matrix()[:d, :d], packing.cell.h, rtol=F32, atol=F32)
+    points = np.asarray(frame.particles.position, dtype=np.float32)
+    radii = np.asarray(frame.particles.diameter, dtype=np.float64) / 2.0
+    np.testing.assert_allclose(radii, packing.radii, rtol=F32)
+    query = freud.locality.AABBQuery(box, points)
+    pairs = query.query(points, {"r_max": 2.0 * radii.max(), "exclude_ii": True}).toNeighborList()
+    i, j, dist = pairs.query_point_indices, pairs.point_indices, pairs.distances
+    overlap = radii[i] + radii[j] - dist
+    contacts = find_contacts(packing, ContactModel(2.0))
+    mine = {
+        (min(a, b), max(a, b))
+        for a, b, o in zip(contacts.i, contacts.j, contacts.overlap, strict=True)
+        if o > 1e-4 * radii.mean()
+    }
+    theirs = {
+        (min(a, b), max(a, b))
+        for a, b, o in zip(i, j, overlap, strict=True)
+        if o > 1e-4 * radii.mean()
+    }
+    assert mine == theirs and len(mine) > 100
