@@ -275,3 +275,41 @@ def test_protocol_errors_are_one_line(tmp_path, capsys):
     )
     assert code == 2 and out == "" and "phi_init" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()
+
+
+def _run_with_terminal_stderr(argv, cwd):
+    """Run ``athermal argv`` with stderr on a pseudo-terminal and stdout on a pipe."""
+    import os
+    import pty
+
+    master, slave = pty.openpty()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "athermal.cli", *argv], cwd=cwd, stdout=subprocess.PIPE, stderr=slave
+    )
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            data = os.read(master, 4096)
+        except OSError:  # the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    out = proc.stdout.read().decode()
+    proc.wait()
+    os.close(master)
+    return proc.returncode, out, b"".join(chunks).decode(errors="replace")
+
+
+@pytest.mark.parametrize("quiet", [False, True])
+def test_progress_goes_to_a_terminal_stderr_only_and_json_stays_clean(tmp_path, quiet):
+    argv = ["jam", "--n", "48", "--seed", "2", "--epsilon", "1e-4", "--picture", "none"]
+    argv += ["-o", "j.gsd", "--json"] + (["--quiet"] if quiet else [])
+    code, out, terminal = _run_with_terminal_stderr(argv, tmp_path)
+    assert code == 0
+    assert CONTRACT_JAM_KEYS <= set(json.loads(out))
+    if quiet:
+        assert terminal == ""
+    else:
+        assert "step 0 start phi" in terminal and "bisection" in terminal
