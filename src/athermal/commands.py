@@ -285,15 +285,21 @@ def compress(args: argparse.Namespace) -> None:
         )
     )
     fits = scaling_exponents(steps)
+    laws = {
+        "pressure": fits.pressure,
+        "shear_modulus": fits.shear_modulus,
+        "z_excess": fits.z_excess,
+    }
     exponents = {
         name: None if fit is None else {"exponent": fit.exponent, "stderr": fit.stderr}
-        for name, fit in vars(fits).items()
+        for name, fit in laws.items()
     }
     emit(
         {
             "table": table,
             "exponents": exponents,
             "phi_c": steps[0].phi - steps[0].delta_phi,
+            "phi_c_fitted": fits.phi_c,
             "steps": len(steps),
             "resumed_steps": len(done),
             "iterations": sum(s.iterations for s in steps),
