@@ -195,6 +195,36 @@ def _parser() -> argparse.ArgumentParser:
     _add_protocol_outputs(she)
     _add_model_options(she, None)
 
+    ens = sub.add_parser(
+        "ensemble",
+        help="many realizations of a protocol on Dask",
+        description="Run M realizations of jam, compress, shear or the iteration "
+        "experiment, realization k with the k-th child of SeedSequence(--seed), on a local "
+        "Dask cluster started here (--workers) or an existing one (--scheduler). Each "
+        "realization writes its trajectory and result into DIR; rerunning with the same DIR "
+        "skips finished ones; a summary (JSON, CSV, figure) aggregates them. Without the "
+        "dask extra the realizations run one after another.",
+    )
+    ens.add_argument("protocol", choices=("jam", "compress", "shear", "iterations"))
+    ens.add_argument("--realizations", type=int, required=True, help="how many (M)")
+    ens.add_argument("--workers", type=int, default=None, help="local worker processes")
+    ens.add_argument("--scheduler", default=None, help="address of an existing scheduler")
+    ens.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    ens.add_argument("-o", "--output", required=True, help="directory of the ensemble")
+    ens.add_argument("--n", type=int, default=1024, help="particles (default 1024)")
+    ens.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions (2)")
+    ens.add_argument("--size-ratio", type=float, default=1.4, help="large/small radius (1.4)")
+    ens.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy (1e-6)")
+    ens.add_argument("--method", default="lbfgs", choices=METHODS, help="minimizer (lbfgs)")
+    ens.add_argument(
+        "--precon", default="none", choices=PRECONDITIONERS, help="preconditioner (none)"
+    )
+    ens.add_argument("--alpha", type=float, default=2.0, help="contact exponent (2)")
+    ens.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    ens.add_argument(
+        "--json", action="store_true", help="print one JSON object on stdout and nothing else"
+    )
+
     pap = sub.add_parser(
         "paper",
         help="reproduce the seed paper's figures, Table and exponents",
@@ -313,6 +343,8 @@ def _run(args: argparse.Namespace) -> None:
         _bench(args)
     elif args.command == "paper":
         commands.paper(args)
+    elif args.command == "ensemble":
+        commands.ensemble(args)
     elif args.command == "jam":
         commands.jam(args)
     elif args.command == "compress":

@@ -1,4 +1,5 @@
-"""The long-running subcommands of ``athermal``: ``jam``, ``compress``, ``shear``, ``paper``.
+"""The long-running subcommands of ``athermal``: ``jam``, ``compress``, ``shear``, ``paper``,
+``ensemble``.
 
 Each appends every completed step to its GSD trajectory (:mod:`athermal.checkpoint`), keeps the
 per-step CSV table current, shows a live line on stderr and prints a summary (``--json``: one
@@ -389,6 +390,44 @@ def paper(args: argparse.Namespace) -> None:
             "exponents": result.exponents,
             "phi_c": result.phi_c,
             "seconds": round(result.seconds, 1),
+        },
+        args.json,
+    )
+
+
+def ensemble(args: argparse.Namespace) -> None:
+    """``athermal ensemble``: M realizations of a protocol on Dask."""
+    from .ensemble import EnsembleSpec, run_ensemble
+
+    spec = EnsembleSpec(
+        args.protocol,
+        n=args.n,
+        dim=args.dim,
+        alpha=args.alpha,
+        size_ratio=args.size_ratio,
+        epsilon=args.epsilon,
+        method=args.method,
+        precon=args.precon,
+    )
+    progress = Progress(args.quiet)
+    result = run_ensemble(
+        spec,
+        args.output,
+        args.realizations,
+        seed=args.seed,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=progress,
+    )
+    progress.close()
+    emit(
+        {
+            "realizations": result.realizations,
+            "summary": result.summary,
+            "computed": result.computed,
+            "engine": result.engine,
+            "seconds": round(result.seconds, 3),
+            "files": result.files,
         },
         args.json,
     )

@@ -198,3 +198,17 @@ def shear_figure(curves: Mapping[str, Mapping[str, Sequence[float]]], *, title: 
     fabric_ax.legend(fontsize="x-small")
     fig.suptitle(title)
     return fig
+
+
+def histogram_figure(values: Sequence[float], *, xlabel: str, title: str = "") -> Figure:
+    """A histogram of ``values`` (e.g. phi_c over realizations) with their mean marked."""
+    fig = _figure()
+    ax = fig.add_subplot()
+    data = np.asarray(values, dtype=np.float64)
+    ax.hist(data, bins=max(5, int(np.sqrt(data.size)) + 1), color="steelblue", edgecolor="white")
+    ax.axvline(float(data.mean()), color="firebrick", label=f"mean {data.mean():.5f}")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("realizations")
+    ax.set_title(title)
+    ax.legend()
+    return fig

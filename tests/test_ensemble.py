@@ -1,0 +1,109 @@
+"""Ensembles on a real dask.distributed cluster (worker processes on loopback)."""
+
+import builtins
+import json
+import os
+import signal
+import threading
+import time
+
+import pytest
+
+from athermal.ensemble import EnsembleSpec, child_seeds, run_ensemble
+from athermal.errors import InputError
+
+distributed = pytest.importorskip("dask.distributed")
+
+SPEC = EnsembleSpec("jam", n=48, epsilon=1e-4)
+
+
+def numbers(result):
+    return [{k: v for k, v in r.items() if k != "seconds"} for r in result.realizations]
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    return run_ensemble(SPEC, tmp_path_factory.mktemp("ref"), 4, seed=11, workers=1)
+
+
+def test_child_seeds_are_fixed_by_the_root_seed():
+    assert child_seeds(11, 4) == child_seeds(11, 4)
+    assert child_seeds(11, 4)[:2] == child_seeds(11, 2)
+    assert len(set(child_seeds(11, 100))) == 100 and child_seeds(12, 1) != child_seeds(11, 1)
+
+
+@pytest.mark.slow
+def test_one_and_two_workers_give_identical_realizations(reference, tmp_path):
+    two = run_ensemble(SPEC, tmp_path, 4, seed=11, workers=2)
+    assert "2 worker" in two.engine and "1 worker" in reference.engine
+    assert numbers(two) == numbers(reference)
+    assert [r["seed"] for r in two.realizations] == child_seeds(11, 4)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["phi_c"]["n"] == 4 and summary["phi_c"]["sd"] > 0.0
+    assert (tmp_path / "summary.png").stat().st_size > 5_000
+    assert (tmp_path / "realizations.csv").read_text().count("\n") == 5
+
+
+@pytest.mark.slow
+def test_a_killed_worker_loses_and_duplicates_nothing(reference, tmp_path):
+    cluster = distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None
+    )
+    client = distributed.Client(cluster)
+    pids = client.run(os.getpid)
+    outcome = {}
+
+    def ensemble():
+        outcome["result"] = run_ensemble(
+            SPEC, tmp_path, 4, seed=11, scheduler=cluster.scheduler_address
+        )
+
+    runner = threading.Thread(target=ensemble)
+    runner.start()
+    deadline = time.monotonic() + 120
+    while not list(tmp_path.glob("realization-*.gsd")):  # a realization is under way
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    victim = next(iter(pids.values()))
+    os.kill(victim, signal.SIGKILL)
+    runner.join(timeout=600)
+    after = set(client.run(os.getpid).values())
+    client.close()
+    cluster.close()
+    result = outcome["result"]
+    assert victim not in after and len(after) == 2  # the nanny restarted the killed worker
+    assert sorted(r["index"] for r in result.realizations) == [0, 1, 2, 3]
+    assert numbers(result) == numbers(reference)
+    assert len(list(tmp_path.glob("realization-*.json"))) == 4
+    from athermal.io import count_frames
+
+    for r in result.realizations:  # a retried realization resumed, it did not append twice
+        assert count_frames(tmp_path / f"realization-{r['index']:04d}.gsd") == r["steps"]
+
+
+@pytest.mark.slow
+def test_rerun_skips_finished_realizations_and_refuses_another_spec(reference, tmp_path):
+    first = run_ensemble(SPEC, tmp_path, 2, seed=11, workers=1)
+    assert first.computed == [0, 1]
+    more = run_ensemble(SPEC, tmp_path, 3, seed=11, workers=1)
+    assert more.computed == [2] and numbers(more) == numbers(reference)[:3]
+    again = run_ensemble(SPEC, tmp_path, 3, seed=11, workers=1)
+    assert again.computed == [] and again.engine.startswith("none")
+    with pytest.raises(InputError, match="another spec or seed"):
+        run_ensemble(SPEC, tmp_path, 3, seed=12)
+
+
+def test_without_dask_the_same_realizations_run_sequentially(reference, tmp_path, monkeypatch):
+    real_import = builtins.__import__
+
+    def no_dask(name, *args, **kwargs):
+        if name.startswith("dask"):
+            raise ImportError(f"No module named {name!r}")
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", no_dask)
+    with pytest.warns(UserWarning, match=r"athermal\[dask\]"):
+        result = run_ensemble(SPEC, tmp_path, 2, seed=11)
+    assert result.engine == "sequential" and numbers(result) == numbers(reference)[:2]
+    with pytest.raises(InputError, match="dask extra"):
+        run_ensemble(SPEC, tmp_path / "b", 1, seed=11, scheduler="tcp://127.0.0.1:1")
