@@ -1,0 +1,95 @@
+"""B6: an ensemble of jamming realizations on 2 Dask workers against 1 (wall time ratio).
+
+M realizations (default 8) of ``athermal ensemble jam`` at N = 1024 (epsilon = 1e-6, L-BFGS),
+root seed 0, run twice into fresh directories: on a local cluster of 1 worker process, then 2.
+Reports both wall times, their ratio (ideal 0.5 on a 2-core machine), whether the realizations
+are identical, and phi_c's mean, standard deviation and standard error.
+
+    python benchmarks/ensemble.py              # M = 8, N = 1024 (about 10 minutes)
+    python benchmarks/ensemble.py --m 4 --n 256
+
+Results: ``benchmarks/results/ensemble.md`` and ``.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+
+from athermal.ensemble import EnsembleSpec, run_ensemble
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--m", type=int, default=8)
+    parser.add_argument("--n", type=int, default=1024)
+    parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
+    args = parser.parse_args(argv)
+    spec = EnsembleSpec("jam", n=args.n)
+    runs = {}
+    with tempfile.TemporaryDirectory() as scratch:
+        for workers in (1, 2):
+            t0 = time.perf_counter()
+            result = run_ensemble(spec, Path(scratch) / f"w{workers}", args.m, workers=workers)
+            runs[workers] = (time.perf_counter() - t0, result)
+            print(f"{workers} worker(s): {runs[workers][0]:.1f} s", file=sys.stderr)
+    one, two = runs[1][1], runs[2][1]
+    same = [{k: v for k, v in r.items() if k != "seconds"} for r in one.realizations] == [
+        {k: v for k, v in r.items() if k != "seconds"} for r in two.realizations
+    ]
+    phi = one.summary["phi_c"]
+    commit = subprocess.run(
+        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
+    ).stdout.strip()
+    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
+    data = {
+        "m": args.m,
+        "n": args.n,
+        "seconds_1_worker": runs[1][0],
+        "seconds_2_workers": runs[2][0],
+        "ratio": runs[2][0] / runs[1][0],
+        "identical": same,
+        "phi_c": phi,
+        "phi_c_values": [r["phi_c"] for r in one.realizations],
+        "machine": f"{stamp}; commit {commit}; {os.cpu_count()} cores",
+    }
+    lines = [
+        f"# Ensemble: {args.m} jamming realizations, N = {args.n}, on Dask workers",
+        "",
+        "| workers | wall seconds |",
+        "|---:|---:|",
+        f"| 1 | {runs[1][0]:.1f} |",
+        f"| 2 | {runs[2][0]:.1f} |",
+        "",
+        f"Ratio 2 / 1 workers: {data['ratio']:.3f} (ideal 0.5 on this 2-core machine). "
+        f"Realizations identical with 1 and 2 workers: {'yes' if same else 'NO'}.",
+        "",
+        f"phi_c = {phi['mean']:.5f} ± {phi['sd']:.5f} (sd), standard error {phi['stderr']:.5f}, "
+        f"over {phi['n']} realizations.",
+        "",
+        f"Run: {data['machine']}.",
+    ]
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    for suffix, text in (
+        (".json", json.dumps(data, indent=1) + "\n"),
+        (".md", "\n".join(lines) + "\n"),
+    ):
+        target = args.output_dir / f"ensemble{suffix}"
+        tmp = target.with_name(f".{target.name}.tmp")
+        tmp.write_text(text)
+        os.replace(tmp, target)
+    print("\n".join(lines))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
