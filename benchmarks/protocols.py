@@ -37,6 +37,8 @@ from athermal.io import read_gsd, write_gsd
 from athermal.moduli import linear_response
 from athermal.packing import Packing, random_packing
 from athermal.protocols import (
+    ITERATION_METHODS,
+    PHI_INIT,
     Minimizer,
     compression_steps,
     finite_strain_shear,
@@ -48,12 +50,6 @@ from athermal.protocols import (
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results" / "protocols"
-PHI_INIT = {2: 0.8, 3: 0.6}
-ITERATION_METHODS = {
-    "L-BFGS": Minimizer("lbfgs"),
-    "P-L-BFGS (Exp, A=0)": Minimizer("lbfgs", "exp"),
-    "contact P-L-BFGS": Minimizer("lbfgs", "contact"),
-}
 TIMING_METHODS = {
     "L-BFGS": Minimizer("lbfgs"),
     "P-L-BFGS (Exp, A=0)": Minimizer("lbfgs", "exp"),

@@ -25,6 +25,7 @@ from .io import read_gsd, write_gsd
 from .observables import Observables, measure
 from .packing import Packing, random_packing
 from .protocols import (
+    PHI_INIT,
     Minimizer,
     compression_steps,
     jamming_steps,
@@ -33,9 +34,6 @@ from .protocols import (
     shear_steps,
 )
 from .tables import Row, write_table
-
-PHI_INIT = {2: 0.8, 3: 0.6}
-"""Default start fraction of ``athermal jam``: unjammed after relaxation (phi_c ~ 0.84 / 0.64)."""
 
 S = TypeVar("S")
 

@@ -36,6 +36,8 @@ from .fitting import fit_power_law
 from .observables import measure
 from .packing import random_packing
 from .protocols import (
+    ITERATION_METHODS,
+    PHI_INIT,
     Minimizer,
     compression_steps,
     finite_strain_shear,
@@ -48,12 +50,6 @@ from .protocols.compress import isostatic_z
 
 Protocol = Literal["jam", "compress", "shear", "iterations"]
 PROTOCOLS: tuple[str, ...] = ("jam", "compress", "shear", "iterations")
-PHI_INIT = {2: 0.8, 3: 0.6}
-ITERATION_METHODS = {
-    "L-BFGS": Minimizer("lbfgs"),
-    "P-L-BFGS": Minimizer("lbfgs", "exp"),
-    "contact P-L-BFGS": Minimizer("lbfgs", "contact"),
-}
 INSTALL_HINT = 'the dask extra is not installed (pip install "athermal[dask]")'
 
 

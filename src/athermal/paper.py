@@ -37,6 +37,7 @@ from .minimize import minimize
 from .objective import Objective
 from .packing import random_packing
 from .protocols import (
+    ITERATION_METHODS,
     Minimizer,
     compression_steps,
     finite_strain_shear,
@@ -55,11 +56,6 @@ CONVERGENCE_METHODS = {
     "FR-CG": Minimizer("cg"),
     "P-FR-CG": Minimizer("cg", "exp"),
     "FIRE": Minimizer("fire"),
-    "contact P-L-BFGS": Minimizer("lbfgs", "contact"),
-}
-ITERATION_METHODS = {
-    "L-BFGS": Minimizer("lbfgs"),
-    "P-L-BFGS": Minimizer("lbfgs", "exp"),
     "contact P-L-BFGS": Minimizer("lbfgs", "contact"),
 }
 SHEAR_INCREMENTS = (4e-4, 2e-4, 1e-4)

@@ -9,11 +9,18 @@ from .compress import (
     log_spaced,
     scaling_exponents,
 )
-from .finite_strain import FiniteStrain, finite_strain_bulk, finite_strain_shear
-from .jamming import JammingResult, JammingStep, jam, jamming_steps
+from .finite_strain import (
+    ITERATION_METHODS,
+    FiniteStrain,
+    finite_strain_bulk,
+    finite_strain_shear,
+)
+from .jamming import PHI_INIT, JammingResult, JammingStep, jam, jamming_steps
 from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
 
 __all__ = [
+    "ITERATION_METHODS",
+    "PHI_INIT",
     "SHEAR_MODES",
     "CompressionStep",
     "FiniteStrain",

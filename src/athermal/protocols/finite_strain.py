@@ -27,6 +27,12 @@ from ._relax import GTOL_FLOOR, Minimizer, Relaxer, force_scale
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
 """The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
 DEFAULT_STRAINS.setflags(write=False)
+ITERATION_METHODS = {
+    "L-BFGS": Minimizer("lbfgs"),
+    "P-L-BFGS (Exp)": Minimizer("lbfgs", "exp"),
+    "contact P-L-BFGS": Minimizer("lbfgs", "contact"),
+}
+"""The minimizers of the seed's iteration experiment (plus the contact-stiffness one)."""
 RTOL = 1e-9
 """Default tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at a step's start."""
 

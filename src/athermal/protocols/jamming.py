@@ -43,6 +43,9 @@ from ..observables import Observables, measure, pressure, stress
 from ..packing import Packing
 from ._relax import GTOL_FLOOR, Minimizer, Relaxer, energy_scale, force_scale
 
+PHI_INIT = {2: 0.8, 3: 0.6}
+"""Default start fraction by dimension: unjammed after relaxation (phi_c ~ 0.84 in 2D and
+~0.64 in 3D for the bidisperse 1:1, 1.4 mixture)."""
 RTOL = 1e-6
 """Default force tolerance of the trial steps, relative to the mean contact force at a step's
 start."""
