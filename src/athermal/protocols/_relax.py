@@ -1,5 +1,5 @@
-"""What the quasi-static protocols share: one minimizer, one objective and one preconditioner
-kept across steps, and the energy and force scales their tolerances are stated in."""
+"""What the quasi-static protocols share: how a step is relaxed, and the energy and force scales
+their tolerances are stated in."""
 
 from __future__ import annotations
 
@@ -53,10 +53,12 @@ class Minimizer:
 
 
 class Relaxer:
-    """An :class:`Objective` and its preconditioner, reused for every relaxation of a protocol.
+    """An :class:`Objective` with its preconditioner, for the relaxation of one protocol step.
 
-    The preconditioner rebuilds itself by its own rule (displacement since its last build), and
-    the objective's Verlet list by the skin, so small steps cost no rebuild. When L-BFGS or CG
+    Each step builds its own (from the step's start configuration), so that a step depends on
+    that configuration alone and an interrupted protocol resumes bit for bit; within the step
+    the preconditioner rebuilds by its own rule and the Verlet list by the skin. Measured: an
+    Exp build costs 35-40 ms at N = 4096: 51 of them, 2 s of a 109 s jamming run. When L-BFGS or CG
     stops because no Wolfe step exists (it happens within a few times ``gtol`` of a minimum
     near jamming, where the energy differences of a step are at round-off), FIRE, which needs
     no line search, finishes the relaxation from there; the result counts both.
