@@ -120,9 +120,9 @@ def jammed(
     return result.packing, result.phi_c, info
 
 
-def mean_sd(values: list[float]) -> str:
+def mean_sd(values: list[float], digits: int = 5) -> str:
     sd = statistics.stdev(values) if len(values) > 1 else 0.0
-    return f"{statistics.fmean(values):.5f} ± {sd:.5f}"
+    return f"{statistics.fmean(values):.{digits}f} ± {sd:.{digits}f}"
 
 
 def run_phic(args: argparse.Namespace) -> None:
@@ -282,7 +282,7 @@ def run_iterations(args: argparse.Namespace) -> None:
         "|---:|" + "---:|" * len(ITERATION_METHODS),
     ]
     for d in deltas:
-        cells = " | ".join(mean_sd(counts[label][float(d)]) for label in ITERATION_METHODS)
+        cells = " | ".join(mean_sd(counts[label][float(d)], 0) for label in ITERATION_METHODS)
         lines.append(f"| {d:.0e} | {cells} |")
     data = {label: {f"{d:.0e}": v for d, v in per.items()} for label, per in counts.items()}
     save(f"iterations_n{args.n}", {"iterations": data}, "\n".join(lines) + "\n")
