@@ -190,6 +190,10 @@ def shear_figure(curves: Mapping[str, Mapping[str, Sequence[float]]], *, title: 
         fabric_ax.plot(
             c["strain"], c["fabric_dev"], "--", color=fiso.get_color(), label=f"dev, {label}"
         )
+    from matplotlib.ticker import MaxNLocator
+
+    for ax in (stress_ax, fabric_ax):
+        ax.xaxis.set_major_locator(MaxNLocator(5))
     stress_ax.set_xlabel(r"strain $\gamma$")
     stress_ax.set_ylabel(r"stress $\sigma$")
     fabric_ax.set_xlabel(r"strain $\gamma$")
