@@ -92,9 +92,10 @@ def machine() -> str:
 
 
 def jammed(
-    cache: Path, n: int, dim: int, alpha: float, seed: int, minimizer: Minimizer | None = None
+    cache: Path, n: int, dim: int, alpha: float, seed: int
 ) -> tuple[Packing, float, dict[str, Any]]:
-    """The jammed packing of (n, dim, alpha, seed) at epsilon = 1e-6, from the cache or run."""
+    """The jammed packing of (n, dim, alpha, seed) at epsilon = 1e-6 by L-BFGS, from the cache
+    or run."""
     path = cache / f"jam_n{n}_d{dim}_a{alpha:g}_s{seed}.gsd"
     if path.exists():
         frame = read_gsd(path)
@@ -102,7 +103,8 @@ def jammed(
         return frame.packing, info["phi_c"], info
     t0 = time.perf_counter()
     model = ContactModel(alpha)
-    result = jam(random_packing(n, PHI_INIT[dim], dim=dim, seed=seed), model, minimizer=minimizer)
+    start = random_packing(n, PHI_INIT[dim], dim=dim, seed=seed)
+    result = jam(start, model, minimizer=Minimizer("lbfgs"))
     obs = result.observables
     info = {
         "phi_c": result.phi_c,

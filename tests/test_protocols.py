@@ -225,13 +225,14 @@ def test_a_refuted_jammed_verdict_reopens_the_bracket_and_resumes_identically():
     """With a deliberately loose trial tolerance some trials stop, E above the threshold, on
     their way to unjamming; the tight final relaxation refutes them, the refuted state becomes
     the new bottom of an open bracket and the protocol still ends on a verified jammed state."""
-    start, model = random_packing(64, 0.8, seed=0), ContactModel(2.0)
-    steps = list(jamming_steps(start, model, epsilon=1e-5, rtol=0.1))
+    start, model, lbfgs = random_packing(64, 0.8, seed=0), ContactModel(2.0), Minimizer("lbfgs")
+    steps = list(jamming_steps(start, model, epsilon=1e-5, rtol=0.1, minimizer=lbfgs))
     finals = [s for s in steps if s.phase == "final"]
     assert len(finals) >= 2 and not finals[0].jammed and finals[-1].jammed
     assert steps[-1] is finals[-1] and steps[-1].bracket <= 1e-5
     refuted = steps.index(finals[0])
     after = steps[refuted + 1]
     assert after.phase == "increment" and after.phi == pytest.approx(finals[0].phi + 1e-3)
-    rest = list(jamming_steps(start, model, epsilon=1e-5, rtol=0.1, resume=steps[: refuted + 1]))
+    done = steps[: refuted + 1]
+    rest = list(jamming_steps(start, model, epsilon=1e-5, rtol=0.1, minimizer=lbfgs, resume=done))
     _same_steps(steps[refuted + 1 :], rest)

@@ -41,7 +41,7 @@ def _add_model_options(parser: argparse.ArgumentParser, default: float | None) -
 
 
 def _add_minimizer_options(
-    parser: argparse.ArgumentParser, what: str, maxiter: int = 100_000
+    parser: argparse.ArgumentParser, what: str, maxiter: int = 100_000, precon: str = "none"
 ) -> None:
     parser.add_argument(
         "--method",
@@ -50,7 +50,10 @@ def _add_minimizer_options(
         help=f"minimizer {what} (plbfgs / pcg: lbfgs / cg with --precon exp; default lbfgs)",
     )
     parser.add_argument(
-        "--precon", default="none", choices=PRECONDITIONERS, help="preconditioner (default none)"
+        "--precon",
+        default=precon,
+        choices=PRECONDITIONERS,
+        help=f"preconditioner (default {precon})",
     )
     parser.add_argument("--A", type=float, default=0.0, help="Exp preconditioner parameter A (0)")
     parser.add_argument(
@@ -153,7 +156,7 @@ def _parser() -> argparse.ArgumentParser:
         help="PNG of the jammed packing with its contact forces (2D; default: the output "
         "with .png; 'none' for no picture)",
     )
-    _add_minimizer_options(jam, "of every step", 1_000_000)
+    _add_minimizer_options(jam, "of every step", 1_000_000, "exp")
     _add_protocol_outputs(jam)
     _add_model_options(jam, 2.0)
 
@@ -217,7 +220,7 @@ def _parser() -> argparse.ArgumentParser:
     ens.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy (1e-6)")
     ens.add_argument("--method", default="lbfgs", choices=METHODS, help="minimizer (lbfgs)")
     ens.add_argument(
-        "--precon", default="none", choices=PRECONDITIONERS, help="preconditioner (none)"
+        "--precon", default="exp", choices=PRECONDITIONERS, help="preconditioner (exp)"
     )
     ens.add_argument("--alpha", type=float, default=2.0, help="contact exponent (2)")
     ens.add_argument("--quiet", action="store_true", help="no progress on stderr")

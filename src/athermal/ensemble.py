@@ -71,7 +71,7 @@ class EnsembleSpec:
     size_ratio: float = 1.4
     epsilon: float = 1e-6
     method: str = "lbfgs"
-    precon: str = "none"
+    precon: str = "exp"
     per_decade: int = 4
     shear_delta_phi: float = 1e-2
     strain: float = 0.02

@@ -15,11 +15,19 @@ from .finite_strain import (
     finite_strain_bulk,
     finite_strain_shear,
 )
-from .jamming import PHI_INIT, JammingResult, JammingStep, jam, jamming_steps
+from .jamming import (
+    JAMMING_MINIMIZER,
+    PHI_INIT,
+    JammingResult,
+    JammingStep,
+    jam,
+    jamming_steps,
+)
 from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
 
 __all__ = [
     "ITERATION_METHODS",
+    "JAMMING_MINIMIZER",
     "PHI_INIT",
     "SHEAR_MODES",
     "CompressionStep",

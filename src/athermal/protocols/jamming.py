@@ -43,6 +43,10 @@ from ..observables import Observables, measure, pressure, stress
 from ..packing import Packing
 from ._relax import GTOL_FLOOR, Minimizer, Relaxer, energy_scale, force_scale
 
+JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
+"""Default minimizer of the jamming protocol, P-L-BFGS: near jamming the Exp preconditioner pays.
+Measured (2D, alpha = 2, one core): N = 1024, seeds 0-2, 12.7 / 32.3 / 12.7 s against L-BFGS's
+34.2 / 32.3 / 55.7 s; N = 4096, seed 0, 109 s against 712 s."""
 PHI_INIT = {2: 0.8, 3: 0.6}
 """Default start fraction by dimension: unjammed after relaxation (phi_c ~ 0.84 in 2D and
 ~0.64 in 3D for the bidisperse 1:1, 1.4 mixture)."""
@@ -147,7 +151,7 @@ def jamming_steps(
     model : contact law.
     dphi : growth increment in packing fraction (> 0).
     epsilon : bisection stops when the bracket is at most this wide (> 0).
-    minimizer : how each step is relaxed (default L-BFGS).
+    minimizer : how each step is relaxed (default :data:`JAMMING_MINIMIZER`, P-L-BFGS).
     energy_tol : jamming threshold on ``E / N`` in units of ``k <r>^alpha``; default
         ``(epsilon / (10 d))^alpha`` (module docstring).
     rtol : force tolerance of the trial steps, relative to the mean contact force at the
@@ -170,7 +174,7 @@ def jamming_steps(
     energy_tol = positive_scalar(energy_tol, "energy_tol")
     rtol = positive_scalar(rtol, "rtol")
     gtol = positive_scalar(gtol, "gtol")
-    config = minimizer or Minimizer()
+    config = minimizer or JAMMING_MINIMIZER
     phi_init, base = start.phi, start.radii
     largest = 0.5 * float(start.cell.widths.min())
 
