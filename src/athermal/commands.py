@@ -109,6 +109,22 @@ def _parameters(args: argparse.Namespace, model: ContactModel, **extra: Any) -> 
     }
 
 
+def _trajectory(
+    args: argparse.Namespace,
+    path: str,
+    protocol: str,
+    model: ContactModel,
+    file_seed: int | None,
+    **parameters: Any,
+) -> Trajectory:
+    """The checkpoint of this run: its identity from every parameter, ``--resume`` and
+    ``--overwrite`` as given."""
+    identity = run_id(protocol, _parameters(args, model, **parameters))
+    return Trajectory(
+        path, identity, model=model, seed=file_seed, resume=args.resume, overwrite=args.overwrite
+    )
+
+
 def _run(
     trajectory: Trajectory,
     resumed: list[S],
@@ -142,27 +158,19 @@ def jam(args: argparse.Namespace) -> None:
         args.n, phi_init, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
     )
     trajectory_path = args.trajectory or str(Path(args.output).with_suffix(".steps.gsd"))
-    identity = run_id(
-        "jam",
-        _parameters(
-            args,
-            model,
-            n=args.n,
-            dim=args.dim,
-            size_ratio=args.size_ratio,
-            seed=args.seed,
-            phi_init=phi_init,
-            dphi=args.dphi,
-            epsilon=args.epsilon,
-        ),
-    )
-    trajectory = Trajectory(
+    trajectory = _trajectory(
+        args,
         trajectory_path,
-        identity,
-        model=model,
+        "jam",
+        model,
+        args.seed,
+        n=args.n,
+        dim=args.dim,
+        size_ratio=args.size_ratio,
         seed=args.seed,
-        resume=args.resume,
-        overwrite=args.overwrite,
+        phi_init=phi_init,
+        dphi=args.dphi,
+        epsilon=args.epsilon,
     )
     done = [jamming_step(f) for f in trajectory.frames]
     table = _table_path(args, args.output)
@@ -240,24 +248,16 @@ def compress(args: argparse.Namespace) -> None:
     if phi_c is None and "phi_c" in frame.log:
         phi_c = float(frame.log["phi_c"].reshape(-1)[0])
     deltas = log_spaced(args.dphi_min, args.dphi_max, args.per_decade)
-    identity = run_id(
-        "compress",
-        _parameters(
-            args,
-            model,
-            start=_fingerprint(packing),
-            phi_c=phi_c,
-            deltas=deltas.tolist(),
-            rtol=args.rtol,
-        ),
-    )
-    trajectory = Trajectory(
+    trajectory = _trajectory(
+        args,
         args.output,
-        identity,
-        model=model,
-        seed=frame.seed,
-        resume=args.resume,
-        overwrite=args.overwrite,
+        "compress",
+        model,
+        frame.seed,
+        start=_fingerprint(packing),
+        phi_c=phi_c,
+        deltas=deltas.tolist(),
+        rtol=args.rtol,
     )
     done = [compression_step(f) for f in trajectory.frames]
     table = _table_path(args, args.output)
@@ -313,25 +313,17 @@ def shear(args: argparse.Namespace) -> None:
     """``athermal shear``: quasi-static simple or pure shear."""
     t0 = time.perf_counter()
     packing, model, frame = _start(args)
-    identity = run_id(
-        "shear",
-        _parameters(
-            args,
-            model,
-            start=_fingerprint(packing),
-            mode=args.mode,
-            strain=args.strain,
-            step=args.step,
-            rtol=args.rtol,
-        ),
-    )
-    trajectory = Trajectory(
+    trajectory = _trajectory(
+        args,
         args.output,
-        identity,
-        model=model,
-        seed=frame.seed,
-        resume=args.resume,
-        overwrite=args.overwrite,
+        "shear",
+        model,
+        frame.seed,
+        start=_fingerprint(packing),
+        mode=args.mode,
+        strain=args.strain,
+        step=args.step,
+        rtol=args.rtol,
     )
     done = [shear_step(f, model) for f in trajectory.frames]
     table = _table_path(args, args.output)
