@@ -364,9 +364,14 @@ def _compute(
     else:
         available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
         count = workers or available
-        cluster = LocalCluster(
-            n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None
-        )
+        import dask
+
+        # the workers' statistical profiler samples every thread's stack each 10 ms: measured
+        # 29.6 s against 26.4 s without it for one N = 1024 jamming realization
+        with dask.config.set({"distributed.worker.profile.enabled": False}):
+            cluster = LocalCluster(
+                n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None
+            )
         client = Client(cluster)
         engine = f"dask LocalCluster, {count} worker processes"
     try:
