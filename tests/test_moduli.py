@@ -49,15 +49,7 @@ def overlapping_more_than(contacts: Contacts, fraction: float) -> Contacts:
     the strain terms are sums over contacts, so any subset checks them)."""
     keep = contacts.overlap > fraction * contacts.distance
     assert keep.sum() > 0.5 * keep.size
-    return Contacts(
-        contacts.i[keep],
-        contacts.j[keep],
-        contacts.branch[keep],
-        contacts.distance[keep],
-        contacts.overlap[keep],
-        contacts.stiffness[keep],
-        contacts.alpha,
-    )
+    return contacts.subset(keep)
 
 
 def quadratic_paths(dim: int) -> dict[str, tuple[np.ndarray, np.ndarray]]:

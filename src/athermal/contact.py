@@ -108,6 +108,18 @@ class Contacts:
     stiffness: NDArray[np.float64]
     alpha: float
 
+    def subset(self, keep: NDArray[np.bool_]) -> Contacts:
+        """The contacts where ``keep`` ``(M,)`` is True."""
+        return Contacts(
+            self.i[keep],
+            self.j[keep],
+            self.branch[keep],
+            self.distance[keep],
+            self.overlap[keep],
+            self.stiffness[keep],
+            self.alpha,
+        )
+
     @property
     def normal(self) -> NDArray[np.float64]:
         """Unit normals ``n = branch / distance`` ``(M, d)``, pointing from j to i."""

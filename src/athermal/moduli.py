@@ -202,17 +202,7 @@ def _live_contacts(packing: Packing, model: ContactModel) -> tuple[Contacts, NDA
     """The contacts between non-rattlers, and the rattler mask ``(N,)``."""
     contacts = find_contacts(packing, model)
     rattler = rattlers(contacts, packing.n, packing.dim)
-    keep = ~(rattler[contacts.i] | rattler[contacts.j])
-    live = Contacts(
-        contacts.i[keep],
-        contacts.j[keep],
-        contacts.branch[keep],
-        contacts.distance[keep],
-        contacts.overlap[keep],
-        contacts.stiffness[keep],
-        contacts.alpha,
-    )
-    return live, rattler
+    return contacts.subset(~(rattler[contacts.i] | rattler[contacts.j])), rattler
 
 
 def _nonaffine_correction(
