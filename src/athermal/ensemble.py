@@ -19,7 +19,6 @@ import json
 import os
 import statistics
 import time
-import uuid
 import warnings
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
@@ -47,6 +46,7 @@ from .protocols import (
     shear_steps,
 )
 from .protocols.compress import isostatic_z
+from .tables import write_text_atomic
 
 Protocol = Literal["jam", "compress", "shear", "iterations"]
 PROTOCOLS: tuple[str, ...] = ("jam", "compress", "shear", "iterations")
@@ -101,12 +101,7 @@ def child_seeds(root: int, count: int) -> list[int]:
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
-    temporary = path.with_name(f".{path.name}.{uuid.uuid4().hex}.tmp")
-    try:
-        temporary.write_text(json.dumps(data, indent=1) + "\n")
-        os.replace(temporary, path)
-    finally:
-        temporary.unlink(missing_ok=True)
+    write_text_atomic(path, json.dumps(data, indent=1) + "\n")
 
 
 def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -> dict[str, Any]:

@@ -47,6 +47,7 @@ from .protocols import (
     shear_steps,
 )
 from .protocols.compress import CompressionStep, jammed_branch
+from .tables import write_text_atomic
 
 SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
 """The exponents the seed reports (approximately) for alpha = 2 and 2.5."""
@@ -306,7 +307,5 @@ def _report(
     lines += [f"![{name}]({Path(path).name})" for name, path in figures.items()]
     lines += ["", "## Table", "", table]
     path = out / "report.md"
-    tmp = out / ".report.md.tmp"
-    tmp.write_text("\n".join(lines) + "\n")
-    tmp.replace(path)
+    write_text_atomic(path, "\n".join(lines) + "\n")
     return path
