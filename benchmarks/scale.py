@@ -7,7 +7,7 @@ the mean contact force; its radii are then grown by 5e-5 (Case 1) and each metho
     python benchmarks/scale.py                 # N = 65536 (about 10 minutes)
     python benchmarks/scale.py --n 262144      # larger (much longer)
 
-Results: ``benchmarks/results/scale.md`` (written atomically).
+Results: ``benchmarks/results/scale_n<N>.md`` (written atomically).
 """
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ import argparse
 import os
 import resource
 import sys
-import tempfile
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -26,6 +25,7 @@ from athermal.minimize import minimize
 from athermal.objective import Objective
 from athermal.packing import random_packing
 from athermal.precon import ExpPreconditioner
+from athermal.tables import write_text_atomic
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -63,13 +63,18 @@ def main(argv: list[str] | None = None) -> int:
         "| peak RSS (MB) |",
         "|---|---:|---:|---:|---:|---|---:|",
     ]
-    for label, solver in (
-        ("L-BFGS", None),
-        ("P-L-BFGS (Exp, direct)", "direct"),
-        ("P-L-BFGS (Exp, AMG)", "amg"),
+    probe = ExpPreconditioner(Objective(start, model), solver="direct")
+    probe.update(probe.objective.x0)
+    lines.insert(-3, f"- sine-test mu at the start: {probe.mu:.4g}")
+    for label, solver, mu_scale in (
+        ("L-BFGS", None, 1.0),
+        ("P-L-BFGS (Exp, direct)", "direct", 1.0),
+        ("P-L-BFGS (Exp, AMG)", "amg", 1.0),
+        ("P-L-BFGS (Exp, direct, mu x 10)", "direct", 10.0),
     ):
         objective = Objective(start, model)
-        precon = ExpPreconditioner(objective, solver=solver) if solver else None
+        mu = mu_scale * probe.mu if mu_scale != 1.0 else None  # None: sine test at each build
+        precon = ExpPreconditioner(objective, solver=solver, mu=mu) if solver else None
         t0 = time.perf_counter()
         res = minimize(
             objective, "lbfgs", precon=precon if precon else "none", rtol=1e-9, maxiter=500_000
@@ -85,11 +90,7 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(row)
     text = "\n".join(lines) + "\n"
     args.output_dir.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=args.output_dir, prefix=".scale.md.")
-    with os.fdopen(fd, "w") as handle:
-        handle.write(text)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, args.output_dir / "scale.md")
+    write_text_atomic(args.output_dir / f"scale_n{args.n}.md", text)
     print(text)
     return 0
 
