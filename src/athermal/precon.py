@@ -320,6 +320,11 @@ class _PairPreconditioner(ABC):
         the ratio is not finite and > 0 (no contacts, ``E = 0``), the previous ``mu`` is kept, or
         on the first build the mean contact stiffness ``k`` (the Hooke scale; 1 in the seed's
         units).
+
+        The test mode is the cell's longest wavelength, where ``v^T P_{mu=1} v`` is mostly the
+        ``C_stab`` term, so ``mu`` falls with ``N`` at fixed density (Case 1 type packings:
+        0.069 at N = 4096, 0.0054 at N = 65536) and the line search needs more evaluations per
+        iteration on large systems (about 2 at N = 4096, 3 at N = 65536).
         """
         v = sine_perturbation(positions, self.objective, self.r_cut)
         x = positions.ravel()
