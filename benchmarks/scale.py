@@ -51,6 +51,8 @@ def main(argv: list[str] | None = None) -> int:
         flush=True,
     )
     start = prep.packing.scale_radii(1.0 + 5e-5)
+    probe = ExpPreconditioner(Objective(start, model), solver="direct")
+    probe.update(probe.objective.x0)
     lines = [
         f"# B4 — Case 1 at N = {args.n} (alpha = {args.alpha:g})",
         "",
@@ -58,14 +60,12 @@ def main(argv: list[str] | None = None) -> int:
         f"pinned to {pinned}",
         f"- start: random_packing({args.n}, 0.86, seed=7) relaxed by L-BFGS to 1e-10 F0 "
         f"({prep.iterations} iterations, {prep_s:.0f} s), radii x (1 + 5e-5); criterion 1e-9 F0",
+        f"- sine-test mu at the start: {probe.mu:.4g}",
         "",
         "| method | iterations | evaluations | seconds | ms / iteration | converged "
         "| peak RSS (MB) |",
         "|---|---:|---:|---:|---:|---|---:|",
     ]
-    probe = ExpPreconditioner(Objective(start, model), solver="direct")
-    probe.update(probe.objective.x0)
-    lines.insert(-3, f"- sine-test mu at the start: {probe.mu:.4g}")
     for label, solver, mu_scale in (
         ("L-BFGS", None, 1.0),
         ("P-L-BFGS (Exp, direct)", "direct", 1.0),

@@ -19,7 +19,6 @@ import os
 import platform
 import subprocess
 import sys
-import tempfile
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
@@ -28,17 +27,9 @@ import numpy as np
 import scipy
 
 from athermal.bench import ALPHAS, CASES, METHODS, QUICK_METHODS, RTOL, Row, markdown, table1
+from athermal.tables import write_text_atomic
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def write_atomic(path: Path, text: str) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w") as handle:
-        handle.write(text)
-    os.chmod(tmp, 0o644)
-    os.replace(tmp, path)
 
 
 def machine() -> dict[str, str]:
@@ -103,8 +94,9 @@ def main(argv: list[str] | None = None) -> int:
     header = ["# B1 — the seed's Table (N = 4096, phi = 0.8438)", ""]
     header += [f"- {key}: {value}" for key, value in meta.items()]
     text = "\n".join(header) + "\n\n" + markdown(rows)
-    write_atomic(args.output_dir / "table1.md", text)
-    write_atomic(
+    args.output_dir.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(args.output_dir / "table1.md", text)
+    write_text_atomic(
         args.output_dir / "table1.json",
         json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=1),
     )
