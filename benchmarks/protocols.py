@@ -4,9 +4,10 @@ Each experiment writes ``benchmarks/results/protocols/<name>.json`` (raw numbers
 (summary), atomically; jammed packings are cached as GSD files in ``--cache`` so later
 experiments reuse them.
 
-    python benchmarks/protocols.py phic --dim 2 --n 1024 --seeds 10       # phi_c, z (2D)
-    python benchmarks/protocols.py phic --dim 3 --n 1024 --seeds 3        # phi_c, z (3D)
-    python benchmarks/protocols.py scaling --alpha 2 --n 1024 --seeds 3   # exponents, G two ways
+    python benchmarks/protocols.py phic --dim 2 --n 1024 --seeds 10       # phi_c and checks (2D)
+    python benchmarks/protocols.py phic --dim 2 --alpha 2.5 --seeds 5     # ... Hertzian
+    python benchmarks/protocols.py phic --dim 3 --n 1024 --seeds 3        # ... 3D
+    python benchmarks/protocols.py scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
     python benchmarks/protocols.py iterations --n 1024 --seeds 10         # seed's iteration figure
     python benchmarks/protocols.py timing --n 4096                        # per minimizer
 
@@ -37,7 +38,9 @@ from athermal.io import read_gsd, write_gsd
 from athermal.moduli import linear_response
 from athermal.packing import Packing, random_packing
 from athermal.protocols import (
+    EVENTS,
     ITERATION_METHODS,
+    JAMMING_SCHEME,
     PHI_INIT,
     Minimizer,
     compression_steps,
@@ -79,6 +82,17 @@ def save(name: str, data: dict[str, Any], markdown: str) -> None:
     log(markdown)
 
 
+def cpu_model() -> str:
+    """The CPU's model name, as /proc/cpuinfo gives it."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown CPU"
+
+
 def machine() -> str:
     stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     cores = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else "n/a"
@@ -88,31 +102,52 @@ def machine() -> str:
         ).stdout.strip()
     except OSError:
         commit = "unknown"
-    return f"{stamp}; commit {commit}; {os.cpu_count()} cores, pinned to {cores}"
+    return f"{stamp}; commit {commit}; {cpu_model()}, {os.cpu_count()} cores, pinned to {cores}"
+
+
+EPSILON = 1e-6
+GROWTH = 1e-3
 
 
 def jammed(
     cache: Path, n: int, dim: int, alpha: float, seed: int
 ) -> tuple[Packing, float, dict[str, Any]]:
-    """The jammed packing of (n, dim, alpha, seed) at epsilon = 1e-6 by L-BFGS, from the cache
-    or run."""
-    path = cache / f"jam_n{n}_d{dim}_a{alpha:g}_s{seed}.gsd"
+    """The jammed packing of (n, dim, alpha, seed) at epsilon = 1e-6 with the jamming
+    protocol's defaults (P-L-BFGS) and its checks, from the cache or run."""
+    path = cache / f"jam{JAMMING_SCHEME}_n{n}_d{dim}_a{alpha:g}_s{seed}.gsd"
     if path.exists():
         frame = read_gsd(path)
         info = {k: float(v) for k, v in frame.log.items() if np.size(v) == 1}
         return frame.packing, info["phi_c"], info
     t0 = time.perf_counter()
     model = ContactModel(alpha)
-    start = random_packing(n, PHI_INIT[dim], dim=dim, seed=seed)
-    result = jam(start, model, minimizer=Minimizer("lbfgs"))
-    obs = result.observables
+    phi_init = PHI_INIT[dim]
+    start = random_packing(n, phi_init, dim=dim, seed=seed)
+    result = jam(start, model, epsilon=EPSILON, dphi=GROWTH)
+    obs, check = result.observables, result.check
+    grid = (result.phi_c - phi_init) / GROWTH
     info = {
         "phi_c": result.phi_c,
+        "phi_low": result.phi_low,
+        "on_grid": float(abs(grid - round(grid)) < 1e-6),
         "z": obs.z,
         "z_iso": isostatic_z(obs.n - obs.n_rattlers, dim),
         "n_rattlers": obs.n_rattlers,
         "energy": obs.energy,
         "pressure": obs.pressure,
+        "excess_contacts": check.excess_contacts,
+        "unjams": float(check.unjams),
+        "decompressed_energy": check.decompressed_energy,
+        "overlap_dphi": check.overlap_dphi,
+        "stable": float(check.stable),
+        "reopened": float(
+            sum(
+                s.phase == "increment"
+                and s.index > 0
+                and np.isfinite(result.history[s.index - 1].phi_high)
+                for s in result.history
+            )
+        ),
         "steps": result.steps,
         "iterations": result.iterations,
         "seconds": time.perf_counter() - t0,
@@ -132,24 +167,38 @@ def run_phic(args: argparse.Namespace) -> None:
     for seed in range(args.seeds):
         _, _, info = jammed(args.cache, args.n, args.dim, args.alpha, seed)
         rows.append({"seed": seed, **info})
-        log(f"seed {seed}: phi_c {info['phi_c']:.7f} z {info['z']:.4f} (iso {info['z_iso']:.4f})")
+        log(f"seed {seed}: {info}")
     phis = [r["phi_c"] for r in rows]
-    dz = [r["z"] - r["z_iso"] for r in rows]
+    p_eps = [r["pressure"] / EPSILON ** (args.alpha - 1.0) for r in rows]
     lines = [
-        f"# Jamming: {args.dim}D, N = {args.n}, alpha = {args.alpha:g}, epsilon = 1e-6, "
-        f"{args.seeds} seeds",
+        f"# Jamming: {args.dim}D, N = {args.n}, alpha = {args.alpha:g}, epsilon = {EPSILON:g}, "
+        f"growth {GROWTH:g}, {args.seeds} seeds, the protocol's defaults (P-L-BFGS)",
         "",
         f"phi_c = {mean_sd(phis)} (mean ± sd), standard error "
         f"{statistics.stdev(phis) / np.sqrt(len(phis)) if len(phis) > 1 else 0:.5f}; "
-        f"range [{min(phis):.5f}, {max(phis):.5f}]",
-        f"z - z_iso = {mean_sd(dz)}; largest |z - z_iso| = {max(abs(v) for v in dz):.4f}",
+        f"range [{min(phis):.5f}, {max(phis):.5f}]. On the growth grid phi_init + k x {GROWTH:g}: "
+        f"{sum(int(r['on_grid']) for r in rows)} of {len(rows)}. Every check passed: "
+        f"{sum(int(r['unjams'] and r['stable'] and 0 <= r['excess_contacts'] <= 4) for r in rows)}"
+        f" of {len(rows)}.",
         "",
-        "| seed | phi_c | z | z_iso | rattlers | steps | iterations | seconds |",
-        "|---:|---:|---:|---:|---:|---:|---:|---:|",
+        f"p / epsilon^(alpha-1) = {mean_sd(p_eps, 3)} (range {min(p_eps):.3f} ... "
+        f"{max(p_eps):.3f}); mean overlap as a packing-fraction distance / epsilon: "
+        f"{mean_sd([r['overlap_dphi'] / EPSILON for r in rows], 3)}.",
+        "",
+        "Columns: N_c - N_iso among non-rattlers; 'unjams': decompressed by 3 epsilon and "
+        "relaxed, E/N (in k<r>^alpha) falls to the jamming threshold; 'reopened': how often the "
+        "bracket reopened because a jammed bound belonged to another basin.",
+        "",
+        "| seed | phi_c | phi_c - phi_low | p | N_c - N_iso | z | rattlers | unjams (E/N after) "
+        "| minimum | reopened | steps | iterations | seconds |",
+        "|---:|---:|---:|---:|---:|---:|---:|---|---|---:|---:|---:|---:|",
     ]
     lines += [
-        f"| {r['seed']} | {r['phi_c']:.7f} | {r['z']:.4f} | {r['z_iso']:.4f} | "
-        f"{r['n_rattlers']:.0f} | {r['steps']:.0f} | {r['iterations']:.0f} | {r['seconds']:.1f} |"
+        f"| {r['seed']} | {r['phi_c']:.7f} | {r['phi_c'] - r['phi_low']:.1e} | "
+        f"{r['pressure']:.2e} | {r['excess_contacts']:.0f} | {r['z']:.4f} | "
+        f"{r['n_rattlers']:.0f} | {'yes' if r['unjams'] else 'NO'} "
+        f"({r['decompressed_energy']:.1e}) | {'yes' if r['stable'] else 'NO'} | "
+        f"{r['reopened']:.0f} | {r['steps']:.0f} | {r['iterations']:.0f} | {r['seconds']:.1f} |"
         for r in rows
     ]
     name = f"phic_{args.dim}d_n{args.n}_a{args.alpha:g}"
@@ -165,21 +214,21 @@ def run_scaling(args: argparse.Namespace) -> None:
         packing, phi_c, _ = jammed(args.cache, args.n, 2, args.alpha, seed)
         steps = list(compression_steps(packing, model, phi_c=phi_c, delta_phis=deltas))
         fits = scaling_exponents(steps, lower=args.lower)
-        z_fit = scaling_exponents(steps, lower=args.z_lower).z_excess
         per_seed.append(
             {
                 "seed": seed,
                 "phi_c_protocol": phi_c,
-                "phi_c_fitted": fits.phi_c,
-                "branch": fits.branch,
+                "phi_c_fitted": fits.phi_c_fitted,
+                "events": fits.events,
+                "saddles": sum(s.saddles for s in steps),
                 "p": fits.pressure.__dict__ if fits.pressure else None,
                 "G": fits.shear_modulus.__dict__ if fits.shear_modulus else None,
-                "z": z_fit.__dict__ if z_fit else None,
+                "z": fits.z_excess.__dict__ if fits.z_excess else None,
                 "steps": [s.row() for s in steps],
             }
         )
-        for s in steps[len(steps) - fits.branch :]:
-            pooled["dphi"].append(s.phi - fits.phi_c)
+        for s in steps:
+            pooled["dphi"].append(s.delta_phi)
             pooled["pressure"].append(s.pressure)
             pooled["shear"].append(s.shear_modulus)
             pooled["z_excess"].append(s.z_excess)
@@ -198,40 +247,54 @@ def run_scaling(args: argparse.Namespace) -> None:
                     "contacts_changed": bool(np.any(fs.contacts != fs.contacts_initial)),
                 }
             )
-        log(f"seed {seed}: p {fits.pressure} G {fits.shear_modulus} z {z_fit}")
+        log(f"seed {seed}: p {fits.pressure} G {fits.shear_modulus} z {fits.z_excess}")
     x = pooled["dphi"]
     p_all = fit_power_law(x, pooled["pressure"], lower=args.lower)
     g_all = fit_power_law(x, pooled["shear"], lower=args.lower)
-    z_all = fit_power_law(x, pooled["z_excess"], lower=args.z_lower)
+    z_all = fit_power_law(x, pooled["z_excess"], lower=args.lower)
     expect = {"p": args.alpha - 1.0, "G": args.alpha - 1.5, "z": 0.5}
     lines = [
         f"# Compression scaling: 2D, N = {args.n}, alpha = {args.alpha:g}, {args.seeds} seeds",
         "",
-        "Delta phi from 1e-7 to 1e-1 above the jammed packing (epsilon = 1e-6), 4 per decade. "
-        "Per seed, the jammed branch (steps after the last unjammed one) is fitted with "
-        "p = a (phi - phi_c)^b, phi_c free (`scaling_exponents`, refine); G and z - z_iso are "
-        f"fitted against phi - phi_c for phi - phi_c >= {args.lower:g} and >= "
-        f"{args.z_lower:g} (below it N'(z - z_iso) counts single contacts). The pooled fit "
-        "uses every seed's branch points against its own phi_c.",
+        "Delta phi from 1e-7 to 1e-1 above the protocol's own phi_c (the jammed packings of "
+        f"`phic`, epsilon = {EPSILON:g}), 4 per decade, each step relaxed from the previous one "
+        "(L-BFGS, 1e-9 of the mean contact force) and checked to be a minimum. Fits: "
+        f"y = a Delta phi^b over Delta phi in [{args.lower:g}, 1e-1], every step with y > 0 "
+        "(G < 0 steps, unstable to shear, and unjammed steps drop out), per seed and pooled "
+        "(all seeds' points in one fit).",
         "",
-        "| quantity | expected | pooled fit | per seed (exponent ± stderr) |",
-        "|---|---:|---:|---|",
+        "| quantity | expected | pooled fit (points) | per seed (exponent ± stderr) | "
+        "per-seed spread (sd) |",
+        "|---|---:|---:|---|---:|",
     ]
     for key, fit in (("p", p_all), ("G", g_all), ("z", z_all)):
+        values = [r[key]["exponent"] for r in per_seed if r[key]]
         seeds = ", ".join(
             f"{r[key]['exponent']:.3f} ± {r[key]['stderr']:.3f}" if r[key] else "-"
             for r in per_seed
         )
+        spread = statistics.stdev(values) if len(values) > 1 else 0.0
         lines.append(
-            f"| {key} | {expect[key]:g} | {fit.exponent:.3f} ± {fit.stderr:.3f} | {seeds} |"
+            f"| {key} | {expect[key]:g} | {fit.exponent:.3f} ± {fit.stderr:.3f} ({fit.points}) "
+            f"| {seeds} | {spread:.3f} |"
         )
     lines += [
         "",
-        "| seed | phi_c (protocol) | phi_c (fitted) | branch steps |",
-        "|---:|---:|---:|---:|",
+        "Events per seed (steps of "
+        + str(deltas.size)
+        + "): "
+        + ", ".join(EVENTS)
+        + "; saddles left along their negative mode.",
+        "",
+        "| seed | phi_c (protocol) | phi_c (free fit, diagnostic) | "
+        + " | ".join(EVENTS)
+        + " | saddles |",
+        "|---:|---:|---:|" + "---:|" * len(EVENTS) + "---:|",
     ]
     lines += [
-        f"| {r['seed']} | {r['phi_c_protocol']:.7f} | {r['phi_c_fitted']:.7f} | {r['branch']} |"
+        f"| {r['seed']} | {r['phi_c_protocol']:.7f} | {r['phi_c_fitted']:.7f} | "
+        + " | ".join(str(r["events"][e]) for e in EVENTS)
+        + f" | {r['saddles']} |"
         for r in per_seed
     ]
     lines += [
@@ -359,7 +422,6 @@ def main(argv: list[str] | None = None) -> int:
     scaling.add_argument("--alpha", type=float, default=2.0)
     scaling.add_argument("--seeds", type=int, default=5)
     scaling.add_argument("--lower", type=float, default=1e-6)
-    scaling.add_argument("--z-lower", type=float, default=1e-4)
     iters = sub.add_parser("iterations")
     iters.add_argument("--n", type=int, default=1024)
     iters.add_argument("--seeds", type=int, default=10)

@@ -9,6 +9,7 @@ from athermal.contact import (
     Contacts,
     find_contacts,
     gradient,
+    hessian,
     strain_derivative,
     total_energy,
 )
@@ -326,3 +327,50 @@ def test_bad_input_is_rejected():
         relaxed_strain_curvature(p, model, np.eye(2), [1.0, 0.0])
     with pytest.raises(InputError, match="method"):
         finite_strain_shear(p, model, minimizer=Minimizer("newton"))  # type: ignore[arg-type]
+
+
+def _square_lattice(radius=0.13):
+    """16 equal disks on a 4 x 4 square lattice in the unit cell, overlapping their four
+    neighbours (spacing 0.25, overlap 2 r - 0.25): a force-balanced saddle, whose transverse
+    modes have the negative stiffness -f/l of the compressed bonds."""
+    g = (np.arange(4) + 0.5) / 4
+    positions = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    return Packing(positions, np.full(16, radius), Cell.box([1.0, 1.0]))
+
+
+def test_stability_finds_the_negative_mode_of_a_constructed_saddle():
+    from athermal.moduli import stability
+
+    square, model = _square_lattice(), ContactModel(2.0)
+    f, length = 2 * 0.13 - 0.25, 0.25
+    check = stability(square, model)
+    assert not check.stable
+    assert check.lowest_eigenvalue == pytest.approx(-4 * f / length, rel=1e-9)
+    mode = check.mode
+    h = hessian(find_contacts(square, model), 16).toarray()
+    np.testing.assert_allclose(mode.ravel() @ h @ mode.ravel(), -4 * f / length, rtol=1e-9)
+    assert np.linalg.norm(mode) == pytest.approx(1.0)
+
+
+def test_a_relaxed_packing_is_stable():
+    from athermal.moduli import stability
+
+    model = ContactModel(2.0)
+    relaxed = minimize(Objective(random_packing(128, 0.88, seed=2), model), rtol=1e-12).packing
+    check = stability(relaxed, model)
+    assert check.stable and check.mode is None
+
+
+def test_a_protocol_relaxation_leaves_the_saddle_for_a_minimum():
+    from athermal.moduli import stability
+    from athermal.protocols import Minimizer
+    from athermal.protocols._relax import Relaxer
+
+    square, model = _square_lattice(), ContactModel(2.0)
+    objective = Objective(square, model)
+    e0 = objective(objective.x0)[0]
+    plain = Relaxer(objective, Minimizer()).relax(objective.x0, gtol=1e-13)
+    assert plain.energy == pytest.approx(e0, rel=1e-12)  # the minimizer alone stays put
+    result, escapes = Relaxer(objective, Minimizer()).relax_to_minimum(objective.x0, gtol=1e-13)
+    assert escapes >= 1 and result.energy < 0.99 * e0
+    assert stability(result.packing, model).stable

@@ -22,6 +22,7 @@ from .errors import FileFormatError, InputError
 from .io import Frame, append_gsd, count_frames, read_gsd
 from .observables import measure
 from .protocols import CompressionStep, JammingStep, ShearStep
+from .protocols.compress import EVENTS
 
 PHASES = ("start", "increment", "bisection", "final")
 NO_BRACKET = -1.0
@@ -37,15 +38,17 @@ def run_id(protocol: str, parameters: Mapping[str, Any]) -> float:
 
 
 def step_log(step: Step) -> dict[str, float]:
-    """The numbers of ``step`` as frame observables: finite floats, the same names in every
-    frame (``phase`` as its index in :data:`PHASES`, an open bracket as :data:`NO_BRACKET`)."""
+    """The numbers of ``step`` as frame observables: floats, the same names in every frame
+    (``phase`` as its index in :data:`PHASES`, an open bracket as :data:`NO_BRACKET`, the events
+    of a compression step as bits in the order of ``EVENTS``)."""
+    out: dict[str, float | int | str] = dict(step.row())
     if isinstance(step, JammingStep):
-        out = step.row()
         out["phase"] = PHASES.index(step.phase)
         if not np.isfinite(step.phi_high):
             out["phi_high"] = NO_BRACKET
-        return {k: float(v) for k, v in out.items()}
-    return {k: float(v) for k, v in step.row().items()}
+    if isinstance(step, CompressionStep):
+        out["events"] = sum(1 << EVENTS.index(e) for e in step.events)
+    return {k: float(v) for k, v in out.items()}
 
 
 def _number(frame: Frame, name: str) -> float:
@@ -61,6 +64,7 @@ def jamming_step(frame: Frame) -> JammingStep:
     return JammingStep(
         index=int(get("index")),
         phase=PHASES[int(get("phase"))],  # type: ignore[arg-type]
+        origin=int(get("origin")),
         phi=get("phi"),
         jammed=bool(get("jammed")),
         energy=get("energy"),
@@ -91,6 +95,8 @@ def compression_step(frame: Frame) -> CompressionStep:
         n_rattlers=int(get("n_rattlers")),
         bulk_modulus=get("bulk_modulus"),
         shear_modulus=get("shear_modulus"),
+        saddles=int(get("saddles")),
+        events=tuple(e for k, e in enumerate(EVENTS) if int(get("events")) >> k & 1),
         iterations=int(get("iterations")),
         evaluations=int(get("evaluations")),
         seconds=get("seconds"),
@@ -107,6 +113,7 @@ def shear_step(frame: Frame, model: ContactModel) -> ShearStep:
         tau=get("tau"),
         stress_drop=get("stress_drop"),
         plastic=bool(get("plastic")),
+        saddles=int(get("saddles")),
         observables=measure(frame.packing, model),
         iterations=int(get("iterations")),
         evaluations=int(get("evaluations")),

@@ -25,8 +25,10 @@ from .io import read_gsd, write_gsd
 from .observables import Observables, measure
 from .packing import Packing, random_packing
 from .protocols import (
+    JAMMING_SCHEME,
     PHI_INIT,
     Minimizer,
+    check_jammed,
     compression_steps,
     jamming_steps,
     log_spaced,
@@ -86,6 +88,11 @@ def emit(summary: dict[str, Any], as_json: bool) -> None:
 
 def _minimizer(args: argparse.Namespace) -> Minimizer:
     return Minimizer(args.method, args.precon, args.A, args.solver, args.maxiter)
+
+
+def _digits(bracket: float) -> int:
+    """Decimals that show a number known to within ``bracket``."""
+    return max(1, round(-float(np.log10(bracket)))) if 0.0 < bracket < 1.0 else 6
 
 
 def _table_path(args: argparse.Namespace, trajectory: str) -> str:
@@ -171,6 +178,7 @@ def jam(args: argparse.Namespace) -> None:
         phi_init=phi_init,
         dphi=args.dphi,
         epsilon=args.epsilon,
+        scheme=JAMMING_SCHEME,
     )
     done = [jamming_step(f) for f in trajectory.frames]
     table = _table_path(args, args.output)
@@ -198,28 +206,44 @@ def jam(args: argparse.Namespace) -> None:
     )
     final = steps[-1]
     obs = measure(final.packing, model)
+    check = check_jammed(final.packing, model, epsilon=args.epsilon, minimizer=_minimizer(args))
+    for problem in check.problems():
+        print(f"warning: the jammed packing fails a check: {problem}", file=sys.stderr)
     write_gsd(
         args.output,
         final.packing,
         model=model,
         seed=args.seed,
-        observables={**file_observables(obs), "phi_c": final.phi},
+        observables={
+            **file_observables(obs),
+            "phi_c": final.phi,
+            "phi_low": final.phi_low,
+            "phi_high": final.phi_high,
+        },
     )
+    phi_text = f"{final.phi:.{_digits(final.bracket)}f} (bracket {final.bracket:.1g})"
     picture = None
     if args.dim == 2 and args.picture != "none":
         from .plot import packing_figure, save
 
         picture = args.picture or str(Path(args.output).with_suffix(".png"))
-        title = f"jammed: N = {args.n}, phi_c = {final.phi:.6f}, z = {obs.z:.3f}"
+        title = f"jammed: N = {args.n}, phi_c = {phi_text}, z = {obs.z:.3f}"
         save(packing_figure(final.packing, model, title=title), picture)
     emit(
         {
-            "phi_c": final.phi,
+            "phi_c": final.phi if args.json else phi_text,
+            "phi_low": final.phi_low,
+            "phi_high": final.phi_high,
             "energy": obs.energy,
             "pressure": obs.pressure,
             "z": obs.z,
             "n_rattlers": obs.n_rattlers,
             "contacts": obs.contacts,
+            "excess_contacts": check.excess_contacts,
+            "unjams_when_decompressed": check.unjams,
+            "decompression": check.decompression,
+            "stable": check.stable,
+            "checks_passed": check.passed,
             "steps": len(steps),
             "resumed_steps": len(done),
             "iterations": sum(s.iterations for s in steps),
@@ -290,15 +314,23 @@ def compress(args: argparse.Namespace) -> None:
         "z_excess": fits.z_excess,
     }
     exponents = {
-        name: None if fit is None else {"exponent": fit.exponent, "stderr": fit.stderr}
+        name: None
+        if fit is None
+        else {
+            "exponent": fit.exponent,
+            "stderr": fit.stderr,
+            "points": fit.points,
+            "delta_phi_range": [fit.x_min, fit.x_max],
+        }
         for name, fit in laws.items()
     }
     emit(
         {
             "table": table,
             "exponents": exponents,
-            "phi_c": steps[0].phi - steps[0].delta_phi,
-            "phi_c_fitted": fits.phi_c,
+            "phi_c": fits.phi_c,
+            "phi_c_fitted": fits.phi_c_fitted,
+            "events": fits.events,
             "steps": len(steps),
             "resumed_steps": len(done),
             "iterations": sum(s.iterations for s in steps),

@@ -135,6 +135,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         "index": index,
         "seed": seed,
         "phi_c": jammed.phi,
+        "phi_low": jammed.phi_low,
         "energy": obs.energy,
         "pressure": obs.pressure,
         "z": obs.z,
@@ -147,9 +148,9 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         deltas = log_spaced(1e-7, 1e-1, spec.per_decade)
         compressed = list(compression_steps(jammed.packing, model, delta_phis=deltas))
         fits = scaling_exponents(compressed)
-        z_fit = scaling_exponents(compressed, lower=1e-4).z_excess
-        result["phi_c_fitted"] = fits.phi_c
-        for key, fit in (("p", fits.pressure), ("G", fits.shear_modulus), ("z", z_fit)):
+        result["phi_c_fitted"] = fits.phi_c_fitted
+        result["events"] = fits.events
+        for key, fit in (("p", fits.pressure), ("G", fits.shear_modulus), ("z", fits.z_excess)):
             result[f"exponent_{key}"] = fit.exponent if fit is not None else None
         result["compression"] = [s.row() for s in compressed]
         if spec.protocol == "shear":

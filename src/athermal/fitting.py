@@ -14,12 +14,15 @@ from .errors import InputError
 @dataclass(frozen=True)
 class PowerLaw:
     """``y = prefactor x^exponent``; ``stderr`` is the exponent's standard error (the
-    least-squares covariance scaled by the residual variance), ``points`` the number fitted."""
+    least-squares covariance scaled by the residual variance), ``points`` the number fitted and
+    ``x_min``, ``x_max`` the range of ``x`` they span."""
 
     exponent: float
     stderr: float
     prefactor: float
     points: int
+    x_min: float
+    x_max: float
 
     def __call__(self, x: ArrayLike) -> np.ndarray:
         """The fitted ``y`` at ``x``."""
@@ -57,6 +60,8 @@ def fit_power_law(
         stderr=float(np.sqrt(cov[0, 0])),
         prefactor=float(np.exp(coef[1])),
         points=int(lx.size),
+        x_min=float(xs[keep].min()),
+        x_max=float(xs[keep].max()),
     )
 
 
@@ -96,7 +101,13 @@ def fit_jamming_point(phi: ArrayLike, pressure: ArrayLike) -> tuple[float, Power
         stderr = float(np.sqrt(max(cov[1, 1], 0.0)))
     except np.linalg.LinAlgError:
         stderr = float("inf")
+    phi_0 = lowest - float(np.exp(sol.x[2]))
     law = PowerLaw(
-        exponent=float(sol.x[1]), stderr=stderr, prefactor=float(np.exp(sol.x[0])), points=x.size
+        exponent=float(sol.x[1]),
+        stderr=stderr,
+        prefactor=float(np.exp(sol.x[0])),
+        points=x.size,
+        x_min=lowest - phi_0,
+        x_max=float(x.max()) - phi_0,
     )
-    return lowest - float(np.exp(sol.x[2])), law
+    return phi_0, law

@@ -29,7 +29,11 @@ Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x le
 
 from __future__ import annotations
 
+import contextlib
+import os
+import sys
 import warnings
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Literal
 
@@ -43,6 +47,14 @@ from .cell import simple_shear
 from .contact import ContactModel, Contacts, find_contacts, hessian
 from .observables import pressure, rattlers, stress
 from .packing import Packing
+
+STABILITY_TOL = 1e-12
+"""The pinned Hessian counts as positive semidefinite when ``H + s I`` is positive definite with
+``s = STABILITY_TOL`` x its mean diagonal entry: Hessian entries carry round-off of ~1e-16 of the
+contact stiffness, while the negative curvature of an unstable packing near jamming, set by the
+contact forces over their lengths (``f / l``), is ~``delta / l`` ~ 1e-8 of it."""
+DENSE_EIGEN_DOFS = 3000
+"""Largest pinned Hessian whose lowest eigenpair is found by a dense solve (ARPACK above it)."""
 
 RESIDUAL_TOL = 1e-8
 """Relative residual ``|H y - Xi| / |Xi|`` above which the direct solve is refined by MINRES."""
@@ -198,6 +210,72 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
     )
 
 
+@dataclass(frozen=True)
+class Stability:
+    """Whether a packing is at a local minimum of its energy (positions free, cell fixed).
+
+    Attributes
+    ----------
+    stable : the Hessian of the non-rattlers with the translations pinned is positive
+        semidefinite to round-off (:data:`STABILITY_TOL`): a minimum, not a saddle.
+    lowest_eigenvalue : the lowest eigenvalue of that Hessian (energy / length^2) when it is not
+        positive definite at the tolerance; ``None`` when the factorization proved it is.
+    mode : ``(N, d)`` unit eigenvector of ``lowest_eigenvalue`` (zero on rattlers), the
+        direction that lowers the energy of a saddle; ``None`` when stable.
+    tolerance : the shift ``s`` of the test (energy / length^2).
+    """
+
+    stable: bool
+    lowest_eigenvalue: float | None
+    mode: NDArray[np.float64] | None
+    tolerance: float
+
+
+def stability(packing: Packing, model: ContactModel) -> Stability:
+    """Test that ``packing`` (force balanced) is a local minimum: its pinned Hessian is positive
+    semidefinite.
+
+    One Cholesky factorization of ``H + s I`` (``s``: :data:`STABILITY_TOL`) decides; when it
+    fails, the lowest eigenpair is computed (dense up to :data:`DENSE_EIGEN_DOFS` degrees of
+    freedom, ARPACK above) to tell a saddle (eigenvalue below ``-s``) from a marginal minimum.
+
+    Examples
+    --------
+    >>> from athermal.cell import Cell
+    >>> import numpy as np
+    >>> g = (np.arange(4) + 0.5) / 4
+    >>> square = Packing(np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), np.full(16, 0.13),
+    ...                  Cell.box([1.0, 1.0]))
+    >>> s = stability(square, ContactModel(2.0))   # compressed square lattice: a saddle
+    >>> s.stable, round(s.lowest_eigenvalue, 9)      # -4 f / l with f = 0.01, l = 0.25
+    (False, -0.16)
+    """
+    contacts, rattler = _live_contacts(packing, model)
+    dim = packing.dim
+    live = np.flatnonzero(~rattler)
+    if live.size <= 1:
+        return Stability(True, None, None, 0.0)
+    dofs = (live[:, None] * dim + np.arange(dim)).ravel()
+    h = hessian(contacts, packing.n)[dofs][:, dofs].tocsr()
+    pinned = h[dim:, dim:]
+    shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
+    test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
+    if _cholesky_solve(test, np.zeros((pinned.shape[0], 1))) is not None:
+        return Stability(True, None, None, shift)
+    # the free Hessian of the non-rattlers: its translations are exact zero modes, so its
+    # lowest eigenpair is the packing's (pinning a particle would shift the eigenvalues)
+    if h.shape[0] <= DENSE_EIGEN_DOFS:
+        values, vectors = np.linalg.eigh(h.toarray())
+    else:
+        values, vectors = spla.eigsh(h, k=1, which="SA", tol=1e-10, maxiter=100 * h.shape[0])
+    value = float(values[0])
+    if value >= -shift:
+        return Stability(True, value, None, shift)
+    mode = np.zeros((packing.n, dim))
+    mode.reshape(-1)[dofs] = vectors[:, 0]
+    return Stability(False, value, mode / np.linalg.norm(mode), shift)
+
+
 def _live_contacts(packing: Packing, model: ContactModel) -> tuple[Contacts, NDArray[np.bool_]]:
     """The contacts between non-rattlers, and the rattler mask ``(N,)``."""
     contacts = find_contacts(packing, model)
@@ -255,18 +333,37 @@ def _cholesky_solve(h: sp.csr_matrix, b: NDArray[np.float64]) -> NDArray[np.floa
 
     lower = sp.tril(h, format="coo")
     try:
-        solver = CholeskySolverD(
-            h.shape[0],
-            np.ascontiguousarray(lower.row, dtype=np.int32),
-            np.ascontiguousarray(lower.col, dtype=np.int32),
-            np.ascontiguousarray(lower.data, dtype=np.float64),
-            MatrixType.COO,
-        )
+        with _c_output_silenced():  # CHOLMOD prints a warning on stdout before raising
+            solver = CholeskySolverD(
+                h.shape[0],
+                np.ascontiguousarray(lower.row, dtype=np.int32),
+                np.ascontiguousarray(lower.col, dtype=np.int32),
+                np.ascontiguousarray(lower.data, dtype=np.float64),
+                MatrixType.COO,
+            )
     except ValueError:  # "Matrix is not positive definite!"
         return None
     y = np.empty_like(b)
     solver.solve(b, y)
     return y
+
+
+@contextlib.contextmanager
+def _c_output_silenced() -> Iterator[None]:
+    """Send what C code writes to file descriptors 1 and 2 to the null device meanwhile (so
+    that ``--json`` output stays one object)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
 
 
 def _relative_residual(

@@ -46,7 +46,7 @@ from .protocols import (
     scaling_exponents,
     shear_steps,
 )
-from .protocols.compress import CompressionStep, jammed_branch
+from .protocols.compress import CompressionStep
 from .tables import write_text_atomic
 
 SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
@@ -185,13 +185,12 @@ def reproduce(
         if alpha == 2.0:
             compressed = steps
         scaling = scaling_exponents(steps)
-        z_fit = scaling_exponents(steps, lower=1e-4).z_excess
-        branch = jammed_branch(steps)
+        z_fit = scaling.z_excess
         label = f"alpha = {alpha:g}"
-        dphis[label] = [s.phi - scaling.phi_c for s in branch]
-        series["p"][label] = [s.pressure for s in branch]
-        series["G"][label] = [s.shear_modulus for s in branch]
-        series["z"][label] = [s.z_excess for s in branch]
+        dphis[label] = [s.delta_phi for s in steps]
+        series["p"][label] = [s.pressure for s in steps]
+        series["G"][label] = [s.shear_modulus for s in steps]
+        series["z"][label] = [s.z_excess for s in steps]
         fits["p"][label], fits["G"][label] = scaling.pressure, scaling.shear_modulus
         fits["z"][label] = z_fit
         exponents[f"{alpha:g}"] = {

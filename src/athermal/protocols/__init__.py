@@ -2,6 +2,7 @@
 
 from ._relax import Minimizer
 from .compress import (
+    EVENTS,
     CompressionStep,
     ScalingExponents,
     compression_steps,
@@ -17,27 +18,34 @@ from .finite_strain import (
 )
 from .jamming import (
     JAMMING_MINIMIZER,
+    JAMMING_SCHEME,
     PHI_INIT,
+    JammingCheck,
     JammingResult,
     JammingStep,
+    check_jammed,
     jam,
     jamming_steps,
 )
 from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
 
 __all__ = [
+    "EVENTS",
     "ITERATION_METHODS",
     "JAMMING_MINIMIZER",
+    "JAMMING_SCHEME",
     "PHI_INIT",
     "SHEAR_MODES",
     "CompressionStep",
     "FiniteStrain",
+    "JammingCheck",
     "JammingResult",
     "JammingStep",
     "Minimizer",
     "ScalingExponents",
     "ShearMode",
     "ShearStep",
+    "check_jammed",
     "compression_steps",
     "finite_strain_bulk",
     "finite_strain_shear",

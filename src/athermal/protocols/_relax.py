@@ -8,16 +8,20 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
-from ..contact import ContactModel
+from ..cell import Cell
+from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import ConvergenceError, InputError
 from ..minimize import Method, MinimizeResult, minimize, resolve_method
+from ..moduli import stability
 from ..objective import Objective
+from ..packing import Packing
 from ..precon import PreconName, SolverName, make_preconditioner
 
-GTOL_FLOOR = 1e-13
-"""Smallest ``max_i |grad_i|`` a protocol asks for, in units of :func:`force_scale`: gradients
-carry round-off of ~1e-16 x the cell size x ``k`` per contact, ~1e-14 of the force scale for
-N = 4096 in the unit square."""
+MAX_ESCAPES = 3
+"""How often :meth:`Relaxer.relax_to_minimum` leaves a saddle along its negative mode before it
+gives up."""
+ROUND_OFF_MARGIN = 10.0
+""":func:`round_off_floor` is this many times the round-off estimate ``eps (L kappa + f)``."""
 
 
 @dataclass(frozen=True)
@@ -94,6 +98,58 @@ class Relaxer:
             )
         return result
 
+    def relax_to_minimum(
+        self, x: NDArray[np.float64], *, gtol: float, what: str = "step"
+    ) -> tuple[MinimizeResult, int]:
+        """:meth:`relax`, then check that the result is a local minimum
+        (:func:`~athermal.moduli.stability`); a saddle is left along its negative mode and
+        relaxed again. Returns the last result and how many saddles were left; raises
+        :class:`ConvergenceError` after :data:`MAX_ESCAPES` saddles in a row.
+
+        The step along the mode moves the particles by the mean contact overlap at most, enlarged
+        (x10 at a time) until the gradient it creates exceeds ``10 gtol``, so that the minimizer
+        does not stop where it starts; of the two directions the one of lower energy is taken.
+        """
+        result = self.relax(x, gtol=gtol, what=what)
+        for escapes in range(MAX_ESCAPES + 1):
+            check = stability(result.packing, self.objective.model)
+            if check.stable:
+                return result, escapes
+            if escapes == MAX_ESCAPES:
+                break
+            assert check.mode is not None
+            mode = np.ascontiguousarray(check.mode[self.objective.order]).ravel()
+            x = self._leave_saddle(result.x, mode, gtol)
+            again = self.relax(x, gtol=gtol, what=f"{what} (after leaving a saddle)")
+            result = replace(
+                again,
+                iterations=result.iterations + again.iterations,
+                evaluations=result.evaluations + again.evaluations,
+                seconds=result.seconds + again.seconds,
+            )
+        raise ConvergenceError(
+            f"{what}: still a saddle after leaving {MAX_ESCAPES} saddles along their negative "
+            f"modes (lowest Hessian eigenvalue {check.lowest_eigenvalue:.3e})"
+        )
+
+    def _leave_saddle(
+        self, x: NDArray[np.float64], mode: NDArray[np.float64], gtol: float
+    ) -> NDArray[np.float64]:
+        """``x`` moved along ``mode`` (unit norm, internal order): see :meth:`relax_to_minimum`."""
+        dim = self.objective.dim
+        overlaps = find_contacts(self.objective.packing(x, internal=True), self.objective.model)
+        scale = float(overlaps.overlap.mean()) if overlaps.i.size else 1e-8
+        largest = float(np.sqrt((mode.reshape(-1, dim) ** 2).sum(axis=1)).max())
+        step = scale / largest
+        cap = 0.1 * float(self.objective.radii.mean()) / largest
+        while True:
+            trials = [x + step * mode, x - step * mode]
+            energies = [self.objective(t)[0] for t in trials]
+            best = trials[int(np.argmin(energies))]
+            if self.objective.max_gradient(self.objective(best)[1]) > 10.0 * gtol or step >= cap:
+                return best
+            step = min(10.0 * step, cap)
+
     def _finish_with_fire(self, first: MinimizeResult, gtol: float, etol: float) -> MinimizeResult:
         self.objective.start_from(first.x)
         rest = minimize(
@@ -117,6 +173,38 @@ class Relaxer:
             ),
             neighbor_rebuilds=first.neighbor_rebuilds + rest.neighbor_rebuilds,
         )
+
+
+def round_off_floor(contacts: Contacts, cell: Cell) -> float:
+    """Smallest ``max_i |grad_i|`` a protocol asks for (force units):
+    ``ROUND_OFF_MARGIN x eps_mach (L kappa_max + f_max)``.
+
+    An overlap carries an absolute error ``~eps_mach L`` from the coordinates (``L`` the largest
+    cell width), which the contact stiffness ``kappa = k (alpha-1) delta^(alpha-2)`` turns into
+    a force error, on top of the relative rounding of the force ``f = k delta^(alpha-1)``
+    itself. Measured (N = 256, from the jamming point to Delta phi = 1e-2, alpha = 2 and 2.5):
+    L-BFGS and FIRE stall at 0.25-0.6 x ``eps (L kappa_max + f_max)``. For Hertzian contacts
+    near jamming this is far below a floor in units of ``k <r>^(alpha-1)``: the stiffness
+    vanishes with the overlap.
+    """
+    if contacts.i.size == 0:
+        return 0.0
+    kappa = contacts.stiffness * (contacts.alpha - 1.0) * contacts.overlap ** (contacts.alpha - 2.0)
+    scale = float(cell.widths.max())
+    eps = float(np.finfo(np.float64).eps)
+    return (
+        ROUND_OFF_MARGIN
+        * eps
+        * (scale * float(kappa.max()) + float(contacts.force_magnitude.max()))
+    )
+
+
+def force_tolerance(packing: Packing, model: ContactModel, rtol: float) -> float:
+    """``max(rtol x mean contact force, round_off_floor)`` at ``packing`` (force units): the
+    tolerance of a protocol step relative to its own forces."""
+    contacts = find_contacts(packing, model)
+    mean = float(contacts.force_magnitude.mean()) if contacts.i.size else 0.0
+    return max(rtol * mean, round_off_floor(contacts, packing.cell))
 
 
 def force_scale(radii: NDArray[np.float64], model: ContactModel) -> float:

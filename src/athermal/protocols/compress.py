@@ -16,6 +16,7 @@ under which stresses scale as ``length^(alpha-d)``, so ``B = B_cell + (alpha - d
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -23,17 +24,30 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._validate import float_array
-from ..contact import ContactModel
+from ..contact import ContactModel, find_contacts
 from ..errors import InputError
 from ..fitting import PowerLaw, fit_jamming_point, fit_power_law
 from ..moduli import linear_response
 from ..objective import Objective
 from ..observables import measure
 from ..packing import Packing
-from ._relax import GTOL_FLOOR, Minimizer, Relaxer, force_scale
+from ._relax import Minimizer, Relaxer, force_tolerance
+from .jamming import overlap_distance
 
 RTOL = 1e-9
 """Default tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at a step's start."""
+EVENTS = ("unjammed", "pressure drop", "saddle left", "unstable to shear")
+"""What a compression step reports when it happens (``CompressionStep.events``): no pressure or
+no rigid backbone (every particle a rattler); a pressure below the previous step's; a saddle
+left along its negative mode (:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`); a
+minimum with a negative linear-response shear modulus, unstable to shear at fixed cell
+(Dagois-Bohy et al., PRL 109, 095703 (2012): physical near jamming, where ``p N^2`` is small)."""
+FIT_LOWER = 1e-6
+"""Smallest ``Delta phi`` fitted by default: the jamming protocol's default ``epsilon``, below
+which ``Delta phi`` is not known to better than itself."""
+FAR_ABOVE = 10.0
+""":func:`compression_steps` warns when the start's overlaps (:func:`overlap_distance`) put it
+more than this many times ``max(phi - phi_c, first Delta phi)`` above its jamming point."""
 
 
 def log_spaced(start: float = 1e-7, stop: float = 1e-1, per_decade: int = 4) -> NDArray[np.float64]:
@@ -59,8 +73,10 @@ class CompressionStep:
     """One relaxed state of the compression (units: ``k`` and the cell's lengths).
 
     ``bulk_modulus`` is ``phi dp/dphi`` along the protocol, ``shear_modulus`` the simple-shear
-    ``G``, both by linear response; ``z_excess = z - z_iso`` over the non-rattlers (``-2 d``
-    when every particle is a rattler).
+    ``G``, both by linear response (negative for a minimum unstable to shear: the event
+    ``unstable to shear``, and no modulus in the fits); ``z_excess = z - z_iso`` over the
+    non-rattlers (``-2 d`` when every particle is a rattler); ``events`` what happened
+    (names from :data:`EVENTS`), ``saddles`` how many saddles were left on the way.
     """
 
     index: int
@@ -75,12 +91,14 @@ class CompressionStep:
     n_rattlers: int
     bulk_modulus: float
     shear_modulus: float
+    saddles: int
+    events: tuple[str, ...]
     iterations: int
     evaluations: int
     seconds: float
     packing: Packing
 
-    def row(self) -> dict[str, float | int]:
+    def row(self) -> dict[str, float | int | str]:
         """The step's numbers (no packing), for tables."""
         return {
             "index": self.index,
@@ -95,6 +113,8 @@ class CompressionStep:
             "n_rattlers": self.n_rattlers,
             "bulk_modulus": self.bulk_modulus,
             "shear_modulus": self.shear_modulus,
+            "saddles": self.saddles,
+            "events": ";".join(self.events),
             "iterations": self.iterations,
             "evaluations": self.evaluations,
             "seconds": self.seconds,
@@ -115,13 +135,16 @@ def compression_steps(
 
     Parameters
     ----------
-    jammed : a jammed packing (e.g. :func:`~athermal.protocols.jam`'s), the first start.
+    jammed : a jammed packing (e.g. :func:`~athermal.protocols.jam`'s), the first start;
+        refused when it has no energy or pressure, and a ``UserWarning`` when its overlaps put
+        it far above ``phi_c`` (:data:`FAR_ABOVE`).
     model : contact law.
     phi_c : jamming fraction ``Delta phi`` is measured from; default ``jammed.phi``.
     delta_phis : increasing ``Delta phi > 0`` ``(k,)``; default :func:`log_spaced`.
     minimizer : how each step is relaxed (default L-BFGS).
     rtol : tolerance relative to the mean contact force at each step's start, floored at
-        ``GTOL_FLOOR`` x ``k <r>^(alpha-1)`` (round-off).
+        round-off (:func:`~athermal.protocols._relax.round_off_floor`). Every step is checked to
+        be a local minimum; a saddle is left along its negative mode (``saddles``, ``events``).
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one. Each step builds its objective from the previous step's
         packing alone, so the continued run matches an uninterrupted one bit for bit.
@@ -134,14 +157,29 @@ def compression_steps(
         raise InputError(f"phi_c: must lie in (0, phi of the packing = {jammed.phi:.9g}]")
     if phi_ref + targets[-1] >= 1.0:
         raise InputError(f"delta_phis: phi_c + {targets[-1]:g} reaches 1")
+    start = measure(jammed, model)
+    if not (start.energy > 0.0 and start.pressure > 0.0):
+        raise InputError(
+            f"jammed: the start packing is not jammed (E = {start.energy:.3e}, p = "
+            f"{start.pressure:.3e}); jam it first (athermal jam)"
+        )
+    above = overlap_distance(find_contacts(jammed, model), jammed)
+    if above > FAR_ABOVE * max(jammed.phi - phi_ref, float(targets[0])):
+        warnings.warn(
+            f"compression: the start's overlaps are those of a packing ~{above:.1e} above its "
+            f"jamming point, but phi - phi_c = {jammed.phi - phi_ref:.1e}: Delta phi is not "
+            "measured from its own jamming point",
+            UserWarning,
+            stacklevel=2,
+        )
     config = minimizer or Minimizer()
     base, phi0 = jammed.radii, jammed.phi
-    current = jammed
+    current, p_prev = jammed, start.pressure
     first = 0
     if resume:
         if [s.index for s in resume] != list(range(len(resume))) or len(resume) > targets.size:
             raise InputError("resume: steps must be this run's steps 0, 1, ... in order")
-        current, first = resume[-1].packing, len(resume)
+        current, p_prev, first = resume[-1].packing, resume[-1].pressure, len(resume)
     for index in range(first, targets.size):
         dphi = float(targets[index])
         t0 = time.perf_counter()
@@ -151,16 +189,26 @@ def compression_steps(
                 f"delta_phis: phi_c + {dphi:g} is below the jammed packing's phi {phi0:.9g}"
             )
         radii = base * (phi / phi0) ** (1.0 / jammed.dim)
-        objective = Objective(Packing(current.positions, radii, jammed.cell), model)
-        f0 = objective.mean_contact_force(objective.x0)
-        gtol = max(rtol * f0, GTOL_FLOOR * force_scale(radii, model))
-        result = Relaxer(objective, config).relax(
-            objective.x0, gtol=gtol, what=f"compression step {index} (delta phi {dphi:g})"
+        grown = Packing(current.positions, radii, jammed.cell)
+        objective = Objective(grown, model)
+        result, saddles = Relaxer(objective, config).relax_to_minimum(
+            objective.x0,
+            gtol=force_tolerance(grown, model, rtol),
+            what=f"compression step {index} (delta phi {dphi:g})",
         )
         current = result.packing
         obs = measure(current, model)
         moduli = linear_response(current, model)
         n_live = obs.n - obs.n_rattlers
+        events = []
+        if not (obs.pressure > 0.0 and n_live > 0):
+            events.append("unjammed")
+        if obs.pressure < p_prev:
+            events.append("pressure drop")
+        if saddles:
+            events.append("saddle left")
+        if moduli.shear < 0.0:
+            events.append("unstable to shear")
         yield CompressionStep(
             index=index,
             delta_phi=dphi,
@@ -174,64 +222,50 @@ def compression_steps(
             n_rattlers=obs.n_rattlers,
             bulk_modulus=moduli.bulk + (model.alpha - jammed.dim) * obs.pressure / jammed.dim,
             shear_modulus=moduli.shear,
+            saddles=saddles,
+            events=tuple(events),
             iterations=result.iterations,
             evaluations=result.evaluations,
             seconds=time.perf_counter() - t0,
             packing=current,
         )
+        p_prev = obs.pressure
 
 
 @dataclass(frozen=True)
 class ScalingExponents:
-    """Power laws fitted to a compression: ``p``, ``G`` and ``z - z_iso`` against
-    ``phi - phi_c``; ``None`` where fewer than 3 usable points fell in the window.
+    """Power laws fitted to a compression: ``p``, ``G`` and ``z - z_iso`` against the
+    protocol's ``Delta phi``; ``None`` where fewer than 3 usable points fell in the window.
 
-    ``phi_c`` is the jamming point the fits use: the protocol's, or (``refine``) the one of
-    the fitted ``p = a (phi - phi_c)^b``; ``branch`` the steps fitted (see
-    :func:`scaling_exponents`).
+    ``phi_c`` is the protocol's jamming point, the one the fits use. ``phi_c_fitted`` is a
+    diagnostic: the jamming point of ``p = a (phi - phi_c)^b`` with ``phi_c`` free (NaN with
+    fewer than 4 points); a value far from ``phi_c`` says the start was not at its jamming
+    point. ``events`` counts the steps with each event (:data:`EVENTS`).
     """
 
     pressure: PowerLaw | None
     shear_modulus: PowerLaw | None
     z_excess: PowerLaw | None
     phi_c: float
-    branch: int
-
-
-def jammed_branch(steps: Sequence[CompressionStep]) -> list[CompressionStep]:
-    """The steps after the last unjammed one (no pressure, or fewer contacts than isostatic):
-    a finite packing can unjam during a compression step and jam again later, in another basin
-    with its own jamming point."""
-    last_free = max(
-        (k for k, s in enumerate(steps) if not (s.pressure > 0.0 and s.z_excess > -1e-9)),
-        default=-1,
-    )
-    return list(steps[last_free + 1 :])
+    phi_c_fitted: float
+    events: dict[str, int]
 
 
 def scaling_exponents(
     steps: Sequence[CompressionStep],
     *,
-    lower: float = 0.0,
+    lower: float = FIT_LOWER,
     upper: float = np.inf,
-    refine: bool = True,
 ) -> ScalingExponents:
-    """Fit the three power laws to the jammed branch (:func:`jammed_branch`) of ``steps``.
+    """Fit the three power laws to ``steps`` against their ``Delta phi`` within
+    ``[lower, upper]``.
 
-    With ``refine`` the jamming point is fitted too, ``p = a (phi - phi_c)^b`` with ``phi_c``
-    free (:func:`~athermal.fitting.fit_jamming_point`, all branch points): the bisection leaves
-    the jammed packing up to ~10 epsilon above the jamming point of its own basin, which bends
-    ``p`` at ``Delta phi`` below ~1e-5. ``G`` and ``z - z_iso`` are then fitted against
-    ``phi - phi_c`` within ``[lower, upper]``; without ``refine`` all three use the protocol's
-    ``Delta phi`` and the window.
+    Each fit uses the steps with a positive value in the window (a step unstable to shear has
+    ``G < 0``, an unjammed one neither ``p > 0`` nor ``z - z_iso > 0``); the fit records how
+    many points and which ``Delta phi`` range it used.
     """
-    branch = jammed_branch(steps)
-    phi = np.array([s.phi for s in branch])
-    phi_c = float(branch[0].phi - branch[0].delta_phi) if branch else np.nan
-    pressure_fit: PowerLaw | None = None
-    if refine and len(branch) >= 4:
-        phi_c, pressure_fit = fit_jamming_point(phi, [s.pressure for s in branch])
-    dphi = phi - phi_c
+    dphi = np.array([s.delta_phi for s in steps])
+    phi_c = float(steps[0].phi - steps[0].delta_phi) if steps else np.nan
 
     def fit(values: list[float]) -> PowerLaw | None:
         try:
@@ -239,10 +273,16 @@ def scaling_exponents(
         except InputError:
             return None
 
+    pressures = [s.pressure for s in steps]
+    try:
+        phi_c_fitted = fit_jamming_point([s.phi for s in steps], pressures)[0]
+    except InputError:
+        phi_c_fitted = np.nan
     return ScalingExponents(
-        pressure=pressure_fit or fit([s.pressure for s in branch]),
-        shear_modulus=fit([s.shear_modulus for s in branch]),
-        z_excess=fit([s.z_excess for s in branch]),
+        pressure=fit(pressures),
+        shear_modulus=fit([s.shear_modulus for s in steps]),
+        z_excess=fit([s.z_excess for s in steps]),
         phi_c=phi_c,
-        branch=len(branch),
+        phi_c_fitted=float(phi_c_fitted),
+        events={name: sum(name in s.events for s in steps) for name in EVENTS},
     )

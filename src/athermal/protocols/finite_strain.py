@@ -22,7 +22,7 @@ from ..errors import InputError
 from ..objective import Objective
 from ..observables import pressure, shear_stress, stress
 from ..packing import Packing
-from ._relax import GTOL_FLOOR, Minimizer, Relaxer, force_scale
+from ._relax import Minimizer, Relaxer, force_tolerance
 
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
 """The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
@@ -90,7 +90,7 @@ def finite_strain_shear(
     minimizer : how each step is relaxed (default L-BFGS); its iteration limit is fatal
         (:class:`~athermal.errors.ConvergenceError`).
     rtol : tolerance relative to the mean contact force at the start of each relaxation,
-        floored at round-off (:data:`~athermal.protocols._relax.GTOL_FLOOR`).
+        floored at round-off (:func:`~athermal.protocols._relax.round_off_floor`).
     """
     gammas = _check_strains(strains, lower=-np.inf)
     dim = packing.dim
@@ -174,11 +174,11 @@ def _quasi_static(
     stresses = np.empty(strains.size)
     iterations = np.empty(strains.size, dtype=np.int64)
     counts = np.empty(strains.size, dtype=np.int64)
-    floor = GTOL_FLOOR * force_scale(packing.radii, model)
     current, old = packing, 0.0
     for step, new in enumerate(strains):
-        objective = Objective(current.deform(increment(old, float(new))), model)
-        gtol = max(rtol * objective.mean_contact_force(objective.x0), floor)
+        deformed = current.deform(increment(old, float(new)))
+        objective = Objective(deformed, model)
+        gtol = force_tolerance(deformed, model, rtol)
         result = Relaxer(objective, minimizer).relax(
             objective.x0, gtol=gtol, what=f"finite strain step {step} (strain {new:g})"
         )

@@ -1,60 +1,88 @@
-"""Jamming by growth and bisection: the seed's Algorithm 1 (after O'Hern et al. 2003).
+"""Jamming by growth and bisection on one configuration (the seed's Algorithm 1, read with
+O'Hern et al. 2003).
 
-From a start packing at ``phi_init`` the radii grow by ``dphi`` (in packing fraction) and the
-packing is relaxed, until a relaxed state is jammed; then ``phi`` is bisected between the last
-unjammed and the first jammed fraction, each trial relaxed from the last unjammed
-configuration, until the bracket is below ``epsilon``. Radii are always
-``r0 (phi / phi_init)^(1/d)`` from the start radii, and every step builds its own objective and
-preconditioner from its start configuration: a step is a function of that configuration and its
-``phi`` alone, which is what lets an interrupted run resume bit for bit (``resume``).
+**The scheme.** From a start packing at ``phi_init`` the radii grow by ``dphi`` (in packing
+fraction) and the packing is relaxed, until a relaxed state is jammed. The jamming point is then
+bisected: each trial is relaxed from the previous trial's relaxed configuration, jammed or not
+(O'Hern et al.'s compression and decompression of one configuration), so a trial below a jammed
+state decompresses that state's own basin. The run ends only when the jammed packing at
+``phi_high`` is the relaxation of the unjammed configuration at ``phi_low``, grown by at most
+``epsilon``: the seed's ``C_jam`` one ``epsilon`` above its ``C_ref``. When the bracket is that
+narrow but the jammed state came from another configuration, the unjammed one is grown to
+``phi_high`` (one more trial); if it stays unjammed, the jammed bound belonged to another basin:
+the bracket reopens there and growth goes on from the unjammed state with a small increment
+(``RESTART`` x ``epsilon``, doubled after every unjammed step, at most ``dphi``), then bisection.
+The jammed trial that closes the bracket is relaxed once more to force balance (``final``); if it
+unjams then, the bracket reopens the same way. Radii are always ``r0 (phi / phi_init)^(1/d)``
+from the start radii, and every step builds its own objective and preconditioner from its start
+configuration, and what a step does is a function of the steps before it (:func:`_next_trial`):
+an interrupted run resumes bit for bit (``resume``).
 
 **Jammed** means: the relaxed energy per particle exceeds ``energy_tol`` x ``k <r>^alpha`` and
-the pressure is positive. A trial relaxation stops as soon as the energy falls to that
-threshold (the packing is unjammed) or when ``max_i |grad_i|`` is below ``rtol`` (1e-6) times
-the mean contact force at its start (a mechanically stable state, up to that balance), but never
-above a tenth of the force of an overlap that holds the threshold energy, so that a packing far
-from balance cannot stop there with an energy above the threshold; the
-jammed packing that ends the bisection is then relaxed once more to ``max_i |grad_i| <= gtol``
-x ``k <r>^(alpha-1)`` (1e-12), the ``final`` step.
+the pressure is positive. A trial relaxation stops as soon as the energy falls to that threshold
+(the packing is unjammed) or when ``max_i |grad_i|`` is below ``rtol`` (1e-6) times the mean
+contact force at its start, but never above a tenth of the force of an overlap that holds the
+threshold energy, so that a packing far from balance cannot stop there with an energy above the
+threshold. The ``final`` step relaxes to ``max_i |grad_i| <= final_rtol`` (1e-10) x the
+packing's own mean contact force, or to the round-off floor
+(:func:`~athermal.protocols._relax.round_off_floor`) where that is larger.
 
 A packing jammed by ``Delta phi`` has overlaps ``delta ~ <r> Delta phi / (d phi)`` and
 ``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``, so the default threshold
 ``(epsilon / (10 d))^alpha`` separates states jammed by more than ~``epsilon / 10`` from
-unjammed ones (2.5e-15 for ``alpha = 2`` and ``epsilon = 1e-6``; a packing jammed by
-``epsilon`` has ~3.5e-13) while sparing the slowest part of relaxing an unjammed packing near
-``phi_c``, its last orders of magnitude of energy. Both stay far above round-off (energies
-~1e-12 relative, forces ~1e-14 of the force scale at N = 4096 in the unit square).
+unjammed ones (2.5e-15 for ``alpha = 2`` and ``epsilon = 1e-6``) while sparing the slowest part
+of relaxing an unjammed packing near ``phi_c``, its last orders of magnitude of energy. Both stay
+far above round-off (energies ~1e-12 relative, forces ~1e-14 of the force scale at N = 4096).
+
+**Checked** (:func:`check_jammed`, run by :func:`jam`): decompressed by ``DECOMPRESSION`` x
+``epsilon`` and relaxed the packing unjams; its contacts among non-rattlers are isostatic,
+``N_c - N_iso`` in ``[0, ISOSTATIC_SLACK]``; its mean overlap, expressed as a distance in packing
+fraction ``d phi <delta / (r_i + r_j)>``, is at most ``OVERLAP_SLACK`` x ``epsilon``; and it is a
+local minimum (:func:`~athermal.moduli.stability`).
 """
 
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
 from .._validate import positive_scalar
-from ..contact import ContactModel, find_contacts
+from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import ConvergenceError, InputError
+from ..moduli import stability
 from ..objective import Objective
-from ..observables import Observables, measure, pressure, stress
+from ..observables import Observables, measure, pressure, rattlers, stress
 from ..packing import Packing
-from ._relax import GTOL_FLOOR, Minimizer, Relaxer, energy_scale, force_scale
+from ._relax import Minimizer, Relaxer, energy_scale, force_scale, round_off_floor
 
 JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
 """Default minimizer of the jamming protocol, P-L-BFGS: near jamming the Exp preconditioner pays.
 Measured (2D, alpha = 2, one core): N = 1024, seeds 0-2, 12.7 / 32.3 / 12.7 s against L-BFGS's
 34.2 / 32.3 / 55.7 s; N = 4096, seed 0, 109 s against 712 s."""
+JAMMING_SCHEME = 2
+"""Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused)."""
 PHI_INIT = {2: 0.8, 3: 0.6}
 """Default start fraction by dimension: unjammed after relaxation (phi_c ~ 0.84 in 2D and
 ~0.64 in 3D for the bidisperse 1:1, 1.4 mixture)."""
 RTOL = 1e-6
 """Default force tolerance of the trial steps, relative to the mean contact force at a step's
 start."""
-GTOL = 1e-12
-"""Default force tolerance of the final step, in units of ``k <r>^(alpha-1)``."""
+FINAL_RTOL = 1e-10
+"""Default force tolerance of the final step, relative to the packing's own mean contact force."""
+RESTART = 4.0
+"""First growth increment after the bracket reopens, in units of ``epsilon``."""
+DECOMPRESSION = 3.0
+""":func:`check_jammed` decompresses by this many ``epsilon``."""
+ISOSTATIC_SLACK = 4
+"""Most contacts above isostatic, ``N_c - N_iso``, that :func:`check_jammed` accepts."""
+OVERLAP_SLACK = 2.0
+"""Largest mean overlap, as a packing-fraction distance over ``epsilon``, that
+:func:`check_jammed` accepts."""
 
 Phase = Literal["start", "increment", "bisection", "final"]
 
@@ -63,14 +91,17 @@ Phase = Literal["start", "increment", "bisection", "final"]
 class JammingStep:
     """One relaxation of the jamming protocol.
 
-    ``phase`` is ``start`` (the start packing relaxed), ``increment`` or ``bisection``;
-    ``phi_low`` / ``phi_high`` bracket the jamming point after this step (``phi_high`` is
-    ``inf`` until a jammed state is found). ``packing`` is the relaxed configuration at ``phi``
-    (caller's particle order). Energy in ``k`` x length^alpha, pressure in energy / volume.
+    ``phase`` is ``start`` (the start packing relaxed), ``increment``, ``bisection`` or
+    ``final``; ``origin`` the index of the step whose relaxed packing this one started from
+    (-1 for the start); ``phi_low`` / ``phi_high`` bracket the jamming point after this step
+    (``phi_high`` is ``inf`` while no jammed bound is known). ``packing`` is the relaxed
+    configuration at ``phi`` (caller's particle order). Energy in ``k`` x length^alpha,
+    pressure in energy / volume.
     """
 
     index: int
     phase: Phase
+    origin: int
     phi: float
     jammed: bool
     energy: float
@@ -88,6 +119,7 @@ class JammingStep:
         return {
             "index": self.index,
             "phase": self.phase,
+            "origin": self.origin,
             "phi": self.phi,
             "jammed": int(self.jammed),
             "energy": self.energy,
@@ -102,28 +134,183 @@ class JammingStep:
 
     @property
     def bracket(self) -> float:
-        """Width ``phi_high - phi_low`` of the bracket (``inf`` before the first jammed step)."""
+        """Width ``phi_high - phi_low`` of the bracket (``inf`` while it is open)."""
         return self.phi_high - self.phi_low
+
+
+@dataclass(frozen=True)
+class JammingCheck:
+    """A referee's checks of a jammed packing (:func:`check_jammed`).
+
+    Attributes
+    ----------
+    decompression : packing-fraction step of the decompression test (``DECOMPRESSION`` x
+        ``epsilon``).
+    decompressed_energy : ``E / N`` after decompressing and relaxing, in ``k <r>^alpha``.
+    unjams : that energy is at most the jamming threshold (the packing unjams).
+    excess_contacts : ``N_c - N_iso`` among the non-rattlers, ``N_iso = d (N' - 1) + 1``.
+    overlap_dphi : ``d phi <delta / (r_i + r_j)>``, the mean overlap as a distance in packing
+        fraction (a packing jammed by ``Delta phi`` has about ``Delta phi`` or less).
+    epsilon : the accuracy the packing was jammed to.
+    stable : a local minimum (:func:`~athermal.moduli.stability`).
+    """
+
+    decompression: float
+    decompressed_energy: float
+    unjams: bool
+    excess_contacts: int
+    overlap_dphi: float
+    epsilon: float
+    stable: bool
+
+    def problems(self) -> list[str]:
+        """What failed, one phrase each (empty when every check passed)."""
+        out = []
+        if not self.unjams:
+            out.append(
+                f"still jammed when decompressed by {self.decompression:.1e} "
+                f"(E/N = {self.decompressed_energy:.2e} k<r>^alpha)"
+            )
+        if not 0 <= self.excess_contacts <= ISOSTATIC_SLACK:
+            out.append(f"N_c - N_iso = {self.excess_contacts} (isostatic: 0 ... {ISOSTATIC_SLACK})")
+        if self.overlap_dphi > OVERLAP_SLACK * self.epsilon:
+            out.append(
+                f"mean overlap of a packing {self.overlap_dphi:.1e} above jamming "
+                f"(epsilon {self.epsilon:.0e})"
+            )
+        if not self.stable:
+            out.append("not a local minimum (the Hessian has a negative eigenvalue)")
+        return out
+
+    @property
+    def passed(self) -> bool:
+        """Every check passed."""
+        return not self.problems()
 
 
 @dataclass(frozen=True, eq=False)
 class JammingResult:
     """Outcome of :func:`jam`: the jamming fraction and the jammed packing.
 
-    ``phi_c`` is the smallest jammed fraction found (within ``epsilon`` above the largest
-    unjammed one); ``packing`` the relaxed jammed configuration at ``phi_c`` and
-    ``observables`` its measurements (z with rattlers removed). ``iterations`` and
-    ``evaluations`` sum over all ``steps`` relaxations.
+    ``phi_c`` is ``phi_high``, the jammed fraction, within ``epsilon`` above ``phi_low``, the
+    unjammed configuration it was grown from; ``packing`` the relaxed jammed configuration at
+    ``phi_c`` and ``observables`` its measurements (z with rattlers removed); ``check`` the
+    referee's checks. ``iterations`` and ``evaluations`` sum over all ``steps`` relaxations.
     """
 
     phi_c: float
+    phi_low: float
     packing: Packing
     observables: Observables
+    check: JammingCheck
     steps: int
     iterations: int
     evaluations: int
     seconds: float
     history: tuple[JammingStep, ...]
+
+
+@dataclass(frozen=True, eq=False)
+class _Outcome:
+    """A relaxed trial: the packing and the numbers a :class:`JammingStep` records."""
+
+    packing: Packing
+    jammed: bool
+    energy: float
+    pressure: float
+    contacts: int
+    iterations: int
+    evaluations: int
+
+
+class _Trials:
+    """The relaxation of one jamming trial at a given ``phi`` from a given configuration."""
+
+    def __init__(
+        self,
+        start: Packing,
+        model: ContactModel,
+        minimizer: Minimizer,
+        energy_tol: float,
+        rtol: float,
+        final_rtol: float,
+    ) -> None:
+        self.start, self.model, self.minimizer = start, model, minimizer
+        self.energy_tol, self.rtol, self.final_rtol = energy_tol, rtol, final_rtol
+        self.largest = 0.5 * float(start.cell.widths.min())
+
+    def radii(self, phi: float) -> np.ndarray:
+        """Radii at ``phi``: the start radii scaled uniformly."""
+        return self.start.radii * (phi / self.start.phi) ** (1.0 / self.start.dim)
+
+    def threshold(self, radii: np.ndarray) -> float:
+        """The jamming threshold on the total energy (energy units)."""
+        return self.energy_tol * self.start.n * energy_scale(radii, self.model)
+
+    def relax(self, phi: float, origin: Packing, tight: bool, what: str) -> _Outcome:
+        """Relax ``origin`` grown to ``phi`` (to force balance when ``tight``)."""
+        radii = self.radii(phi)
+        if radii.max() >= self.largest:
+            raise InputError(f"phi: at {phi:.6g} the largest particle no longer fits the cell")
+        grown = Packing(origin.positions, radii, self.start.cell)
+        objective = Objective(grown, self.model)
+        e_min = self.threshold(radii)
+        contacts = find_contacts(grown, self.model)
+        floor = round_off_floor(contacts, self.start.cell)
+        f0 = float(contacts.force_magnitude.mean()) if contacts.i.size else 0.0
+        if tight:
+            tol = max(self.final_rtol * f0, floor)
+        else:
+            # a tenth of the force of one overlap holding the threshold energy per particle
+            alpha = self.model.alpha
+            f_cap = (
+                0.1 * force_scale(radii, self.model) * (alpha * self.energy_tol) ** (1 - 1 / alpha)
+            )
+            tol = max(min(self.rtol * f0, f_cap), floor)
+        result = Relaxer(objective, self.minimizer).relax(
+            objective.x0, gtol=tol, etol=e_min, what=what
+        )
+        contacts = find_contacts(result.packing, self.model)
+        p = pressure(stress(contacts, self.start.cell))
+        return _Outcome(
+            packing=result.packing,
+            jammed=bool(result.energy > e_min and p > 0.0),
+            energy=result.energy,
+            pressure=p,
+            contacts=int(contacts.i.size),
+            iterations=result.iterations,
+            evaluations=result.evaluations,
+        )
+
+
+def _next_trial(
+    history: Sequence[JammingStep], dphi: float, epsilon: float
+) -> tuple[Phase, float, int] | None:
+    """What the protocol does after ``history``: ``(phase, phi, origin index)``, or None when the
+    last step is the jammed ``final`` one (module docstring)."""
+    last = history[-1]
+    if last.phase == "final" and last.jammed:
+        return None
+    low, high = last.phi_low, last.phi_high
+    if np.isinf(high):
+        reopened = [
+            k
+            for k in range(1, len(history))
+            if np.isinf(history[k].phi_high) and np.isfinite(history[k - 1].phi_high)
+        ]
+        if reopened:
+            grown = len(history) - 1 - reopened[-1]
+            step = min(dphi, RESTART * epsilon * 2.0**grown)
+        else:
+            step = dphi
+        return "increment", low + step, last.index
+    low_step = next(s for s in reversed(history) if not s.jammed and s.phi == low)
+    high_step = next(s for s in reversed(history) if s.jammed and s.phi == high)
+    if high - low > epsilon:
+        return "bisection", 0.5 * (low + high), last.index
+    if high_step.origin == low_step.index:
+        return "final", high, high_step.index
+    return "bisection", high, low_step.index
 
 
 def jamming_steps(
@@ -135,28 +322,28 @@ def jamming_steps(
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
     rtol: float = RTOL,
-    gtol: float = GTOL,
+    final_rtol: float = FINAL_RTOL,
     resume: Sequence[JammingStep] = (),
 ) -> Iterator[JammingStep]:
     """Run the jamming protocol from ``start``, yielding every relaxed step.
 
-    The last step (phase ``final``) relaxes the jammed packing at the top of the final bracket
-    to the tight tolerance ``gtol``; it is the protocol's result. Should that packing unjam when
-    relaxed further (it was jammed only at the trial tolerance), the ``final`` step is reported
-    unjammed, becomes the bottom of an open bracket, and growth and bisection go on from it.
+    The last step (phase ``final``) is the jammed packing at ``phi_high``, relaxed to force
+    balance: the relaxation of the unjammed configuration at ``phi_low`` grown by at most
+    ``epsilon`` (module docstring).
 
     Parameters
     ----------
     start : packing at ``phi_init`` (below jamming; e.g. :func:`~athermal.random_packing`).
     model : contact law.
     dphi : growth increment in packing fraction (> 0).
-    epsilon : bisection stops when the bracket is at most this wide (> 0).
+    epsilon : the bracket the run ends on is at most this wide (> 0).
     minimizer : how each step is relaxed (default :data:`JAMMING_MINIMIZER`, P-L-BFGS).
     energy_tol : jamming threshold on ``E / N`` in units of ``k <r>^alpha``; default
         ``(epsilon / (10 d))^alpha`` (module docstring).
     rtol : force tolerance of the trial steps, relative to the mean contact force at the
         step's start (module docstring).
-    gtol : force tolerance of the final step in units of ``k <r>^(alpha-1)``.
+    final_rtol : force tolerance of the final step, relative to the packing's own mean contact
+        force (floored at round-off).
     resume : the steps already done by an interrupted run with the same arguments (as read
         back from its trajectory); the run continues after the last of them and yields the
         same steps, bit for bit, as an uninterrupted run.
@@ -171,99 +358,66 @@ def jamming_steps(
     epsilon = positive_scalar(epsilon, "epsilon")
     if energy_tol is None:
         energy_tol = (epsilon / (10.0 * start.dim)) ** model.alpha
-    energy_tol = positive_scalar(energy_tol, "energy_tol")
-    rtol = positive_scalar(rtol, "rtol")
-    gtol = positive_scalar(gtol, "gtol")
-    config = minimizer or JAMMING_MINIMIZER
-    phi_init, base = start.phi, start.radii
-    largest = 0.5 * float(start.cell.widths.min())
+    trials = _Trials(
+        start,
+        model,
+        minimizer or JAMMING_MINIMIZER,
+        positive_scalar(energy_tol, "energy_tol"),
+        positive_scalar(rtol, "rtol"),
+        positive_scalar(final_rtol, "final_rtol"),
+    )
 
-    def relax(
-        phi: float, origin: Packing, index: int, phase: Phase, low: float, high: float
+    def step(
+        index: int, phase: Phase, phi: float, origin: int, previous: JammingStep | None
     ) -> JammingStep:
         t0 = time.perf_counter()
-        radii = base * (phi / phi_init) ** (1.0 / start.dim)
-        if radii.max() >= largest:
-            raise InputError(f"phi: at {phi:.6g} the largest particle no longer fits the cell")
-        objective = Objective(Packing(origin.positions, radii, start.cell), model)
-        e_min = energy_tol * start.n * energy_scale(radii, model)
-        # a tenth of the force of one overlap holding the threshold energy per particle
-        f_cap = (
-            0.1
-            * force_scale(radii, model)
-            * (model.alpha * energy_tol) ** (1.0 - 1.0 / model.alpha)
+        source = start if previous is None else history[origin].packing
+        out = trials.relax(
+            phi, source, phase == "final", f"jamming step {index} at phi = {phi:.9g}"
         )
-        floor = GTOL_FLOOR * force_scale(radii, model)
-        if phase == "final":
-            tol = max(gtol * force_scale(radii, model), floor)
-        else:
-            tol = max(min(rtol * objective.mean_contact_force(objective.x0), f_cap), floor)
-        result = Relaxer(objective, config).relax(
-            objective.x0, gtol=tol, etol=e_min, what=f"jamming step {index} at phi = {phi:.9g}"
-        )
-        contacts = find_contacts(result.packing, model)
-        p = pressure(stress(contacts, start.cell))
-        jammed = result.energy > e_min and p > 0.0
-        if jammed:
+        low, high = (0.0, np.inf) if previous is None else (previous.phi_low, previous.phi_high)
+        if out.jammed:
             high = min(high, phi)
         else:
             low = max(low, phi)
+            if low >= high:  # the jammed bound belonged to another basin: reopen
+                high = np.inf
         return JammingStep(
             index=index,
             phase=phase,
+            origin=origin,
             phi=phi,
-            jammed=jammed,
-            energy=result.energy,
-            pressure=p,
-            contacts=int(contacts.i.size),
-            iterations=result.iterations,
-            evaluations=result.evaluations,
+            jammed=out.jammed,
+            energy=out.energy,
+            pressure=out.pressure,
+            contacts=out.contacts,
+            iterations=out.iterations,
+            evaluations=out.evaluations,
             seconds=time.perf_counter() - t0,
             phi_low=low,
             phi_high=high,
-            packing=result.packing,
+            packing=out.packing,
         )
 
-    if resume:
-        _check_resume(resume, start)
-        last = resume[-1]
-        if last.phase == "final" and last.jammed:
-            return
-        index, low, high = last.index + 1, last.phi_low, last.phi_high
-        low_step = next(s for s in reversed(resume) if not s.jammed and s.phi == low)
-        high_step = next((s for s in reversed(resume) if s.jammed and s.phi == high), None)
+    history: list[JammingStep] = list(resume)
+    if history:
+        _check_resume(history, start)
     else:
-        low_step = relax(phi_init, start, 0, "start", 0.0, np.inf)
-        if low_step.jammed:
+        first = step(0, "start", start.phi, -1, None)
+        if first.jammed:
             raise InputError(
                 f"phi_init: the start packing is jammed after relaxation at phi = "
-                f"{phi_init:.6g} (E = {low_step.energy:.3e}); start from a lower packing "
-                "fraction"
+                f"{start.phi:.6g} (E = {first.energy:.3e}); start from a lower packing fraction"
             )
-        yield low_step
-        index, low, high, high_step = 1, phi_init, np.inf, None
-    while True:
-        if high_step is not None and high - low <= epsilon:
-            step = relax(high, high_step.packing, index, "final", low, high)
-            if step.jammed:
-                yield step
-                return
-            # jammed only at the trial tolerance: it unjams when relaxed further, so it is the
-            # new bottom of an open bracket and the growth goes on from it
-            step = replace(step, phi_high=np.inf)
-        elif np.isinf(high):
-            phi = low + dphi
-            if phi >= 1.0:
-                raise ConvergenceError(f"no jammed state found below phi = 1 (last {low:.6g})")
-            step = relax(phi, low_step.packing, index, "increment", low, high)
-        else:
-            step = relax(0.5 * (low + high), low_step.packing, index, "bisection", low, high)
-        low, high, index = step.phi_low, step.phi_high, index + 1
-        if step.jammed:
-            high_step = step
-        else:
-            low_step = step
-        yield step
+        history.append(first)
+        yield first
+    while (trial := _next_trial(history, dphi, epsilon)) is not None:
+        phase, phi, origin = trial
+        if phi >= 1.0:
+            raise ConvergenceError(f"no jammed state found below phi = 1 (last {phi:.6g})")
+        new = step(len(history), phase, phi, origin, history[-1])
+        history.append(new)
+        yield new
 
 
 def _check_resume(steps: Sequence[JammingStep], start: Packing) -> None:
@@ -272,6 +426,52 @@ def _check_resume(steps: Sequence[JammingStep], start: Packing) -> None:
         raise InputError("resume: steps must be this run's steps 0, 1, ... in order")
     if steps[0].packing.n != start.n or not np.isclose(steps[0].phi, start.phi, rtol=1e-12):
         raise InputError("resume: the steps belong to another start packing")
+
+
+def overlap_distance(contacts: Contacts, packing: Packing) -> float:
+    """``d phi <delta / (r_i + r_j)>``: the mean overlap as a distance above jamming in packing
+    fraction (radii grown by ``1 + s`` raise ``phi`` by ``d phi s``). Measured: packings jammed
+    within ``epsilon`` by :func:`jamming_steps` have 0.3-0.4 ``epsilon`` at alpha = 2 and 2.5."""
+    if contacts.i.size == 0:
+        return 0.0
+    radii_sum = packing.radii[contacts.i] + packing.radii[contacts.j]
+    return packing.dim * packing.phi * float(np.mean(contacts.overlap / radii_sum))
+
+
+def check_jammed(
+    packing: Packing,
+    model: ContactModel,
+    *,
+    epsilon: float = 1e-6,
+    minimizer: Minimizer | None = None,
+    energy_tol: float | None = None,
+) -> JammingCheck:
+    """The referee's checks of a packing said to be jammed within ``epsilon`` (module
+    docstring): decompression by ``DECOMPRESSION`` x ``epsilon`` unjams it, it is isostatic,
+    its overlaps are those of a packing at most ~``epsilon`` above jamming, and it is a minimum.
+
+    ``energy_tol`` is the jamming threshold (default as in :func:`jamming_steps`).
+    """
+    epsilon = positive_scalar(epsilon, "epsilon")
+    if energy_tol is None:
+        energy_tol = (epsilon / (10.0 * packing.dim)) ** model.alpha
+    trials = _Trials(packing, model, minimizer or JAMMING_MINIMIZER, energy_tol, RTOL, FINAL_RTOL)
+    delta = DECOMPRESSION * epsilon
+    below = trials.relax(packing.phi - delta, packing, False, "decompression check")
+    contacts = find_contacts(packing, model)
+    rattler = rattlers(contacts, packing.n, packing.dim)
+    live = ~(rattler[contacts.i] | rattler[contacts.j])
+    n_live = int((~rattler).sum())
+    n_iso = packing.dim * (n_live - 1) + 1 if n_live else 0
+    return JammingCheck(
+        decompression=delta,
+        decompressed_energy=below.energy / (packing.n * energy_scale(below.packing.radii, model)),
+        unjams=not below.jammed,
+        excess_contacts=int(live.sum()) - n_iso,
+        overlap_dphi=overlap_distance(contacts, packing),
+        epsilon=epsilon,
+        stable=stability(packing, model).stable,
+    )
 
 
 def jam(
@@ -283,15 +483,16 @@ def jam(
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
     rtol: float = RTOL,
-    gtol: float = GTOL,
+    final_rtol: float = FINAL_RTOL,
 ) -> JammingResult:
-    """Run :func:`jamming_steps` to the end and return the jammed packing (its final step).
+    """Run :func:`jamming_steps` to the end, check the jammed packing (:func:`check_jammed`;
+    a ``UserWarning`` names any check that fails) and return it.
 
     Examples
     --------
     >>> from athermal import ContactModel, random_packing
     >>> result = jam(random_packing(64, 0.8, seed=3), ContactModel(2.0), epsilon=1e-4)
-    >>> 0.75 < result.phi_c < 0.9 and result.observables.energy > 0.0
+    >>> bool(0.75 < result.phi_c < 0.9 and result.check.unjams)
     True
     """
     t0 = time.perf_counter()
@@ -304,14 +505,25 @@ def jam(
             minimizer=minimizer,
             energy_tol=energy_tol,
             rtol=rtol,
-            gtol=gtol,
+            final_rtol=final_rtol,
         )
     )
     final = history[-1]
+    check = check_jammed(
+        final.packing, model, epsilon=epsilon, minimizer=minimizer, energy_tol=energy_tol
+    )
+    if not check.passed:
+        warnings.warn(
+            f"jam: the packing at phi_c = {final.phi:.9f} fails: {'; '.join(check.problems())}",
+            UserWarning,
+            stacklevel=2,
+        )
     return JammingResult(
         phi_c=final.phi,
+        phi_low=final.phi_low,
         packing=final.packing,
         observables=measure(final.packing, model),
+        check=check,
         steps=len(history),
         iterations=sum(s.iterations for s in history),
         evaluations=sum(s.evaluations for s in history),

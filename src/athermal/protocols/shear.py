@@ -29,7 +29,7 @@ from ..errors import InputError
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import Packing
-from ._relax import GTOL_FLOOR, Minimizer, Relaxer, force_scale
+from ._relax import Minimizer, Relaxer, force_tolerance
 from .compress import RTOL
 
 ShearMode = Literal["simple", "pure"]
@@ -56,7 +56,8 @@ class ShearStep:
 
     ``observables`` holds stress, fabric, their iso/dev parts, pressure, contacts and z;
     ``tau`` the driven shear stress; ``plastic`` is True when ``tau`` dropped since the
-    previous step by more than ``DROP_TOL`` x the pressure (``stress_drop`` > 0 is the drop).
+    previous step by more than ``DROP_TOL`` x the pressure (``stress_drop`` > 0 is the drop);
+    ``saddles`` how many saddles the relaxation left along their negative modes.
     """
 
     index: int
@@ -64,6 +65,7 @@ class ShearStep:
     tau: float
     stress_drop: float
     plastic: bool
+    saddles: int
     observables: Observables
     iterations: int
     evaluations: int
@@ -79,6 +81,7 @@ class ShearStep:
             "tau": self.tau,
             "stress_drop": self.stress_drop,
             "plastic": int(self.plastic),
+            "saddles": self.saddles,
             "energy": obs.energy,
             "pressure": obs.pressure,
             "stress_iso": obs.stress_iso,
@@ -116,7 +119,8 @@ def shear_steps(
         shortened to end exactly at ``strain``.
     minimizer : how each step is relaxed (default L-BFGS).
     rtol : tolerance relative to the mean contact force at each step's start (floored at
-        round-off, see :data:`~athermal.protocols._relax.GTOL_FLOOR`).
+        round-off, :func:`~athermal.protocols._relax.round_off_floor`). Every step is checked to
+        be a local minimum; a saddle is left along its negative mode (``saddles``).
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one, bit for bit as an uninterrupted run.
     """
@@ -142,10 +146,10 @@ def shear_steps(
             total_old = deformation(mode, gamma_prev, start.dim)
             packing = packing.deform(total_new @ np.linalg.inv(total_old))
         objective = Objective(packing, model)
-        f0 = objective.mean_contact_force(objective.x0)
-        gtol = max(rtol * f0, GTOL_FLOOR * force_scale(packing.radii, model))
-        result = Relaxer(objective, config).relax(
-            objective.x0, gtol=gtol, what=f"shear step {index} (strain {gamma:g})"
+        result, saddles = Relaxer(objective, config).relax_to_minimum(
+            objective.x0,
+            gtol=force_tolerance(packing, model, rtol),
+            what=f"shear step {index} (strain {gamma:g})",
         )
         packing = result.packing
         obs = measure(packing, model)
@@ -157,6 +161,7 @@ def shear_steps(
             tau=tau,
             stress_drop=drop,
             plastic=bool(index and drop > DROP_TOL * abs(obs.pressure)),
+            saddles=saddles,
             observables=obs,
             iterations=result.iterations,
             evaluations=result.evaluations,
