@@ -142,10 +142,8 @@ def jammed(
         "stable": float(check.stable),
         "reopened": float(
             sum(
-                s.phase == "increment"
-                and s.index > 0
-                and np.isfinite(result.history[s.index - 1].phi_high)
-                for s in result.history
+                np.isinf(s.phi_high) and np.isfinite(result.history[s.index - 1].phi_high)
+                for s in result.history[1:]
             )
         ),
         "steps": result.steps,

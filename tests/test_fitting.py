@@ -45,14 +45,36 @@ def test_jamming_point_and_exponent_are_recovered_from_an_offset_power_law():
         fit_jamming_point(phi[:3], phi[:3])
 
 
-def test_jammed_branch_starts_after_the_last_unjammed_step():
+def test_scaling_fits_use_the_protocols_delta_phi_and_say_which_points():
+    """The fits are against the protocol's Delta phi (no free phi_c), leave out steps below the
+    window, with G < 0 or unjammed, and count the events."""
     from types import SimpleNamespace
 
-    from athermal.protocols.compress import jammed_branch
+    from athermal.protocols import scaling_exponents
 
-    def step(p, dz):
-        return SimpleNamespace(pressure=p, z_excess=dz)
+    def step(dphi, p, g, dz, events=()):
+        return SimpleNamespace(
+            delta_phi=dphi,
+            phi=0.84 + dphi,
+            pressure=p,
+            shear_modulus=g,
+            z_excess=dz,
+            events=events,
+        )
 
-    steps = [step(1e-6, 0.0), step(1e-13, -0.2), step(0.0, -4.0), step(2e-5, 0.01), step(3e-5, 0)]
-    assert jammed_branch(steps) == steps[3:]
-    assert jammed_branch(steps[3:]) == steps[3:]
+    dphis = np.logspace(-7, -1, 7)
+    steps = [step(d, 0.3 * d, 0.2 * d**0.5, 2.0 * d**0.5) for d in dphis]
+    steps[3] = step(dphis[3], 0.3 * dphis[3], -1e-4, 2.0 * dphis[3] ** 0.5, ("unstable to shear",))
+    steps[5] = step(dphis[5], 0.0, 0.0, -4.0, ("unjammed", "pressure drop"))
+    fits = scaling_exponents(steps)
+    assert fits.phi_c == pytest.approx(0.84)
+    assert fits.pressure.exponent == pytest.approx(1.0) and fits.pressure.points == 5
+    assert fits.pressure.x_min == pytest.approx(1e-6) and fits.pressure.x_max == pytest.approx(0.1)
+    assert fits.shear_modulus.exponent == pytest.approx(0.5) and fits.shear_modulus.points == 4
+    assert fits.z_excess.exponent == pytest.approx(0.5) and fits.z_excess.points == 5
+    assert fits.events == {
+        "unjammed": 1,
+        "pressure drop": 1,
+        "saddle left": 0,
+        "unstable to shear": 1,
+    }

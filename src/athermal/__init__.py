@@ -6,18 +6,21 @@ from .errors import ConvergenceError, FileFormatError, InputError
 from .fitting import PowerLaw, fit_power_law
 from .io import Frame, append_gsd, count_frames, read_gsd, write_gsd
 from .minimize import MinimizeResult, minimize
-from .moduli import LinearResponse, linear_response
+from .moduli import LinearResponse, Stability, linear_response, stability
 from .neighbors import NeighborList, build_neighbor_list
 from .objective import Objective
 from .observables import Observables, measure
 from .packing import Packing, bidisperse_radii, random_packing
 from .protocols import (
+    JammingCheck,
     Minimizer,
+    check_jammed,
     compression_steps,
     finite_strain_bulk,
     finite_strain_shear,
     jam,
     jamming_steps,
+    log_spaced,
     scaling_exponents,
     shear_steps,
 )
@@ -30,6 +33,7 @@ __all__ = [
     "FileFormatError",
     "Frame",
     "InputError",
+    "JammingCheck",
     "LinearResponse",
     "MinimizeResult",
     "Minimizer",
@@ -38,9 +42,11 @@ __all__ = [
     "Observables",
     "Packing",
     "PowerLaw",
+    "Stability",
     "append_gsd",
     "bidisperse_radii",
     "build_neighbor_list",
+    "check_jammed",
     "compression_steps",
     "count_frames",
     "find_contacts",
@@ -52,6 +58,7 @@ __all__ = [
     "jam",
     "jamming_steps",
     "linear_response",
+    "log_spaced",
     "measure",
     "minimize",
     "pure_shear",
@@ -60,6 +67,7 @@ __all__ = [
     "scaling_exponents",
     "shear_steps",
     "simple_shear",
+    "stability",
     "strain_derivative",
     "write_gsd",
 ]

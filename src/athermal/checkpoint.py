@@ -96,6 +96,7 @@ def compression_step(frame: Frame) -> CompressionStep:
         bulk_modulus=get("bulk_modulus"),
         shear_modulus=get("shear_modulus"),
         saddles=int(get("saddles")),
+        substeps=int(get("substeps")),
         events=tuple(e for k, e in enumerate(EVENTS) if int(get("events")) >> k & 1),
         iterations=int(get("iterations")),
         evaluations=int(get("evaluations")),

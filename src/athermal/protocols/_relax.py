@@ -106,9 +106,10 @@ class Relaxer:
         relaxed again. Returns the last result and how many saddles were left; raises
         :class:`ConvergenceError` after :data:`MAX_ESCAPES` saddles in a row.
 
-        The step along the mode moves the particles by the mean contact overlap at most, enlarged
-        (x10 at a time) until the gradient it creates exceeds ``10 gtol``, so that the minimizer
-        does not stop where it starts; of the two directions the one of lower energy is taken.
+        The move along the mode is a line search downhill (:meth:`_leave_saddle`), so that the
+        minimizer starts well away from the saddle (or from the remnant of a minimum that
+        vanished, where the gradient is small but no minimum is near), and the relaxation after
+        it goes to 1e-3 ``gtol`` or the round-off floor.
         """
         result = self.relax(x, gtol=gtol, what=what)
         for escapes in range(MAX_ESCAPES + 1):
@@ -119,8 +120,13 @@ class Relaxer:
                 break
             assert check.mode is not None
             mode = np.ascontiguousarray(check.mode[self.objective.order]).ravel()
-            x = self._leave_saddle(result.x, mode, gtol)
-            again = self.relax(x, gtol=gtol, what=f"{what} (after leaving a saddle)")
+            x = self._leave_saddle(result.x, mode)
+            # to round-off: along the channel left by a vanished minimum the gradient is small,
+            # and the minimizer would stop there again at the step's tolerance
+            floor = force_tolerance(
+                self.objective.packing(x, internal=True), self.objective.model, 0.0
+            )
+            again = self.relax(x, gtol=max(floor, 1e-3 * gtol), what=f"{what} (after a saddle)")
             result = replace(
                 again,
                 iterations=result.iterations + again.iterations,
@@ -133,22 +139,27 @@ class Relaxer:
         )
 
     def _leave_saddle(
-        self, x: NDArray[np.float64], mode: NDArray[np.float64], gtol: float
+        self, x: NDArray[np.float64], mode: NDArray[np.float64]
     ) -> NDArray[np.float64]:
-        """``x`` moved along ``mode`` (unit norm, internal order): see :meth:`relax_to_minimum`."""
+        """``x`` moved downhill along ``mode`` (unit norm, internal order): from a move of the
+        mean contact overlap (largest particle), in the direction of lower energy, doubled while
+        the energy falls, at most a tenth of the mean radius (see :meth:`relax_to_minimum`)."""
         dim = self.objective.dim
         overlaps = find_contacts(self.objective.packing(x, internal=True), self.objective.model)
-        scale = float(overlaps.overlap.mean()) if overlaps.i.size else 1e-8
         largest = float(np.sqrt((mode.reshape(-1, dim) ** 2).sum(axis=1)).max())
-        step = scale / largest
+        step = (float(overlaps.overlap.mean()) if overlaps.i.size else 1e-8) / largest
         cap = 0.1 * float(self.objective.radii.mean()) / largest
-        while True:
-            trials = [x + step * mode, x - step * mode]
-            energies = [self.objective(t)[0] for t in trials]
-            best = trials[int(np.argmin(energies))]
-            if self.objective.max_gradient(self.objective(best)[1]) > 10.0 * gtol or step >= cap:
-                return best
-            step = min(10.0 * step, cap)
+        energy = self.objective(x)[0]
+        plus, minus = self.objective(x + step * mode)[0], self.objective(x - step * mode)[0]
+        direction = mode if plus <= minus else -mode
+        best, best_energy = x + step * direction, min(plus, minus)
+        while 2.0 * step <= cap:
+            step *= 2.0
+            trial = self.objective(x + step * direction)[0]
+            if trial >= best_energy:
+                break
+            best, best_energy = x + step * direction, trial
+        return best if best_energy < energy else x + step * direction
 
     def _finish_with_fire(self, first: MinimizeResult, gtol: float, etol: float) -> MinimizeResult:
         self.objective.start_from(first.x)
