@@ -190,8 +190,9 @@ def compression_steps(
         packing: Packing, p_start: float, phi: float, depth: int, index: int
     ) -> tuple[MinimizeResult, int, int]:
         """Grow ``packing`` (pressure ``p_start``) to ``phi`` and relax; on a pressure drop or
-        unjamming of a jammed start, redo it in two halves (to depth :data:`MAX_SPLITS`). The last relaxation, the saddles left and the
-        number of substeps; iterations and evaluations summed over the substeps."""
+        unjamming of a jammed start, redo it in two halves (to depth :data:`MAX_SPLITS`).
+        Returns the last relaxation (iterations and evaluations summed over the substeps), the
+        saddles left and the number of substeps."""
         radii = base * (phi / phi0) ** (1.0 / jammed.dim)
         grown = Packing(packing.positions, radii, jammed.cell)
         objective = Objective(grown, model)
