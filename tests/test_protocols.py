@@ -59,7 +59,9 @@ def test_jamming_grows_by_dphi_then_ends_one_epsilon_above_its_own_unjammed_stat
 
 
 def _step(index, phase, origin, phi, jammed, low, high):
-    return JammingStep(index, phase, origin, phi, jammed, 0.0, 0.0, 0, 0, 0, 0.0, low, high, None)
+    return JammingStep(
+        index, phase, origin, phi, jammed, 0.0, 0.0, 0, 0, 0, 0, 0.0, low, high, None
+    )
 
 
 def test_next_trial_follows_the_scheme():
@@ -310,3 +312,59 @@ def test_a_refuted_jammed_verdict_reopens_the_bracket_and_resumes_identically(mo
     assert after.phase == "increment" and after.phi == pytest.approx(first_final + 4 * eps)
     rest = list(jamming_steps(start, model, epsilon=eps, resume=steps[: refuted + 1]))
     _same_steps(steps[refuted + 1 :], rest)
+
+
+def test_the_final_relaxation_balances_forces_relative_to_the_packings_own(jammed_256):
+    """max_i |grad_i| <= 1e-10 x the mean contact force, or the round-off floor when larger."""
+    from athermal.contact import find_contacts
+    from athermal.protocols._relax import round_off_floor
+
+    packing, model = jammed_256.packing, ContactModel(2.0)
+    obs = measure(packing, model)
+    floor = round_off_floor(find_contacts(packing, model), packing.cell)
+    assert obs.max_gradient <= max(1e-10 * obs.mean_contact_force, floor)
+    assert floor < 1e-6 * obs.mean_contact_force  # a packing 1e-6 above jamming: still relative
+
+
+@pytest.mark.parametrize("alpha", [2.0, 2.5])
+def test_round_off_floor_is_reachable_and_follows_the_contact_stiffness(alpha):
+    """eps (L kappa_max + f_max) x 10: reachable by L-BFGS (it stalls at 0.25-0.6 of the
+    unscaled estimate), and for Hertzian contacts near jamming far below a floor fixed in units
+    of k <r>^(alpha-1) (the old 1e-13 k <r>^(alpha-1) was ~1e-3 of the mean force there)."""
+    from athermal.contact import find_contacts
+    from athermal.protocols._relax import round_off_floor
+
+    model = ContactModel(alpha)
+    near = jam(random_packing(64, 0.8, seed=5), model, epsilon=1e-6).packing
+    contacts = find_contacts(near, model)
+    floor = round_off_floor(contacts, near.cell)
+    kappa = (alpha - 1.0) * contacts.overlap ** (alpha - 2.0)
+    eps = np.finfo(float).eps
+    assert floor == pytest.approx(10 * eps * (kappa.max() + contacts.force_magnitude.max()))
+    result = minimize(Objective(near, model), "lbfgs", gtol=floor, maxiter=20_000)
+    assert result.converged and result.max_gradient <= floor
+    if alpha > 2.0:
+        assert floor < 1e-2 * 1e-13 * np.mean(near.radii) ** (alpha - 1.0)
+
+
+def test_compression_refuses_an_unjammed_start():
+    model = ContactModel(2.0)
+    loose = minimize(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing
+    with pytest.raises(InputError, match="not jammed"):
+        next(compression_steps(loose, model))
+
+
+def test_compression_reports_its_events_and_pressure_rises_between_them(jammed_256):
+    """Every drop of p is an event, never silent; between events p rises; G < 0 is flagged."""
+    model = ContactModel(2.0)
+    steps = list(
+        compression_steps(jammed_256.packing, model, delta_phis=log_spaced(1e-6, 1e-2, 2))
+    )
+    previous = jammed_256.observables.pressure
+    for s in steps:
+        if s.pressure < previous and "unjammed" not in s.events:
+            assert "pressure drop" in s.events
+        assert ("unstable to shear" in s.events) == (s.shear_modulus < 0.0)
+        assert s.substeps >= 1 and s.saddles >= 0
+        previous = s.pressure
+    assert steps[-1].pressure > 1e3 * steps[0].pressure

@@ -72,6 +72,7 @@ def jamming_step(frame: Frame) -> JammingStep:
         contacts=int(get("contacts")),
         iterations=int(get("iterations")),
         evaluations=int(get("evaluations")),
+        saddles=int(get("saddles")),
         seconds=get("seconds"),
         phi_low=get("phi_low"),
         phi_high=np.inf if get("phi_high") == NO_BRACKET else get("phi_high"),

@@ -99,7 +99,7 @@ class Relaxer:
         return result
 
     def relax_to_minimum(
-        self, x: NDArray[np.float64], *, gtol: float, what: str = "step"
+        self, x: NDArray[np.float64], *, gtol: float, etol: float = 0.0, what: str = "step"
     ) -> tuple[MinimizeResult, int]:
         """:meth:`relax`, then check that the result is a local minimum
         (:func:`~athermal.moduli.stability`); a saddle is left along its negative mode and
@@ -111,7 +111,7 @@ class Relaxer:
         vanished, where the gradient is small but no minimum is near), and the relaxation after
         it goes to 1e-3 ``gtol`` or the round-off floor.
         """
-        result = self.relax(x, gtol=gtol, what=what)
+        result = self.relax(x, gtol=gtol, etol=etol, what=what)
         for escapes in range(MAX_ESCAPES + 1):
             check = stability(result.packing, self.objective.model)
             if check.stable:
@@ -126,7 +126,9 @@ class Relaxer:
             floor = force_tolerance(
                 self.objective.packing(x, internal=True), self.objective.model, 0.0
             )
-            again = self.relax(x, gtol=max(floor, 1e-3 * gtol), what=f"{what} (after a saddle)")
+            again = self.relax(
+                x, gtol=max(floor, 1e-3 * gtol), etol=etol, what=f"{what} (after a saddle)"
+            )
             result = replace(
                 again,
                 iterations=result.iterations + again.iterations,

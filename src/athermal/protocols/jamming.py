@@ -93,10 +93,11 @@ class JammingStep:
 
     ``phase`` is ``start`` (the start packing relaxed), ``increment``, ``bisection`` or
     ``final``; ``origin`` the index of the step whose relaxed packing this one started from
-    (-1 for the start); ``phi_low`` / ``phi_high`` bracket the jamming point after this step
-    (``phi_high`` is ``inf`` while no jammed bound is known). ``packing`` is the relaxed
-    configuration at ``phi`` (caller's particle order). Energy in ``k`` x length^alpha,
-    pressure in energy / volume.
+    (-1 for the start); ``saddles`` how many saddles the final relaxation left along their
+    negative modes (it alone is checked to be a minimum); ``phi_low`` / ``phi_high`` bracket
+    the jamming point after this step (``phi_high`` is ``inf`` while no jammed bound is known).
+    ``packing`` is the relaxed configuration at ``phi`` (caller's particle order). Energy in
+    ``k`` x length^alpha, pressure in energy / volume.
     """
 
     index: int
@@ -109,6 +110,7 @@ class JammingStep:
     contacts: int
     iterations: int
     evaluations: int
+    saddles: int
     seconds: float
     phi_low: float
     phi_high: float
@@ -127,6 +129,7 @@ class JammingStep:
             "contacts": self.contacts,
             "iterations": self.iterations,
             "evaluations": self.evaluations,
+            "saddles": self.saddles,
             "seconds": self.seconds,
             "phi_low": self.phi_low,
             "phi_high": self.phi_high,
@@ -221,6 +224,7 @@ class _Outcome:
     contacts: int
     iterations: int
     evaluations: int
+    saddles: int
 
 
 class _Trials:
@@ -267,9 +271,13 @@ class _Trials:
                 0.1 * force_scale(radii, self.model) * (alpha * self.energy_tol) ** (1 - 1 / alpha)
             )
             tol = max(min(self.rtol * f0, f_cap), floor)
-        result = Relaxer(objective, self.minimizer).relax(
-            objective.x0, gtol=tol, etol=e_min, what=what
-        )
+        relaxer = Relaxer(objective, self.minimizer)
+        if tight:  # the packing the protocol reports: a minimum, not a saddle
+            result, saddles = relaxer.relax_to_minimum(
+                objective.x0, gtol=tol, etol=e_min, what=what
+            )
+        else:
+            result, saddles = relaxer.relax(objective.x0, gtol=tol, etol=e_min, what=what), 0
         contacts = find_contacts(result.packing, self.model)
         p = pressure(stress(contacts, self.start.cell))
         return _Outcome(
@@ -280,6 +288,7 @@ class _Trials:
             contacts=int(contacts.i.size),
             iterations=result.iterations,
             evaluations=result.evaluations,
+            saddles=saddles,
         )
 
 
@@ -393,6 +402,7 @@ def jamming_steps(
             contacts=out.contacts,
             iterations=out.iterations,
             evaluations=out.evaluations,
+            saddles=out.saddles,
             seconds=time.perf_counter() - t0,
             phi_low=low,
             phi_high=high,
