@@ -116,18 +116,24 @@ def convergence_figure(histories: Mapping[str, NDArray[np.float64]], *, title: s
 def _loglog(
     ax: Axes, x: Sequence[float], y: Sequence[float], fit: PowerLaw | None, label: str
 ) -> None:
+    """Points (filled where fitted, open outside the fit's range) and the fit over its range."""
     xs, ys = np.asarray(x), np.asarray(y)
     ok = (xs > 0) & (ys > 0)
-    (line,) = ax.loglog(xs[ok], ys[ok], "o", markersize=3, label=label)
+    inside = ok if fit is None else ok & (xs >= fit.x_min) & (xs <= fit.x_max)
+    (line,) = ax.loglog(xs[inside], ys[inside], "o", markersize=3, label=label)
+    ax.loglog(
+        xs[ok & ~inside], ys[ok & ~inside], "o", markersize=3, mfc="none", color=line.get_color()
+    )
     if fit is not None:
-        grid = np.geomspace(xs[ok].min(), xs[ok].max(), 50)
+        grid = np.geomspace(fit.x_min, fit.x_max, 50)
         ax.loglog(
             grid,
             fit(grid),
             "-",
             color=line.get_color(),
             linewidth=0.8,
-            label=f"slope {fit.exponent:.2f} ± {fit.stderr:.2f}",
+            label=f"slope {fit.exponent:.2f} ± {fit.stderr:.2f} ({fit.points} points, "
+            f"{fit.x_min:.0e} ... {fit.x_max:.0e})",
         )
 
 
@@ -140,12 +146,13 @@ def scaling_figure(
     title: str = "",
 ) -> Figure:
     """``values[label]`` against ``delta_phi[label]`` on log-log axes with the fitted slope,
-    one series per label (e.g. ``alpha = 2`` and ``alpha = 2.5``)."""
+    one series per label (e.g. ``alpha = 2`` and ``alpha = 2.5``); open markers lie outside the
+    fit (below its window, or dropped)."""
     fig = _figure()
     ax = fig.add_subplot()
     for label in values:
         _loglog(ax, delta_phi[label], values[label], fits.get(label), label)
-    ax.set_xlabel(r"$\phi - \phi_c$")
+    ax.set_xlabel(r"$\phi - \phi_c$ ($\phi_c$ of the jamming protocol)")
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.legend(fontsize="small")
