@@ -357,9 +357,7 @@ def test_compression_refuses_an_unjammed_start():
 def test_compression_reports_its_events_and_pressure_rises_between_them(jammed_256):
     """Every drop of p is an event, never silent; between events p rises; G < 0 is flagged."""
     model = ContactModel(2.0)
-    steps = list(
-        compression_steps(jammed_256.packing, model, delta_phis=log_spaced(1e-6, 1e-2, 2))
-    )
+    steps = list(compression_steps(jammed_256.packing, model, delta_phis=log_spaced(1e-6, 1e-2, 2)))
     previous = jammed_256.observables.pressure
     for s in steps:
         if s.pressure < previous and "unjammed" not in s.events:
