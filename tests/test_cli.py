@@ -313,3 +313,26 @@ def test_progress_goes_to_a_terminal_stderr_only_and_json_stays_clean(tmp_path, 
         assert terminal == ""
     else:
         assert "step 0 start phi" in terminal and "bisection" in terminal
+
+
+def test_compress_refuses_an_unjammed_file_and_warns_on_one_far_above_its_phi_c(tmp_path, capsys):
+    from athermal.contact import ContactModel
+    from athermal.minimize import minimize
+    from athermal.objective import Objective
+
+    model = ContactModel(2.0)
+    loose = tmp_path / "loose.gsd"
+    write_gsd(loose, minimize(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing)
+    code, out, err = run(capsys, "compress", str(loose), "-o", str(tmp_path / "a.gsd"))
+    assert code == 2 and out == "" and "not jammed" in err and err.count("\n") == 1
+    assert not (tmp_path / "a.gsd").exists()
+
+    dense = tmp_path / "dense.gsd"
+    packing = minimize(Objective(random_packing(64, 0.88, seed=1), model), rtol=1e-10).packing
+    write_gsd(dense, packing, model=model)
+    argv = ["compress", str(dense), "-o", str(tmp_path / "b.gsd"), "--phi-c", str(packing.phi)]
+    code, out, err = run(capsys, *argv, "--from", "1e-3", "--per-decade", "1", "--json")
+    assert code == 0 and set(json.loads(out)) >= {"exponents", "events", "phi_c"}
+    warning = [line for line in err.splitlines() if "warning" in line]
+    assert len(warning) == 1 and warning[0].startswith("athermal compress: warning: ")
+    assert "above its jamming point" in warning[0]

@@ -8,7 +8,8 @@ import dataclasses
 import json
 import sys
 import time
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 from typing import Any
 
 from . import bench, commands
@@ -421,11 +422,22 @@ class NotConverged(RuntimeError):
     """A minimization that stopped short of its tolerance (its result was still written)."""
 
 
+def _one_line_warning(command: str) -> Callable[..., None]:
+    """A ``warnings.showwarning`` that prints ``athermal COMMAND: warning: message`` on stderr."""
+
+    def show(message: Warning | str, *_: object, **__: object) -> None:
+        print(f"athermal {command}: warning: {message}", file=sys.stderr)
+
+    return show
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``athermal`` command; returns the exit code."""
     args = _parser().parse_args(argv)
     try:
-        _run(args)
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_warning(args.command)
+            _run(args)
     except InputError as exc:
         print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -208,7 +208,9 @@ def jam(args: argparse.Namespace) -> None:
     obs = measure(final.packing, model)
     check = check_jammed(final.packing, model, epsilon=args.epsilon, minimizer=_minimizer(args))
     for problem in check.problems():
-        print(f"warning: the jammed packing fails a check: {problem}", file=sys.stderr)
+        print(
+            f"athermal jam: warning: the jammed packing fails a check: {problem}", file=sys.stderr
+        )
     write_gsd(
         args.output,
         final.packing,
@@ -329,7 +331,7 @@ def compress(args: argparse.Namespace) -> None:
             "table": table,
             "exponents": exponents,
             "phi_c": fits.phi_c,
-            "phi_c_fitted": fits.phi_c_fitted,
+            "phi_c_fitted": fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None,
             "events": fits.events,
             "steps": len(steps),
             "resumed_steps": len(done),

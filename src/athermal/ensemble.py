@@ -148,7 +148,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         deltas = log_spaced(1e-7, 1e-1, spec.per_decade)
         compressed = list(compression_steps(jammed.packing, model, delta_phis=deltas))
         fits = scaling_exponents(compressed)
-        result["phi_c_fitted"] = fits.phi_c_fitted
+        result["phi_c_fitted"] = fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None
         result["events"] = fits.events
         for key, fit in (("p", fits.pressure), ("G", fits.shear_modulus), ("z", fits.z_excess)):
             result[f"exponent_{key}"] = fit.exponent if fit is not None else None
