@@ -38,6 +38,7 @@ from .protocols import (
     ITERATION_METHODS,
     PHI_INIT,
     Minimizer,
+    check_jammed,
     compression_steps,
     finite_strain_shear,
     jamming_steps,
@@ -131,6 +132,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         steps.append(step)
     jammed = steps[-1]
     obs = measure(jammed.packing, model)
+    check = check_jammed(jammed.packing, model, epsilon=spec.epsilon, minimizer=minimizer)
     result: dict[str, Any] = {
         "index": index,
         "seed": seed,
@@ -141,6 +143,10 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         "z": obs.z,
         "z_iso": isostatic_z(obs.n - obs.n_rattlers, spec.dim),
         "n_rattlers": obs.n_rattlers,
+        "excess_contacts": check.excess_contacts,
+        "unjams_when_decompressed": check.unjams,
+        "stable": check.stable,
+        "checks_passed": check.passed,
         "steps": len(steps),
         "iterations": sum(s.iterations for s in steps),
     }
