@@ -151,7 +151,6 @@ class Relaxer:
         largest = float(np.sqrt((mode.reshape(-1, dim) ** 2).sum(axis=1)).max())
         step = (float(overlaps.overlap.mean()) if overlaps.i.size else 1e-8) / largest
         cap = 0.1 * float(self.objective.radii.mean()) / largest
-        energy = self.objective(x)[0]
         plus, minus = self.objective(x + step * mode)[0], self.objective(x - step * mode)[0]
         direction = mode if plus <= minus else -mode
         best, best_energy = x + step * direction, min(plus, minus)
@@ -161,7 +160,7 @@ class Relaxer:
             if trial >= best_energy:
                 break
             best, best_energy = x + step * direction, trial
-        return best if best_energy < energy else x + step * direction
+        return best
 
     def _finish_with_fire(self, first: MinimizeResult, gtol: float, etol: float) -> MinimizeResult:
         self.objective.start_from(first.x)
