@@ -220,6 +220,9 @@ def test_jam_compress_shear_chain_writes_files_tables_and_contract_keys(tmp_path
     assert CONTRACT_JAM_KEYS <= set(summary)
     frame = read_gsd(jammed)
     assert float(frame.log["phi_c"]) == summary["phi_c"] == pytest.approx(frame.packing.phi)
+    assert summary["phi_low"] < summary["phi_c"] == summary["phi_high"]
+    assert summary["phi_high"] - summary["phi_low"] <= 1e-5
+    assert float(frame.log["phi_low"]) == summary["phi_low"] and summary["checks_passed"]
     assert frame.seed == 3 and summary["energy"] > 0.0
     assert count_frames(steps) == summary["steps"] == len(read_table(tmp_path / "j.csv"))
     picture = tmp_path / "j.png"
@@ -336,3 +339,11 @@ def test_compress_refuses_an_unjammed_file_and_warns_on_one_far_above_its_phi_c(
     warning = [line for line in err.splitlines() if "warning" in line]
     assert len(warning) == 1 and warning[0].startswith("athermal compress: warning: ")
     assert "above its jamming point" in warning[0]
+
+
+def test_jam_prints_phi_c_as_a_number_with_its_bracket(tmp_path, capsys):
+    argv = ["jam", "--n", "64", "--seed", "3", "--epsilon", "1e-5", "--picture", "none"]
+    code, out, _ = run(capsys, *argv, "-o", str(tmp_path / "j.gsd"))
+    line = next(line for line in out.splitlines() if line.startswith("phi_c "))
+    value, bracket = line.split()[1], line.split("bracket ")[1].rstrip(")")
+    assert code == 0 and len(value.split(".")[1]) == 5 and float(bracket) <= 1e-5

@@ -215,7 +215,8 @@ class JammingResult:
 
 @dataclass(frozen=True, eq=False)
 class _Outcome:
-    """A relaxed trial: the packing and the numbers a :class:`JammingStep` records."""
+    """A relaxed trial: the packing and the numbers a :class:`JammingStep` records (its fields
+    of the same names)."""
 
     packing: Packing
     jammed: bool
@@ -396,17 +397,10 @@ def jamming_steps(
             phase=phase,
             origin=origin,
             phi=phi,
-            jammed=out.jammed,
-            energy=out.energy,
-            pressure=out.pressure,
-            contacts=out.contacts,
-            iterations=out.iterations,
-            evaluations=out.evaluations,
-            saddles=out.saddles,
             seconds=time.perf_counter() - t0,
             phi_low=low,
             phi_high=high,
-            packing=out.packing,
+            **vars(out),
         )
 
     history: list[JammingStep] = list(resume)
