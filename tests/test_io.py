@@ -331,7 +331,7 @@ def test_failed_write_leaves_the_existing_file_and_no_temporary(tmp_path, monkey
 
     monkeypatch.undo()
     monkeypatch.setattr(gsd.hoomd.HOOMDTrajectory, "append", failing_append)
-    with pytest.raises(RuntimeError, match="interrupted"):
+    with pytest.raises(FileFormatError, match="interrupted"):  # gsd's errors, one line
         write_gsd(path, q)
     assert path.read_bytes() == before
     assert [f.name for f in tmp_path.iterdir()] == ["p.gsd"]

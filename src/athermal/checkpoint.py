@@ -19,7 +19,7 @@ import numpy as np
 
 from .contact import ContactModel
 from .errors import FileFormatError, InputError
-from .io import Frame, append_gsd, count_frames, read_gsd
+from .io import Frame, append_gsd, claim, count_frames, read_gsd, write_gsd
 from .observables import measure
 from .protocols import CompressionStep, JammingStep, ShearStep
 from .protocols.compress import EVENTS
@@ -125,11 +125,14 @@ def shear_step(frame: Frame, model: ContactModel) -> ShearStep:
 
 
 class Trajectory:
-    """The checkpoint file of one protocol run.
+    """The checkpoint file of one protocol run, held by this run alone.
 
-    ``Trajectory(path, identity, resume=..., overwrite=...)`` refuses an existing file unless
-    ``resume`` (continue it: every frame must carry ``identity``) or ``overwrite`` (start
-    afresh) is given; :attr:`frames` are the frames found when resuming.
+    ``Trajectory(path, identity, resume=..., overwrite=...)`` takes the file's one-writer lock
+    (:func:`~athermal.io.claim`: a second run on the same file is refused, naming the first),
+    then refuses an existing file unless ``resume`` (continue it: every frame must carry
+    ``identity``) or ``overwrite`` (start afresh: the old file is replaced only when the first
+    new step is appended, so a run that fails before that loses nothing); :attr:`frames` are the
+    frames found when resuming.
     """
 
     def __init__(
@@ -147,6 +150,8 @@ class Trajectory:
         self.model = model
         self.seed = seed
         self.frames: list[Frame] = []
+        self._lock = claim(self.path)
+        self._replace = False
         if not self.path.exists():
             return
         if resume:
@@ -159,18 +164,21 @@ class Trajectory:
                         "parameters or another command); remove it or drop --resume"
                     )
         elif overwrite:
-            self.path.unlink()
+            self._replace = True
         else:
             raise InputError(
                 f"{self.path} exists: continue it with --resume, or replace it with --overwrite"
             )
 
     def append(self, step: Step) -> None:
-        """Append ``step`` as one frame (its packing, numbers and the run identity)."""
-        append_gsd(
+        """Append ``step`` as one frame (its packing, numbers and the run identity); the first
+        step of an ``overwrite`` run replaces the old file."""
+        write = write_gsd if self._replace else append_gsd
+        write(
             self.path,
             step.packing,
             model=self.model,
             seed=self.seed,
             observables={**step_log(step), "run_id": self.identity},
         )
+        self._replace = False

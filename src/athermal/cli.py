@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import re
 import sys
 import time
 import warnings
@@ -13,6 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from . import bench, commands
+from .door import check_request
 from .errors import ConvergenceError, InputError
 from .io import read_gsd, write_gsd
 from .minimize import METHODS, PRECONDITIONERS, minimize
@@ -77,7 +79,14 @@ def _add_protocol_outputs(parser: argparse.ArgumentParser) -> None:
         action="store_true",
         help="continue the interrupted run that wrote the trajectory (same arguments)",
     )
-    again.add_argument("--overwrite", action="store_true", help="replace an existing trajectory")
+    again.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace existing outputs (removed only once the first step is done)",
+    )
+
+
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -100,6 +109,7 @@ def _parser() -> argparse.ArgumentParser:
     rnd.add_argument("--size-ratio", type=float, default=1.4, help="large/small radius (1.4)")
     rnd.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     rnd.add_argument("-o", "--output", required=True, help="GSD file to write")
+    rnd.add_argument("--overwrite", action="store_true", help="replace an existing output")
     _add_model_options(rnd, 2.0)
 
     mea = sub.add_parser(
@@ -120,6 +130,7 @@ def _parser() -> argparse.ArgumentParser:
     )
     rel.add_argument("input", help="GSD file")
     rel.add_argument("-o", "--output", required=True, help="GSD file to write")
+    rel.add_argument("--overwrite", action="store_true", help="replace an existing output")
     _add_minimizer_options(rel, "")
     tol = rel.add_mutually_exclusive_group()
     tol.add_argument("--gtol", type=float, help="absolute tolerance on max_i |grad_i|")
@@ -286,6 +297,10 @@ def _parser() -> argparse.ArgumentParser:
     ben.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
     )
+    for each in (parser, *sub.choices.values()):
+        # read "-1e-6" as a (bad) number, not as an option: argparse's own pattern misses
+        # exponents, and then says only "expected one argument"
+        each._negative_number_matcher = NEGATIVE_NUMBER
     return parser
 
 
@@ -381,6 +396,7 @@ def _bench(args: argparse.Namespace) -> None:
 def _relax(args: argparse.Namespace) -> None:
     frame = read_gsd(args.input)
     model = commands.model_from(args, frame.model)
+    measure(frame.packing, model)  # refuses coincident particles before any work
     rtol = 1e-9 if args.gtol is None and args.rtol is None else args.rtol
     res = minimize(
         Objective(frame.packing, model),
@@ -437,7 +453,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _one_line_warning(args.command)
+            check_request(args)
             _run(args)
+    except KeyboardInterrupt:
+        again = "; rerun with --resume to continue" if hasattr(args, "resume") else ""
+        print(f"athermal {args.command}: interrupted{again}", file=sys.stderr)
+        return 130
     except InputError as exc:
         print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -20,7 +20,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from .checkpoint import Trajectory, compression_step, jamming_step, run_id, shear_step
-from .contact import ContactModel
+from .contact import ContactModel, find_contacts
 from .io import read_gsd, write_gsd
 from .observables import Observables, measure
 from .packing import Packing, random_packing
@@ -263,7 +263,9 @@ def jam(args: argparse.Namespace) -> None:
 
 def _start(args: argparse.Namespace) -> tuple[Packing, ContactModel, Any]:
     frame = read_gsd(args.input)
-    return frame.packing, model_from(args, frame.model), frame
+    model = model_from(args, frame.model)
+    find_contacts(frame.packing, model)  # refuses coincident particles before any work
+    return frame.packing, model, frame
 
 
 def compress(args: argparse.Namespace) -> None:

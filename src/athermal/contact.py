@@ -144,13 +144,21 @@ class Contacts:
 def find_contacts(
     packing: Packing, model: ContactModel, nlist: NeighborList | None = None
 ) -> Contacts:
-    """All overlapping pairs of ``packing`` (a fresh neighbour list is built when none is given)."""
+    """All overlapping pairs of ``packing`` (a fresh neighbour list is built when none is given).
+
+    Raises :class:`~athermal.errors.InputError` naming two particles whose centres coincide."""
     if nlist is None:
         from .neighbors import build_neighbor_list
 
         nlist = build_neighbor_list(packing.positions, packing.radii, packing.cell, skin=0.0)
     sep = nlist.separations(packing.positions, packing.cell)
     dist = np.sqrt(np.einsum("ij,ij->i", sep, sep))
+    if np.any(dist == 0.0):
+        k = int(np.flatnonzero(dist == 0.0)[0])
+        raise InputError(
+            f"particles {nlist.first[k]} and {nlist.second[k]} coincide (zero distance between "
+            "their centres): no contact normal exists"
+        )
     overlap = packing.radii[nlist.first] + packing.radii[nlist.second] - dist
     hit = overlap > 0.0
     typeid = model.typeid(packing)

@@ -32,6 +32,7 @@ from .checkpoint import Trajectory, jamming_step, run_id
 from .contact import ContactModel
 from .errors import InputError
 from .fitting import fit_power_law
+from .io import claim
 from .observables import measure
 from .packing import random_packing
 from .protocols import (
@@ -261,31 +262,48 @@ def run_ensemble(
     """
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
+    if int(realizations) != realizations or realizations < 1:
+        raise InputError(f"realizations: must be an integer >= 1, got {realizations!r}")
+    if workers is not None and (int(workers) != workers or workers < 1):
+        raise InputError(f"workers: must be an integer >= 1, got {workers!r}")
     out = Path(directory)
     if out.exists() and not out.is_dir():
         raise InputError(f"-o: {out} exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
     manifest = out / "ensemble.json"
     identity = {"spec": asdict(spec), "seed": seed, "identity": spec.identity()}
-    if manifest.exists():
-        stored = json.loads(manifest.read_text())
-        if (stored.get("identity"), stored.get("seed")) != (identity["identity"], seed):
-            raise InputError(
-                f"{out} holds an ensemble with another spec or seed; use a new directory"
+    stored = _read_json(manifest) if manifest.exists() else None
+    if stored is not None and (stored.get("identity"), stored.get("seed")) != (
+        identity["identity"],
+        seed,
+    ):
+        raise InputError(f"{out} holds an ensemble with another spec or seed; use a new directory")
+    out.mkdir(parents=True, exist_ok=True)
+    lock = claim(manifest)  # one run per directory at a time
+    try:
+        if stored is None:
+            _write_json(manifest, identity)
+        seeds = child_seeds(seed, realizations)
+        results: dict[int, dict[str, Any]] = {}
+        for k in range(realizations):
+            path = out / f"realization-{k:04d}.json"
+            if path.exists():
+                result = _read_json(path)
+                if result is None or result.get("seed") != seeds[k]:
+                    warnings.warn(
+                        f"{path}: unreadable or not this ensemble's; computed again", stacklevel=2
+                    )
+                    path.unlink()
+                else:
+                    results[k] = result
+        todo = [k for k in range(realizations) if k not in results]
+        engine = "none (all finished)"
+        if todo:
+            prefix = f"athermal-{int(spec.identity())}-{seed}"
+            engine = _compute(
+                spec, out, todo, seeds, workers, scheduler, retries, results, say, prefix
             )
-    else:
-        _write_json(manifest, identity)
-    seeds = child_seeds(seed, realizations)
-    results: dict[int, dict[str, Any]] = {}
-    for k in range(realizations):
-        path = out / f"realization-{k:04d}.json"
-        if path.exists():
-            results[k] = json.loads(path.read_text())
-    todo = [k for k in range(realizations) if k not in results]
-    engine = "none (all finished)"
-    if todo:
-        prefix = f"athermal-{int(spec.identity())}-{seed}"
-        engine = _compute(spec, out, todo, seeds, workers, scheduler, retries, results, say, prefix)
+    finally:
+        lock.close()
     ordered = [results[k] for k in range(realizations)]
     summary = summarize(spec, ordered)
     _write_json(out / "summary.json", summary)
@@ -335,6 +353,15 @@ def _summary_files(
         )
     picture = plot.save(figure, out / "summary.png")
     return {"table": str(table), "figure": str(picture)}
+
+
+def _read_json(path: Path) -> dict[str, Any] | None:
+    """The JSON object in ``path``, or None when it is not one (a damaged file)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
 
 
 def _compute(

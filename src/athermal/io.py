@@ -16,11 +16,13 @@ Every failure raises :class:`~athermal.errors.FileFormatError` (bad arguments:
 from __future__ import annotations
 
 import os
+import shutil
 import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
 from math import isqrt
 from pathlib import Path
+from typing import IO
 
 import gsd.hoomd
 import numpy as np
@@ -123,14 +125,25 @@ def append_gsd(
     with _open_read(target) as traj:
         count = len(traj)
     frame = _hoomd_frame(packing, model, seed, observables, step=count)
+    # appended to a copy that replaces the file once complete: an append that fails (a full
+    # disk, a kill) leaves the trajectory exactly as it was
+    temporary = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
     try:
-        with gsd.hoomd.open(str(target), "r+") as traj:
+        shutil.copyfile(target, temporary)
+        with gsd.hoomd.open(str(temporary), "r+") as traj:
             traj.append(frame)
             traj.flush()
             count = len(traj)
-        _fsync(target)
-    except OSError as exc:
-        raise FileFormatError(f"{target}: cannot append a frame ({_one_line(exc)})") from exc
+        _fsync(temporary)
+        _replace_durably(temporary, target)
+    except BaseException as exc:
+        temporary.unlink(missing_ok=True)
+        if isinstance(exc, OSError | RuntimeError):
+            raise FileFormatError(
+                f"{target}: cannot append a frame ({_why(exc, target)}); the trajectory is "
+                "unchanged"
+            ) from exc
+        raise
     return count
 
 
@@ -199,6 +212,33 @@ def _frame_index(source: Path, frame: int, count: int) -> int:
     return int(frame) % count
 
 
+def claim(path: PathLike) -> IO[str]:
+    """Take the one-writer lock of the output ``path``: an exclusive ``flock`` on the hidden
+    file ``.NAME.lock`` beside it, held as long as the returned handle is open (the process's
+    life at most, so a dead run leaves no stale lock). A second claim, from any process, raises
+    :class:`InputError` naming the holder's pid."""
+    import fcntl
+
+    target = Path(path)
+    lock = target.with_name(f".{target.name}.lock")
+    handle = open(lock, "a+")
+    try:
+        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        handle.seek(0)
+        holder = handle.read().strip() or "unknown"
+        handle.close()
+        raise InputError(
+            f"{target} is being written by another athermal run (pid {holder}); wait for it "
+            "to end or stop it"
+        ) from None
+    handle.seek(0)
+    handle.truncate()
+    handle.write(str(os.getpid()))
+    handle.flush()
+    return handle
+
+
 def _fsync(target: Path) -> None:
     with open(target, "rb+") as handle:
         os.fsync(handle.fileno())
@@ -210,18 +250,32 @@ def _write_atomic(target: Path, frame: gsd.hoomd.Frame) -> None:
         with gsd.hoomd.open(str(temporary), "x") as traj:
             traj.append(frame)
         _fsync(temporary)
-        os.replace(temporary, target)
-        if os.name == "posix":  # make the rename itself durable
-            directory = os.open(target.parent, os.O_RDONLY)
-            try:
-                os.fsync(directory)
-            finally:
-                os.close(directory)
+        _replace_durably(temporary, target)
     except BaseException as exc:
         temporary.unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise FileFormatError(f"{target}: cannot write ({_one_line(exc)})") from exc
+        if isinstance(exc, OSError | RuntimeError):
+            raise FileFormatError(f"{target}: cannot write ({_why(exc, target)})") from exc
         raise
+
+
+def _why(exc: BaseException, target: Path) -> str:
+    """One line for a failed write; gsd reports a full disk only as "Invalid gsd argument"."""
+    if isinstance(exc, RuntimeError):
+        needed = 2 * (target.stat().st_size if target.exists() else 0) + 2**20
+        if shutil.disk_usage(target.parent).free < needed:
+            return f"no space left on the device ({_one_line(exc)})"
+    return _one_line(exc)
+
+
+def _replace_durably(temporary: Path, target: Path) -> None:
+    """Rename ``temporary`` onto ``target`` and make the rename durable."""
+    os.replace(temporary, target)
+    if os.name == "posix":
+        directory = os.open(target.parent, os.O_RDONLY)
+        try:
+            os.fsync(directory)
+        finally:
+            os.close(directory)
 
 
 def _hoomd_frame(

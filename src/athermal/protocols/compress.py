@@ -147,7 +147,8 @@ def compression_steps(
     Parameters
     ----------
     jammed : a jammed packing (e.g. :func:`~athermal.protocols.jam`'s), the first start;
-        refused when it has no energy or pressure, and a ``UserWarning`` when its overlaps put
+        refused when it has no energy, pressure or rigid backbone (every particle a rattler),
+        and a ``UserWarning`` when its overlaps put
         it far above ``phi_c`` (:data:`FAR_ABOVE`).
     model : contact law.
     phi_c : jamming fraction ``Delta phi`` is measured from; default ``jammed.phi``.
@@ -169,10 +170,11 @@ def compression_steps(
     if phi_ref + targets[-1] >= 1.0:
         raise InputError(f"delta_phis: phi_c + {targets[-1]:g} reaches 1")
     start = measure(jammed, model)
-    if not (start.energy > 0.0 and start.pressure > 0.0):
+    if not (start.energy > 0.0 and start.pressure > 0.0 and start.n_rattlers < start.n):
         raise InputError(
             f"jammed: the start packing is not jammed (E = {start.energy:.3e}, p = "
-            f"{start.pressure:.3e}); jam it first (athermal jam)"
+            f"{start.pressure:.3e}, {start.n_rattlers} of {start.n} particles rattlers: no rigid "
+            "backbone); jam it first (athermal jam)"
         )
     above = overlap_distance(find_contacts(jammed, model), jammed)
     if above > FAR_ABOVE * max(jammed.phi - phi_ref, float(targets[0])):

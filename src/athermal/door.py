@@ -1,0 +1,181 @@
+"""The command line's door: every option's range and every output path of a parsed command,
+checked before any work is done or any file is touched (:func:`check_request`).
+
+A failed check raises :class:`~athermal.errors.InputError` with one line naming the option and
+what is wrong with it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import stat
+from collections.abc import Callable
+from pathlib import Path
+
+from .errors import InputError
+from .protocols import PHI_INIT
+
+BYTES_PER_PARTICLE = 2000
+"""Memory one particle costs a protocol run, an upper estimate (positions, radii, Verlet list of
+~10 neighbours with images, gradients, L-BFGS memory of 10 pairs, the preconditioner's sparse
+factor): the door refuses an N that would not fit the machine's memory."""
+JAMMED_PHI = {2: 0.9, 3: 0.7}
+"""A packing fraction above jamming by dimension, where the door sizes the particles."""
+CUTOFF = 2.2
+"""The Exp preconditioner's neighbour cutoff in units of the largest radius (the seed's)."""
+MAX_STEPS = 100_000
+"""Most protocol steps a command may ask for (growth steps to phi = 1, compression steps, strain
+steps): more is an increment too small to make progress."""
+
+
+def _number(name: str, value: float | None, ok: Callable[[float], bool], rule: str) -> None:
+    if value is None:
+        return
+    if not (math.isfinite(value) and ok(value)):
+        raise InputError(f"--{name.replace('_', '-')}: must be {rule}, got {value!r}")
+
+
+def _options(args: argparse.Namespace) -> None:
+    """The numeric options every command may carry, each with its range."""
+    rules: dict[str, tuple[Callable[[float], bool], str]] = {
+        "n": (lambda v: v >= 2, "an integer >= 2"),
+        "seed": (lambda v: v >= 0, "an integer >= 0"),
+        "phi": (lambda v: 0 < v < 1, "in (0, 1)"),
+        "phi_init": (lambda v: 0 < v < 1, "in (0, 1)"),
+        "phi_c": (lambda v: 0 < v < 1, "in (0, 1)"),
+        "size_ratio": (lambda v: v >= 1, ">= 1"),
+        "alpha": (lambda v: v >= 2, ">= 2"),
+        "stiffness": (lambda v: v > 0, "> 0"),
+        "dphi": (lambda v: v > 0, "> 0"),
+        "epsilon": (lambda v: v >= 1e-13, ">= 1e-13 (the resolution of phi in float64)"),
+        "rtol": (lambda v: v > 0, "> 0"),
+        "gtol": (lambda v: v > 0, "> 0"),
+        "maxiter": (lambda v: v >= 1, "an integer >= 1"),
+        "A": (lambda v: v >= 0, ">= 0"),
+        "dphi_min": (lambda v: v > 0, "> 0"),
+        "dphi_max": (lambda v: 0 < v < 1, "in (0, 1)"),
+        "per_decade": (lambda v: v >= 1, "an integer >= 1"),
+        "strain": (lambda v: v > 0, "> 0"),
+        "step": (lambda v: v > 0, "> 0"),
+        "realizations": (lambda v: v >= 1, "an integer >= 1"),
+        "workers": (lambda v: v >= 1, "an integer >= 1"),
+        "repeats": (lambda v: v >= 1, "an integer >= 1"),
+    }
+    for name, (ok, rule) in rules.items():
+        _number(name, getattr(args, name, None), ok, rule)
+
+
+def _work(args: argparse.Namespace) -> None:
+    """Sizes whose memory exceeds the machine, increments too small to make progress."""
+    n = getattr(args, "n", None)
+    if n is not None:
+        need = n * BYTES_PER_PARTICLE
+        total = _memory()
+        if total and need > total:
+            raise InputError(
+                f"--n: {n} particles need ~{need / 2**30:.3g} GiB, the machine has "
+                f"{total / 2**30:.3g} GiB"
+            )
+    if args.command in ("jam", "ensemble") and n is not None:
+        r_max = _largest_radius(n, args.dim, args.size_ratio, JAMMED_PHI[args.dim])
+        if CUTOFF * r_max >= 0.5:
+            raise InputError(
+                f"--n: {n} particles are too large for the unit cell near jamming (largest "
+                f"radius {r_max:.3g} at phi {JAMMED_PHI[args.dim]}; neighbour searches reach "
+                f"{CUTOFF:g} radii and must stay within half the cell): use more particles"
+            )
+    if args.command == "jam":
+        start = args.phi_init if args.phi_init is not None else PHI_INIT[args.dim]
+        if (1.0 - start) / args.dphi > MAX_STEPS:
+            raise InputError(
+                f"--dphi: {args.dphi:g} needs ~{(1.0 - start) / args.dphi:.2g} growth steps to "
+                f"reach phi = 1 (at most {MAX_STEPS}); take a larger increment"
+            )
+    if args.command == "compress":
+        if not args.dphi_min < args.dphi_max:
+            raise InputError(f"--from {args.dphi_min:g} must be below --to {args.dphi_max:g}")
+        count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
+        if count > MAX_STEPS:
+            raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
+    if args.command == "shear":
+        if args.step > args.strain:
+            raise InputError(f"--step {args.step:g} exceeds --strain {args.strain:g}")
+        if args.strain / args.step > MAX_STEPS:
+            raise InputError(
+                f"--step: {args.strain / args.step:.2g} strain steps (at most {MAX_STEPS})"
+            )
+
+
+def _largest_radius(n: int, dim: int, ratio: float, phi: float) -> float:
+    """The large radius of a 1:1 bidisperse mixture of ``n`` at ``phi`` in the unit cell."""
+    small, large = n - n // 2, n // 2
+    unit = math.pi if dim == 2 else 4.0 * math.pi / 3.0
+    return ratio * (phi / (unit * (small + large * ratio**dim))) ** (1.0 / dim)
+
+
+def _memory() -> int:
+    """The machine's physical memory in bytes (0 where unknown)."""
+    try:
+        return int(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+    except (ValueError, OSError, AttributeError):
+        return 0
+
+
+def output_files(args: argparse.Namespace) -> dict[str, Path]:
+    """The files a command will write, by the option that names them."""
+    out: dict[str, Path] = {}
+    command = args.command
+    if command in ("random", "relax", "jam", "compress", "shear"):
+        out["--output"] = Path(args.output)
+    if command == "jam":
+        out["--trajectory"] = Path(args.trajectory or Path(args.output).with_suffix(".steps.gsd"))
+        if args.dim == 2 and args.picture != "none":
+            out["--picture"] = Path(args.picture or Path(args.output).with_suffix(".png"))
+    if command in ("jam", "compress", "shear"):
+        out["--table"] = Path(args.table or Path(args.output).with_suffix(".csv"))
+    return out
+
+
+def _paths(args: argparse.Namespace) -> None:
+    """Every output: a new or regular file in a writable folder, distinct from the others and
+    from the input; an existing one only with ``--overwrite`` (or ``--resume``)."""
+    outputs = output_files(args)
+    seen: dict[Path, str] = {}
+    inputs = {Path(args.input).resolve()} if getattr(args, "input", None) else set()
+    replace = getattr(args, "overwrite", False) or getattr(args, "resume", False)
+    for option, path in outputs.items():
+        if str(path) in ("", "."):
+            raise InputError(f"{option}: an empty path")
+        folder = path.parent if str(path.parent) else Path(".")
+        if not folder.is_dir():
+            raise InputError(f"{option}: {path}: the folder {folder} does not exist")
+        if not os.access(folder, os.W_OK):
+            raise InputError(f"{option}: {path}: the folder {folder} is not writable")
+        if path.exists():
+            if not stat.S_ISREG(path.stat().st_mode):
+                raise InputError(f"{option}: {path} exists and is not a regular file")
+            if not replace:
+                again = " (or continue the run with --resume)" if hasattr(args, "resume") else ""
+                raise InputError(f"{option}: {path} exists; replace it with --overwrite{again}")
+        key = path.resolve()
+        if key in seen:
+            raise InputError(f"{option}: {path} is also {seen[key]}")
+        if key in inputs:
+            raise InputError(f"{option}: {path} is the input file")
+        seen[key] = option
+    if args.command in ("paper", "ensemble"):
+        target = Path(args.output)
+        if target.exists() and not target.is_dir():
+            raise InputError(f"--output: {target} exists and is not a directory")
+        parent = target.parent if str(target.parent) else Path(".")
+        if not target.exists() and not parent.is_dir():
+            raise InputError(f"--output: the folder {parent} does not exist")
+
+
+def check_request(args: argparse.Namespace) -> None:
+    """Refuse a command whose options or outputs are wrong, before any work (module docstring)."""
+    _options(args)
+    _work(args)
+    _paths(args)
