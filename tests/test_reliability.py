@@ -42,6 +42,8 @@ def files(tmp_path_factory):
     write_gsd(folder / "r.gsd", loose.packing)  # relaxed and unjammed
     (folder / "bad.gsd").write_bytes(b"GSD but not really" * 10)
     (folder / "sub").mkdir()
+    (folder / "old").mkdir()
+    (folder / "old" / "report.md").write_text("an earlier athermal paper run")
     return folder
 
 
@@ -92,6 +94,8 @@ BAD = [
     ["ensemble", "jam", "--realizations", "2", "--workers", "-1"],
     ["ensemble", "jam", "--realizations", "2", "--epsilon", "0"],
     ["paper", "-o", "r.gsd"],
+    ["paper", "-o", "old"],  # holds an earlier report, no --overwrite
+    ["paper", "-o", "nodir/p"],
 ]
 
 

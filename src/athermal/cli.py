@@ -11,7 +11,7 @@ import sys
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 from . import bench, commands
 from .door import check_request
@@ -86,15 +86,24 @@ def _add_protocol_outputs(parser: argparse.ArgumentParser) -> None:
     )
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``athermal CMD: error: ...``, exit 2), no usage dump."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="athermal",
         description="Quasi-static simulation of athermal soft-particle packings.",
     )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
+    )
 
     rnd = sub.add_parser(
         "random",
@@ -253,6 +262,9 @@ def _parser() -> argparse.ArgumentParser:
     size.add_argument("--quick", action="store_true", help="N = 1024 (default)")
     size.add_argument("--full", action="store_true", help="the seed's N = 4096")
     pap.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
+    pap.add_argument(
+        "--overwrite", action="store_true", help="replace the report of an earlier run"
+    )
     pap.add_argument("--quiet", action="store_true", help="no progress on stderr")
     pap.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"

@@ -169,6 +169,11 @@ def _paths(args: argparse.Namespace) -> None:
         target = Path(args.output)
         if target.exists() and not target.is_dir():
             raise InputError(f"--output: {target} exists and is not a directory")
+        if args.command == "paper" and (target / "report.md").exists() and not args.overwrite:
+            raise InputError(
+                f"--output: {target} holds the report of an earlier run; replace it with "
+                "--overwrite"
+            )
         parent = target.parent if str(target.parent) else Path(".")
         if not target.exists() and not parent.is_dir():
             raise InputError(f"--output: the folder {parent} does not exist")

@@ -212,31 +212,54 @@ def _frame_index(source: Path, frame: int, count: int) -> int:
     return int(frame) % count
 
 
-def claim(path: PathLike) -> IO[str]:
+class Claim:
+    """The one-writer lock of an output (:func:`claim`); :meth:`close` releases it."""
+
+    def __init__(self, lock: Path, handle: IO[str]) -> None:
+        self.lock, self.handle = lock, handle
+
+    def close(self) -> None:
+        """Remove the lock file and release the lock (idempotent)."""
+        if not self.handle.closed:
+            self.lock.unlink(missing_ok=True)
+            self.handle.close()
+
+    def __del__(self) -> None:
+        self.close()
+
+
+def claim(path: PathLike) -> Claim:
     """Take the one-writer lock of the output ``path``: an exclusive ``flock`` on the hidden
-    file ``.NAME.lock`` beside it, held as long as the returned handle is open (the process's
-    life at most, so a dead run leaves no stale lock). A second claim, from any process, raises
+    file ``.NAME.lock`` beside it, held until :meth:`Claim.close` (or the process ends, so a
+    dead run leaves no stale lock). A second claim, from any process, raises
     :class:`InputError` naming the holder's pid."""
     import fcntl
 
     target = Path(path)
     lock = target.with_name(f".{target.name}.lock")
-    handle = open(lock, "a+")
-    try:
-        fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except OSError:
-        handle.seek(0)
-        holder = handle.read().strip() or "unknown"
+    while True:
+        handle = open(lock, "a+")
+        try:
+            fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError:
+            handle.seek(0)
+            holder = handle.read().strip() or "unknown"
+            handle.close()
+            raise InputError(
+                f"{target} is being written by another athermal run (pid {holder}); wait for "
+                "it to end or stop it"
+            ) from None
+        try:  # the holder before us may have removed the file we locked: then lock anew
+            if os.stat(lock).st_ino == os.fstat(handle.fileno()).st_ino:
+                break
+        except FileNotFoundError:
+            pass
         handle.close()
-        raise InputError(
-            f"{target} is being written by another athermal run (pid {holder}); wait for it "
-            "to end or stop it"
-        ) from None
     handle.seek(0)
     handle.truncate()
     handle.write(str(os.getpid()))
     handle.flush()
-    return handle
+    return Claim(lock, handle)
 
 
 def _fsync(target: Path) -> None:
