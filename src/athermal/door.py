@@ -30,11 +30,16 @@ MAX_STEPS = 100_000
 steps): more is an increment too small to make progress."""
 
 
+FLAGS = {"dphi_min": "--from", "dphi_max": "--to"}
+"""Options whose flag is not their attribute's name."""
+
+
 def _number(name: str, value: float | None, ok: Callable[[float], bool], rule: str) -> None:
     if value is None:
         return
     if not (math.isfinite(value) and ok(value)):
-        raise InputError(f"--{name.replace('_', '-')}: must be {rule}, got {value!r}")
+        flag = FLAGS.get(name, "--" + name.replace("_", "-"))
+        raise InputError(f"{flag}: must be {rule}, got {value!r}")
 
 
 def _options(args: argparse.Namespace) -> None:
