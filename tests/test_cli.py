@@ -347,3 +347,10 @@ def test_jam_prints_phi_c_as_a_number_with_its_bracket(tmp_path, capsys):
     line = next(line for line in out.splitlines() if line.startswith("phi_c "))
     value, bracket = line.split()[1], line.split("bracket ")[1].rstrip(")")
     assert code == 0 and len(value.split(".")[1]) == 5 and float(bracket) <= 1e-5
+
+
+def test_version_is_printed():
+    done = subprocess.run(
+        [sys.executable, "-m", "athermal.cli", "--version"], capture_output=True, text=True
+    )
+    assert done.returncode == 0 and done.stdout.startswith("athermal ")

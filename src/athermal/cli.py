@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import re
 import sys
 import time
@@ -86,6 +87,16 @@ def _add_protocol_outputs(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _version() -> str:
+    """The installed package's version."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("athermal")
+    except PackageNotFoundError:
+        return "unknown"
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse with a one-line error (``athermal CMD: error: ...``, exit 2), no usage dump."""
 
@@ -101,6 +112,7 @@ def _parser() -> argparse.ArgumentParser:
         prog="athermal",
         description="Quasi-static simulation of athermal soft-particle packings.",
     )
+    parser.add_argument("--version", action="version", version=f"athermal {_version()}")
     sub = parser.add_subparsers(
         dest="command", required=True, metavar="COMMAND", parser_class=_Parser
     )
@@ -467,6 +479,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             warnings.showwarning = _one_line_warning(args.command)
             check_request(args)
             _run(args)
+    except BrokenPipeError:  # the reader of stdout went away (`athermal ... --json | head`)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
     except KeyboardInterrupt:
         again = "; rerun with --resume to continue" if hasattr(args, "resume") else ""
         print(f"athermal {args.command}: interrupted{again}", file=sys.stderr)
