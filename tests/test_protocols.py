@@ -366,3 +366,17 @@ def test_compression_reports_its_events_and_pressure_rises_between_them(jammed_2
         assert s.substeps >= 1 and s.saddles >= 0
         previous = s.pressure
     assert steps[-1].pressure > 1e3 * steps[0].pressure
+
+
+def test_jam_warns_when_its_packing_fails_a_check(monkeypatch):
+    from athermal.protocols import jamming
+
+    real = jamming.check_jammed
+
+    def failing(*args, **kwargs):
+        return dataclasses.replace(real(*args, **kwargs), unjams=False, decompressed_energy=1e-9)
+
+    monkeypatch.setattr(jamming, "check_jammed", failing)
+    with pytest.warns(UserWarning, match="still jammed when decompressed"):
+        result = jam(random_packing(48, 0.8, seed=4), ContactModel(2.0), epsilon=1e-4)
+    assert not result.check.passed
