@@ -1,4 +1,4 @@
-"""The ``athermal`` command (see CONTRACT.md): ``random``, ``measure``, ``relax``, ``bench``,
+"""The ``athermal`` command (see docs/contract.md): ``random``, ``measure``, ``relax``, ``bench``,
 and the protocols ``jam``, ``compress`` and ``shear``."""
 
 from __future__ import annotations
@@ -284,7 +284,7 @@ def _parser() -> argparse.ArgumentParser:
 
     ben = sub.add_parser(
         "bench",
-        help="the seed's Table benchmark (BENCHMARKS.md, B1)",
+        help="the seed's Table benchmark (docs/benchmarks.md, B1)",
         description="Minimizers and preconditioners on the three cases of the "
         "seed's Table (N = 4096) to 1e-9 of the mean contact force, with scipy's "
         "L-BFGS-B as the in-run reference. Prints a markdown table.",
