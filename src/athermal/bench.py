@@ -1,4 +1,4 @@
-"""The seed's Table benchmark (docs/benchmarks.md, B1): minimizers and preconditioners on three cases.
+"""The seed's Table benchmark (docs/benchmarks.md, B1): minimizers and preconditioners, three cases.
 
 Start configurations ship with the package (``athermal/data``, see its README): N = 4096
 bidisperse disks at phi = 0.8438, relaxed, alpha = 2 and 2.5. The cases:
