@@ -82,6 +82,12 @@ def coordination(contacts: Contacts, rattler: NDArray[np.bool_]) -> tuple[float,
     return (2.0 * c_live / n_live if n_live else 0.0), c_live
 
 
+def isostatic_contacts(n_live: int, dim: int) -> int:
+    """Contacts of ``n_live`` non-rattlers at isostaticity in a periodic cell:
+    ``N_iso = d (N' - 1) + 1`` (0 without non-rattlers)."""
+    return dim * (n_live - 1) + 1 if n_live >= 1 else 0
+
+
 @dataclass(frozen=True)
 class Observables:
     """Everything :func:`measure` reports. Tensors are ``(d, d)`` arrays."""

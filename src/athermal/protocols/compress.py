@@ -30,7 +30,7 @@ from ..fitting import PowerLaw, fit_jamming_point, fit_power_law
 from ..minimize import MinimizeResult
 from ..moduli import linear_response
 from ..objective import Objective
-from ..observables import measure
+from ..observables import isostatic_contacts, measure
 from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
 from .jamming import overlap_distance
@@ -70,9 +70,7 @@ def log_spaced(start: float = 1e-7, stop: float = 1e-1, per_decade: int = 4) -> 
 def isostatic_z(n_live: int, dim: int) -> float:
     """Isostatic coordination of ``n_live`` non-rattlers in a periodic cell:
     ``2 N_c / N'`` with ``N_c = d (N' - 1) + 1`` contacts (tends to ``2 d``)."""
-    if n_live < 1:
-        return 0.0
-    return 2.0 * (dim * (n_live - 1) + 1) / n_live
+    return 2.0 * isostatic_contacts(n_live, dim) / n_live if n_live >= 1 else 0.0
 
 
 @dataclass(frozen=True, eq=False)

@@ -56,7 +56,15 @@ from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import ConvergenceError, InputError
 from ..moduli import stability
 from ..objective import Objective
-from ..observables import Observables, measure, pressure, rattlers, stress
+from ..observables import (
+    Observables,
+    coordination,
+    isostatic_contacts,
+    measure,
+    pressure,
+    rattlers,
+    stress,
+)
 from ..packing import Packing
 from ._relax import Minimizer, Relaxer, energy_scale, force_scale, round_off_floor
 
@@ -464,14 +472,13 @@ def check_jammed(
     below = trials.relax(packing.phi - delta, packing, False, "decompression check")
     contacts = find_contacts(packing, model)
     rattler = rattlers(contacts, packing.n, packing.dim)
-    live = ~(rattler[contacts.i] | rattler[contacts.j])
-    n_live = int((~rattler).sum())
-    n_iso = packing.dim * (n_live - 1) + 1 if n_live else 0
+    _, c_live = coordination(contacts, rattler)
+    n_iso = isostatic_contacts(int((~rattler).sum()), packing.dim)
     return JammingCheck(
         decompression=delta,
         decompressed_energy=below.energy / (packing.n * energy_scale(below.packing.radii, model)),
         unjams=not below.jammed,
-        excess_contacts=int(live.sum()) - n_iso,
+        excess_contacts=c_live - n_iso,
         overlap_dphi=overlap_distance(contacts, packing),
         epsilon=epsilon,
         stable=stability(packing, model).stable,
