@@ -1,9 +1,9 @@
 """B6: an ensemble of jamming realizations on 2 Dask workers against 1 (wall time ratio).
 
-M realizations (default 8) of ``athermal ensemble jam`` at N = 1024 (epsilon = 1e-6, L-BFGS),
-root seed 0, run twice into fresh directories: on a local cluster of 1 worker process, then 2.
-Reports both wall times, their ratio (ideal 0.5 on a 2-core machine), whether the realizations
-are identical, and phi_c's mean, standard deviation and standard error.
+M realizations (default 8) of ``athermal ensemble jam`` at N = 1024 (``JamSpec`` defaults:
+epsilon = 1e-6, P-L-BFGS), root seed 0, run twice into fresh directories: on a local cluster of
+1 worker process, then 2. Reports both wall times, their ratio (ideal 0.5 on a 2-core machine),
+whether the realizations are identical, and phi_c's mean, standard deviation and standard error.
 
     python benchmarks/ensemble.py              # M = 8, N = 1024 (about 10 minutes)
     python benchmarks/ensemble.py --m 4 --n 256
@@ -14,18 +14,24 @@ Results: ``benchmarks/results/ensemble.md`` and ``.json``.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import subprocess
 import sys
 import tempfile
 import time
-from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 from athermal.ensemble import EnsembleSpec, run_ensemble
+from athermal.experiments import JamSpec
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import save
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def timeless(record: dict[str, Any]) -> dict[str, Any]:
+    """A realization's record without its wall time (the part that must not change)."""
+    return {k: v for k, v in record.items() if k != "seconds"}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -34,7 +40,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--n", type=int, default=1024)
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
-    spec = EnsembleSpec("jam", n=args.n)
+    spec = EnsembleSpec("jam", jam=JamSpec(n=args.n))
     runs = {}
     with tempfile.TemporaryDirectory() as scratch:
         for workers in (1, 2):
@@ -43,14 +49,10 @@ def main(argv: list[str] | None = None) -> int:
             runs[workers] = (time.perf_counter() - t0, result)
             print(f"{workers} worker(s): {runs[workers][0]:.1f} s", file=sys.stderr)
     one, two = runs[1][1], runs[2][1]
-    same = [{k: v for k, v in r.items() if k != "seconds"} for r in one.realizations] == [
-        {k: v for k, v in r.items() if k != "seconds"} for r in two.realizations
+    same = [timeless(r.to_json()) for r in one.realizations] == [
+        timeless(r.to_json()) for r in two.realizations
     ]
     phi = one.summary["phi_c"]
-    commit = subprocess.run(
-        ["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True
-    ).stdout.strip()
-    stamp = datetime.now(UTC).strftime("%Y-%m-%d %H:%M UTC")
     data = {
         "m": args.m,
         "n": args.n,
@@ -59,8 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         "ratio": runs[2][0] / runs[1][0],
         "identical": same,
         "phi_c": phi,
-        "phi_c_values": [r["phi_c"] for r in one.realizations],
-        "machine": f"{stamp}; commit {commit}; {os.cpu_count()} cores",
+        "phi_c_values": [r.phi_c for r in one.realizations],
     }
     lines = [
         f"# Ensemble: {args.m} jamming realizations, N = {args.n}, on Dask workers",
@@ -75,19 +76,10 @@ def main(argv: list[str] | None = None) -> int:
         "",
         f"phi_c = {phi['mean']:.5f} ± {phi['sd']:.5f} (sd), standard error {phi['stderr']:.5f}, "
         f"over {phi['n']} realizations.",
-        "",
-        f"Run: {data['machine']}.",
     ]
-    args.output_dir.mkdir(parents=True, exist_ok=True)
-    for suffix, text in (
-        (".json", json.dumps(data, indent=1) + "\n"),
-        (".md", "\n".join(lines) + "\n"),
-    ):
-        target = args.output_dir / f"ensemble{suffix}"
-        tmp = target.with_name(f".{target.name}.tmp")
-        tmp.write_text(text)
-        os.replace(tmp, target)
-    print("\n".join(lines))
+    text = "\n".join(lines) + "\n"
+    save(args.output_dir, "ensemble", data, text)
+    print(text)
     return 0
 
 

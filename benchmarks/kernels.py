@@ -31,27 +31,24 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMB
     os.environ.setdefault(_var, "1")
 
 import argparse  # noqa: E402
-import datetime as dt  # noqa: E402
 import gc  # noqa: E402
-import json  # noqa: E402
 import math  # noqa: E402
-import platform  # noqa: E402
 import statistics  # noqa: E402
-import subprocess  # noqa: E402
 import sys  # noqa: E402
-import tempfile  # noqa: E402
 import time  # noqa: E402
 from collections.abc import Callable, Sequence  # noqa: E402
 from dataclasses import asdict, dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
 from athermal.contact import ContactModel, energy_gradient  # noqa: E402
 from athermal.neighbors import NeighborList, build_neighbor_list  # noqa: E402
 from athermal.packing import Packing, random_packing  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import pin, save  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 SIZES_2D = (4096, 65536, 262144, 1048576)
@@ -407,66 +404,14 @@ def bench_packing(dim: int, n: int, alphas: Sequence[float], repeats: int) -> li
 
 
 # --------------------------------------------------------------------------------------------
-# environment and output
+# output
 # --------------------------------------------------------------------------------------------
 
 
-def pin_to_core(core: int) -> tuple[str, str | None]:
-    """Pin this process to ``core``; returns what was done, and a note when it was not possible."""
-    setter = getattr(os, "sched_setaffinity", None)
-    if setter is None:
-        return "not pinned", "os.sched_setaffinity is not available on this platform"
-    try:
-        setter(0, {core})
-    except (OSError, ValueError) as exc:
-        return "not pinned", f"could not pin to core {core}: {exc}"
-    return str(core), None
-
-
-def git_revision() -> str:
-    """Short commit hash, ``uncommitted`` (no commit yet) or ``unknown``; ``+dirty`` if changed."""
-
-    def git(*args: str) -> subprocess.CompletedProcess[str] | None:
-        try:
-            return subprocess.run(
-                ["git", *args], cwd=ROOT, capture_output=True, text=True, timeout=30, check=False
-            )
-        except (OSError, subprocess.SubprocessError):
-            return None
-
-    inside = git("rev-parse", "--is-inside-work-tree")
-    if inside is None or inside.returncode != 0:
-        return "unknown"
-    head = git("rev-parse", "--short", "HEAD")
-    rev = head.stdout.strip() if head is not None and head.returncode == 0 else ""
-    rev = rev or "uncommitted"
-    status = git("status", "--porcelain")
-    if status is not None and status.returncode == 0 and status.stdout.strip():
-        rev += "+dirty"
-    return rev
-
-
-def cpu_model() -> str:
-    """The "model name" of /proc/cpuinfo, else what :mod:`platform` knows."""
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                if line.lower().startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine() or "unknown"
-
-
 def markdown(meta: dict[str, object], rows: Sequence[Row]) -> str:
-    cores = meta["cores"]
     lines = [
         "# B2 — kernel benchmarks (neighbour list, energy+gradient)",
         "",
-        f"- date (UTC): {meta['date_utc']}",
-        f"- commit: {meta['commit']}",
-        f"- CPU: {meta['cpu']}; cores: {cores}; pinned to core: {meta['pinned_core']}",
-        f"- python {meta['python']}, numpy {meta['numpy']}, numba {meta['numba']}",
         f"- packings: `random_packing(N, phi, dim=d, seed={SEED})` (bidisperse 1:1, size ratio 1.4,"
         " uniformly random positions, sorted along a Z-order curve, k = 1); "
         "**phi = 0.84 in 2D, phi = 0.64 in 3D**; default Verlet skin (0.2 x mean radius)",
@@ -495,22 +440,6 @@ def table(rows: Sequence[Row]) -> str:
     ]
     out += ["| " + " | ".join(row.cells()) + " |" for row in rows]
     return "\n".join(out)
-
-
-def write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary file beside ``path``, then rename it over ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.chmod(tmp, 0o644)  # mkstemp makes it private; results are for everyone to read
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
@@ -572,20 +501,12 @@ def parse_args(argv: Sequence[str] | None = None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    pinned, note = pin_to_core(args.core)
+    pinned = pin(args.core)
     notes = []
-    if note is not None:
-        notes.append(note)
-        print(f"note: {note}; timings will be noisier", file=sys.stderr)
+    if pinned != [args.core]:
+        notes.append(f"not pinned to core {args.core} (allowed cores {pinned or 'unknown'})")
+        print(f"note: {notes[-1]}; timings will be noisier", file=sys.stderr)
     meta: dict[str, object] = {
-        "date_utc": dt.datetime.now(dt.UTC).strftime("%Y-%m-%d %H:%M:%S"),
-        "commit": git_revision(),
-        "cpu": cpu_model(),
-        "cores": os.cpu_count(),
-        "pinned_core": pinned,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "numba": numba.__version__,
         "repeats": args.repeats,
         "phi": {"2": PHI[2], "3": PHI[3]},
         "seed": SEED,
@@ -609,11 +530,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"ABORTED: {exc}", file=sys.stderr)
         return 1
     out_dir: Path = args.output_dir
-    write_atomic(out_dir / "kernels.md", markdown(meta, rows))
-    write_atomic(
-        out_dir / "kernels.json",
-        json.dumps({"meta": meta, "rows": [row.as_json() for row in rows]}, indent=2) + "\n",
-    )
+    data = {"meta": meta, "rows": [row.as_json() for row in rows]}
+    save(out_dir, "kernels", data, markdown(meta, rows))
     print(table(rows))
     print(f"wrote {out_dir / 'kernels.md'} and {out_dir / 'kernels.json'}", file=sys.stderr)
     return 0

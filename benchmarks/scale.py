@@ -7,17 +7,15 @@ the mean contact force; its radii are then grown by 5e-5 (Case 1) and each metho
     python benchmarks/scale.py                 # N = 65536 (about 10 minutes)
     python benchmarks/scale.py --n 262144      # larger (much longer)
 
-Results: ``benchmarks/results/scale_n<N>.md`` (written atomically).
+Results: ``benchmarks/results/scale_n<N>.md`` and ``.json`` (written atomically).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
 import resource
 import sys
 import time
-from datetime import UTC, datetime
 from pathlib import Path
 
 from athermal.contact import ContactModel
@@ -25,7 +23,9 @@ from athermal.minimize import minimize
 from athermal.objective import Objective
 from athermal.packing import random_packing
 from athermal.precon import ExpPreconditioner
-from athermal.tables import write_text_atomic
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import pin, save
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -36,9 +36,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--alpha", type=float, default=2.0)
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
-    pinned = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else "n/a"
+    pin()
     model = ContactModel(args.alpha)
     t0 = time.perf_counter()
     prep = minimize(
@@ -56,8 +54,6 @@ def main(argv: list[str] | None = None) -> int:
     lines = [
         f"# B4 — Case 1 at N = {args.n} (alpha = {args.alpha:g})",
         "",
-        f"- date (UTC): {datetime.now(UTC):%Y-%m-%d %H:%M:%S}; machine: {os.cpu_count()} cores, "
-        f"pinned to {pinned}",
         f"- start: random_packing({args.n}, 0.86, seed=7) relaxed by L-BFGS to 1e-10 F0 "
         f"({prep.iterations} iterations, {prep_s:.0f} s), radii x (1 + 5e-5); criterion 1e-9 F0",
         f"- sine-test mu at the start: {probe.mu:.4g}",
@@ -66,6 +62,7 @@ def main(argv: list[str] | None = None) -> int:
         "| peak RSS (MB) |",
         "|---|---:|---:|---:|---:|---|---:|",
     ]
+    rows: list[dict[str, object]] = []
     for label, solver, mu_scale in (
         ("L-BFGS", None, 1.0),
         ("P-L-BFGS (Exp, direct)", "direct", 1.0),
@@ -88,9 +85,25 @@ def main(argv: list[str] | None = None) -> int:
         )
         print(row, file=sys.stderr, flush=True)
         lines.append(row)
+        rows.append(
+            {
+                "method": label,
+                "iterations": res.iterations,
+                "evaluations": res.evaluations,
+                "seconds": seconds,
+                "converged": bool(res.converged),
+                "peak_rss_mb": rss,
+            }
+        )
     text = "\n".join(lines) + "\n"
-    args.output_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.output_dir / f"scale_n{args.n}.md", text)
+    data = {
+        "n": args.n,
+        "alpha": args.alpha,
+        "prepare": {"iterations": prep.iterations, "seconds": prep_s},
+        "mu": probe.mu,
+        "rows": rows,
+    }
+    save(args.output_dir, f"scale_n{args.n}", data, text)
     print(text)
     return 0
 

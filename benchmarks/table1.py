@@ -1,7 +1,8 @@
 """B1: the seed's Table — minimizers and preconditioners on the three benchmark cases.
 
 The cases and methods live in :mod:`athermal.bench` (also run by ``athermal bench``); this script
-adds what a results file needs: the machine, the commit, one pinned core and atomic writes.
+adds what a results file needs: the machine, the commit, one pinned core and atomic writes
+(:mod:`machine`).
 
 Run from the repository root::
 
@@ -14,51 +15,20 @@ Results: ``benchmarks/results/table1.md`` and ``table1.json``.
 from __future__ import annotations
 
 import argparse
-import json
-import os
-import platform
-import subprocess
 import sys
 from dataclasses import asdict
-from datetime import UTC, datetime
 from pathlib import Path
 
-import numpy as np
-import scipy
+from athermal.bench import ALPHAS, CASES, LABELS, QUICK_LABELS, RTOL, Row, markdown, table1
 
-from athermal.bench import ALPHAS, CASES, METHODS, QUICK_METHODS, RTOL, Row, markdown, table1
-from athermal.tables import write_text_atomic
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import pin, save
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def machine() -> dict[str, str]:
-    cpu = "unknown"
-    if Path("/proc/cpuinfo").exists():
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    try:
-        commit = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"],
-            capture_output=True,
-            text=True,
-            cwd=ROOT,
-            check=True,
-        ).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
-    pinned = sorted(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else "n/a"
-    return {
-        "date (UTC)": datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S"),
-        "commit": commit,
-        "machine": f"{cpu}, {os.cpu_count()} cores, process pinned to {pinned}",
-        "software": f"python {platform.python_version()}, numpy {np.__version__}, "
-        f"scipy {scipy.__version__}",
-        "criterion": f"max_i |grad_i| <= {RTOL:g} F0 (F0: mean contact force at the start)",
-        "timing": "median wall time of the repeats; iterations/evaluations of the first",
-    }
+META = {
+    "criterion": f"max_i |grad_i| <= {RTOL:g} F0 (F0: mean contact force at the start)",
+    "timing": "median wall time of the repeats; iterations/evaluations of the first",
+}
 
 
 def report(row: Row) -> None:
@@ -78,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--methods",
         nargs="+",
-        default=[m.label for m in METHODS],
+        default=list(LABELS),
         help="labels of the methods to run",
     )
     parser.add_argument("--repeats", type=int, default=3)
@@ -86,20 +56,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
     if args.quick:
-        args.cases, args.alphas, args.repeats, args.methods = [3], [2.0], 1, list(QUICK_METHODS)
-    if hasattr(os, "sched_setaffinity"):
-        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+        args.cases, args.alphas, args.repeats, args.methods = [3], [2.0], 1, list(QUICK_LABELS)
+    pin()
     rows = table1(args.cases, args.alphas, args.methods, args.repeats, progress=report)
-    meta = machine()
     header = ["# B1 — the seed's Table (N = 4096, phi = 0.8438)", ""]
-    header += [f"- {key}: {value}" for key, value in meta.items()]
+    header += [f"- {key}: {value}" for key, value in META.items()]
     text = "\n".join(header) + "\n\n" + markdown(rows)
-    args.output_dir.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(args.output_dir / "table1.md", text)
-    write_text_atomic(
-        args.output_dir / "table1.json",
-        json.dumps({"meta": meta, "rows": [asdict(r) for r in rows]}, indent=1),
-    )
+    save(args.output_dir, "table1", {"meta": dict(META), "rows": [asdict(r) for r in rows]}, text)
     print(text)
     return 0
 

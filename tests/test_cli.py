@@ -165,14 +165,14 @@ def test_bench_quick_json_rows(capsys):
         "2.5",
         "--methods",
         "L-BFGS",
-        "P-L-BFGS (A=0)",
+        "P-L-BFGS",
         "--repeats",
         "1",
         "--json",
     )
     assert code == 0 and err == ""  # no progress when stderr is not a terminal
     rows = json.loads(out)["rows"]
-    assert [r["method"] for r in rows] == ["L-BFGS", "P-L-BFGS (A=0)"]
+    assert [r["method"] for r in rows] == ["L-BFGS", "P-L-BFGS"]
     assert all(r["converged"] and r["grad_over_f0"] <= 1e-9 for r in rows)
     assert rows[1]["iterations"] < rows[0]["iterations"]
 
@@ -354,3 +354,79 @@ def test_version_is_printed():
         [sys.executable, "-m", "athermal.cli", "--version"], capture_output=True, text=True
     )
     assert done.returncode == 0 and done.stdout.startswith("athermal ")
+
+
+@pytest.fixture(scope="module")
+def compression_file(tmp_path_factory):
+    """A jammed 64-disk packing and its compression trajectory (Delta phi 1e-5 ... 1e-1)."""
+    folder = tmp_path_factory.mktemp("chain")
+    jammed, traj = folder / "j.gsd", folder / "c.gsd"
+    base = ["--quiet", "--json"]
+    jam = ["jam", "--n", "64", "--seed", "3", "--epsilon", "1e-5", "--picture", "none"]
+    assert main([*jam, "-o", str(jammed), *base]) == 0
+    compress = ["compress", str(jammed), "-o", str(traj), "--from", "1e-5", "--per-decade", "1"]
+    assert main([*compress, *base]) == 0
+    return traj
+
+
+def test_shear_and_compress_start_from_the_frame_asked_for(compression_file, tmp_path, capsys):
+    capsys.readouterr()
+    shear = ["shear", str(compression_file), "--strain", "1e-3", "--step", "1e-3", "--json"]
+    code, out, _ = run(capsys, *shear, "--delta-phi", "1.2e-3", "-o", str(tmp_path / "a.gsd"))
+    picked = json.loads(out)
+    assert code == 0 and picked["frame"] == 2
+    assert picked["start"]["delta_phi"] == pytest.approx(1e-3)
+    code, out, _ = run(capsys, *shear, "--frame", "-1", "-o", str(tmp_path / "b.gsd"))
+    assert code == 0 and json.loads(out)["frame"] == 4
+    first = read_gsd(tmp_path / "b.gsd", frame=0).packing
+    assert np.array_equal(first.radii, read_gsd(compression_file, frame=4).packing.radii)
+    code, _, err = run(capsys, *shear, "--frame", "9", "-o", str(tmp_path / "c.gsd"))
+    assert code == 2 and "has 5 frames, no frame 9" in err and err.count("\n") == 1
+    assert not (tmp_path / "c.gsd").exists()
+    compress = ["compress", str(compression_file), "--frame", "0", "--from", "1e-3", "--json"]
+    code, out, _ = run(capsys, *compress, "--per-decade", "1", "-o", str(tmp_path / "d.gsd"))
+    assert code == 0 and json.loads(out)["frame"] == 0
+
+
+def test_measure_prints_full_precision_and_the_frames_log(compression_file, capsys):
+    frame = read_gsd(compression_file, frame=0)
+    code, out, _ = run(capsys, "measure", str(compression_file), "--frame", "0")
+    assert code == 0
+    phi = next(line for line in out.splitlines() if line.startswith("packing fraction phi"))
+    assert float(phi.split()[-1]) == frame.packing.phi  # every digit
+    log = out[out.index("\nlog") :]
+    assert "delta_phi" in log and "pressure" in log and "  index          0\n" in log
+    code, out, _ = run(capsys, "measure", str(compression_file), "--frame", "0", "--json")
+    assert json.loads(out)["log"]["delta_phi"] == float(frame.log["delta_phi"])
+
+
+def test_plain_output_is_rounded_and_has_no_python_reprs(compression_file, tmp_path, capsys):
+    jammed = compression_file.parent / "j.gsd"
+    compress = ["compress", str(jammed), "-o", str(tmp_path / "e.gsd"), "--from", "1e-3"]
+    code, out, _ = run(capsys, *compress, "--per-decade", "1")
+    assert code == 0
+    assert "np.float64" not in out and "{" not in out and "'" not in out
+    exponent = next(line for line in out.splitlines() if line.strip().startswith("exponent "))
+    assert len(exponent.split()[-1].replace(".", "").lstrip("0")) <= 6
+
+
+def test_unknown_option_is_named_by_its_subcommand(capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["jam", "-o", "x.gsd", "--no-such-option"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.startswith("athermal jam: error: unrecognized arguments")
+    assert "athermal jam --help" in err and err.count("\n") == 1
+
+
+@pytest.mark.parametrize(
+    "command", ["random", "measure", "relax", "jam", "compress", "shear", "ensemble", "bench"]
+)
+def test_every_default_is_in_the_help(command, capsys):
+    from athermal.cli.parser import build, subparser
+
+    parser = subparser(build(), command)
+    text = parser.format_help().replace("\n", " ")
+    for action in parser._actions:
+        if action.option_strings and action.default not in (None, False, "==SUPPRESS=="):
+            help_text = " ".join(parser._get_formatter()._expand_help(action).split())
+            assert "default" in help_text and help_text in " ".join(text.split()), action.dest

@@ -9,16 +9,17 @@ import time
 
 import pytest
 
-from athermal.ensemble import EnsembleSpec, child_seeds, run_ensemble
+from athermal.ensemble import EnsembleSpec, Realization, run_ensemble
 from athermal.errors import InputError
+from athermal.experiments import JamSpec, child_seeds
 
 distributed = pytest.importorskip("dask.distributed")
 
-SPEC = EnsembleSpec("jam", n=48, epsilon=1e-4)
+SPEC = EnsembleSpec("jam", JamSpec(n=48, epsilon=1e-4))
 
 
 def numbers(result):
-    return [{k: v for k, v in r.items() if k != "seconds"} for r in result.realizations]
+    return [{k: v for k, v in r.to_json().items() if k != "seconds"} for r in result.realizations]
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +38,7 @@ def test_one_and_two_workers_give_identical_realizations(reference, tmp_path):
     two = run_ensemble(SPEC, tmp_path, 4, seed=11, workers=2)
     assert "2 worker" in two.engine and "1 worker" in reference.engine
     assert numbers(two) == numbers(reference)
-    assert [r["seed"] for r in two.realizations] == child_seeds(11, 4)
+    assert [r.seed for r in two.realizations] == child_seeds(11, 4)
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["phi_c"]["n"] == 4 and summary["phi_c"]["sd"] > 0.0
     assert (tmp_path / "summary.png").stat().st_size > 5_000
@@ -72,13 +73,13 @@ def test_a_killed_worker_loses_and_duplicates_nothing(reference, tmp_path):
     cluster.close()
     result = outcome["result"]
     assert victim not in after and len(after) == 2  # the nanny restarted the killed worker
-    assert sorted(r["index"] for r in result.realizations) == [0, 1, 2, 3]
+    assert sorted(r.index for r in result.realizations) == [0, 1, 2, 3]
     assert numbers(result) == numbers(reference)
     assert len(list(tmp_path.glob("realization-*.json"))) == 4
     from athermal.io import count_frames
 
     for r in result.realizations:  # a retried realization resumed, it did not append twice
-        assert count_frames(tmp_path / f"realization-{r['index']:04d}.gsd") == r["steps"]
+        assert count_frames(tmp_path / f"realization-{r.index:04d}.gsd") == r.steps
 
 
 @pytest.mark.slow
@@ -107,3 +108,25 @@ def test_without_dask_the_same_realizations_run_sequentially(reference, tmp_path
     assert result.engine == "sequential" and numbers(result) == numbers(reference)[:2]
     with pytest.raises(InputError, match="dask extra"):
         run_ensemble(SPEC, tmp_path / "b", 1, seed=11, scheduler="tcp://127.0.0.1:1")
+
+
+@pytest.mark.slow
+def test_a_shear_ensemble_records_every_section_and_reads_back(tmp_path):
+    from athermal.experiments import CompressSpec, ShearSpec
+
+    spec = EnsembleSpec(
+        "shear",
+        JamSpec(n=48, epsilon=1e-4),
+        CompressSpec(delta_min=1e-3, delta_max=1e-1, per_decade=2),
+        ShearSpec(strain=2e-3, step=1e-3, delta_phi=1e-2),
+    )
+    result = run_ensemble(spec, tmp_path, 2, seed=3, workers=1)
+    for r in result.realizations:
+        assert r.compression is not None and len(r.compression.rows) == 5
+        assert r.shear is not None and [row["strain"] for row in r.shear.rows] == [0, 1e-3, 2e-3]
+        assert abs(r.shear.delta_phi - 1e-2) < 1e-9 and r.iteration_counts is None
+        stored = json.loads((tmp_path / f"realization-{r.index:04d}.json").read_text())
+        assert Realization.from_json(stored) == r
+    pooled = result.summary["pooled_exponent_p"]
+    assert pooled["points"] == 10 and 0.7 < pooled["exponent"] < 1.3
+    assert result.summary["plastic_events"]["n"] == 2

@@ -9,7 +9,7 @@ import gsd.hoomd
 import numpy as np
 import pytest
 
-import athermal.io as aio
+import athermal.atomic
 from athermal.cell import Cell, simple_shear
 from athermal.contact import ContactModel
 from athermal.errors import FileFormatError, InputError
@@ -323,7 +323,7 @@ def test_failed_write_leaves_the_existing_file_and_no_temporary(tmp_path, monkey
     before = path.read_bytes()
     q = random_packing(32, 0.7, seed=2)
 
-    monkeypatch.setattr(aio, "_fsync", failing_fsync)
+    monkeypatch.setattr(athermal.atomic, "_fsync", failing_fsync)
     with pytest.raises(FileFormatError, match="No space left"):
         write_gsd(path, q)
     assert path.read_bytes() == before

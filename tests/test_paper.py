@@ -10,7 +10,7 @@ TINY = Settings(
     realizations=2,
     realization_n=48,
     table_alphas=(2.0,),
-    table_methods=("L-BFGS",),
+    table_methods=("L-BFGS", "scipy L-BFGS-B"),
     table_repeats=1,
     shear_delta_phi=1e-1,
 )
@@ -21,9 +21,7 @@ PNG = b"\x89PNG\r\n\x1a\n"
 def test_every_figure_and_the_report_are_written(tmp_path):
     result = reproduce(tmp_path, TINY, seed=1)
     expected = {
-        "jamming_initial",
-        "jamming_intermediate",
-        "jamming_jammed",
+        "jamming",
         "convergence",
         "scaling_p",
         "scaling_G",
@@ -41,6 +39,11 @@ def test_every_figure_and_the_report_are_written(tmp_path):
         for fit in result.exponents[alpha].values():
             assert f"{fit['exponent']:.3f}" in report
     assert "| alpha | case | method |" in report and "![convergence](convergence.png)" in report
+    for name in expected:  # every figure has its caption
+        assert f"*{name}.* " in report
+    table = report[report.index("## Table") :]
+    ratios = [line.split("|")[7].strip() for line in table.splitlines() if "| L-BFGS |" in line]
+    assert ratios and all(float(r) > 0 for r in ratios)  # seconds relative to scipy's
     assert 0.8 < result.phi_c < 0.9
 
 

@@ -66,6 +66,7 @@ def test_protocol_example_jams_compresses_and_shears_with_the_seeds_physics(tmp_
 
 
 @pytest.mark.skipif(importlib.util.find_spec("freud") is None, reason="freud not installed")
+@pytest.mark.filterwarnings("error")  # freud warns of nothing
 def test_freud_example_reads_a_file(tmp_path):
     import athermal as at
 

@@ -194,14 +194,15 @@ def test_coincident_particles_are_named(tmp_path, capsys):
 
 def test_a_damaged_realization_is_computed_again(tmp_path):
     from athermal.ensemble import EnsembleSpec, run_ensemble
+    from athermal.experiments import JamSpec
 
-    spec = EnsembleSpec("jam", n=32, epsilon=1e-4)
+    spec = EnsembleSpec("jam", JamSpec(n=32, epsilon=1e-4))
     first = run_ensemble(spec, tmp_path / "e", 2, workers=1)
     (tmp_path / "e" / "realization-0001.json").write_text("{not json")
     with pytest.warns(UserWarning, match="realization-0001.json: unreadable"):
         again = run_ensemble(spec, tmp_path / "e", 2, workers=1)
     assert again.computed == [1]
-    assert again.realizations[1]["phi_c"] == first.realizations[1]["phi_c"]
+    assert again.realizations[1].phi_c == first.realizations[1].phi_c
 
 
 def _can_mount_tmpfs(folder: Path) -> bool:

@@ -1,7 +1,8 @@
 import pytest
 
+from athermal.atomic import write_text
 from athermal.errors import FileFormatError, InputError
-from athermal.tables import read_table, write_table, write_text_atomic
+from athermal.tables import read_table, write_table
 
 
 def test_table_round_trip_is_exact_and_keeps_text(tmp_path):
@@ -16,9 +17,9 @@ def test_table_round_trip_is_exact_and_keeps_text(tmp_path):
 
 def test_failed_writes_leave_the_old_file_and_no_temporary(tmp_path):
     target = tmp_path / "t.csv"
-    write_text_atomic(target, "old\n")
+    write_text(target, "old\n")
     with pytest.raises(InputError, match="same columns"):
         write_table(target, [{"a": 1}, {"b": 2}])
     with pytest.raises(FileFormatError, match="cannot write"):
-        write_text_atomic(tmp_path / "missing" / "t.csv", "x")
+        write_text(tmp_path / "missing" / "t.csv", "x")
     assert target.read_text() == "old\n" and sorted(p.name for p in tmp_path.iterdir()) == ["t.csv"]

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import statistics
 import time
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from importlib import resources
@@ -22,46 +23,37 @@ import scipy.optimize
 from .cell import Cell, simple_shear
 from .contact import ContactModel
 from .errors import InputError
-from .minimize import Method as MethodName
-from .minimize import minimize
+from .minimize import RTOL, Minimizer, minimize
 from .objective import Objective
 from .packing import Packing
-from .precon import PreconName
 
-RTOL = 1e-9
 CASES = (1, 2, 3)
 ALPHAS = (2.0, 2.5)
-
-
-@dataclass(frozen=True)
-class Method:
-    """One column of the seed's Table (``reference``: scipy's L-BFGS-B instead of athermal)."""
-
-    label: str
-    method: MethodName = "lbfgs"
-    precon: PreconName = "none"
-    A: float = 0.0
-    reference: bool = False
-
-
+SCIPY = "scipy L-BFGS-B"
+"""Label of the in-run reference, scipy's L-BFGS-B (m = 10) on the same compiled energy."""
 METHODS = (
-    Method("L-BFGS"),
-    Method("P-L-BFGS (A=0)", "lbfgs", "exp"),
-    Method("P-L-BFGS (A=3)", "lbfgs", "exp", 3.0),
-    Method("FR-CG", "cg"),
-    Method("P-FR-CG", "cg", "exp"),
-    Method("FIRE", "fire"),
-    Method("contact P-L-BFGS", "lbfgs", "contact"),
-    Method("scipy L-BFGS-B", reference=True),
+    Minimizer("lbfgs"),
+    Minimizer("lbfgs", "exp"),
+    Minimizer("lbfgs", "exp", 3.0),
+    Minimizer("cg"),
+    Minimizer("cg", "exp"),
+    Minimizer("fire"),
+    Minimizer("lbfgs", "contact"),
 )
-QUICK_METHODS = ("L-BFGS", "P-L-BFGS (A=0)", "scipy L-BFGS-B")
+"""The Table's methods (their :attr:`~athermal.minimize.Minimizer.name` labels its rows)."""
+LABELS = (*(m.name for m in METHODS), SCIPY)
+RENAMED = {"P-L-BFGS (A=0)": "P-L-BFGS"}
+"""Labels of earlier versions, still accepted (with a DeprecationWarning)."""
+QUICK_LABELS = ("L-BFGS", "P-L-BFGS", SCIPY)
 SEED_ITERATIONS = {  # the seed's own Table (alpha = 2.5, its hardware), cases 1 / 2 / 3
     "L-BFGS": (2003, 2749, 602),
-    "P-L-BFGS (A=0)": (705, 986, 380),
+    "P-L-BFGS": (705, 986, 380),
     "P-L-BFGS (A=3)": (813, 1351, 432),
     "FR-CG": (4574, 7306, 940),
     "P-FR-CG": (1101, 2013, 528),
 }
+SEED_ALPHA = 2.5
+"""The contact exponent of the seed's Table."""
 
 
 @dataclass(frozen=True)
@@ -102,12 +94,12 @@ def make_case(packing: Packing, case: int) -> Packing:
     raise InputError(f"case: must be one of {CASES}, got {case}")
 
 
-def run(start: Packing, model: ContactModel, method: Method) -> Row:
-    """One minimization of ``start`` by ``method`` to ``1e-9 F0``."""
+def run(start: Packing, model: ContactModel, method: Minimizer | None) -> Row:
+    """One minimization of ``start`` to ``1e-9 F0`` by ``method`` (None: scipy's L-BFGS-B)."""
     objective = Objective(start, model)
     f0 = objective.mean_contact_force(objective.x0)
     t0 = time.perf_counter()
-    if method.reference:
+    if method is None:
         res = scipy.optimize.minimize(
             objective,
             objective.x0,
@@ -127,7 +119,7 @@ def run(start: Packing, model: ContactModel, method: Method) -> Row:
         return Row(
             0,
             model.alpha,
-            method.label,
+            SCIPY,
             int(res.nit),
             int(res.nfev),
             seconds,
@@ -136,13 +128,19 @@ def run(start: Packing, model: ContactModel, method: Method) -> Row:
             gmax <= RTOL * f0,
         )
     out = minimize(
-        objective, method.method, precon=method.precon, A=method.A, rtol=RTOL, maxiter=50_000
+        objective,
+        method.method,
+        precon=method.precon,
+        A=method.A,
+        solver=method.solver,
+        rtol=RTOL,
+        maxiter=50_000,
     )
     seconds = time.perf_counter() - t0
     return Row(
         0,
         model.alpha,
-        method.label,
+        method.name,
         out.iterations,
         out.evaluations,
         seconds,
@@ -159,26 +157,34 @@ def table1(
     repeats: int = 3,
     progress: Callable[[Row], None] | None = None,
 ) -> list[Row]:
-    """All rows of the Table; ``labels`` picks methods (default all), ``progress`` sees each row."""
-    known = [m.label for m in METHODS]
-    chosen = [m for m in METHODS if labels is None or m.label in labels]
-    unknown = set(labels or ()) - set(known)
+    """All rows of the Table; ``labels`` picks methods by name (default all, :data:`LABELS`),
+    ``progress`` sees each row."""
+    if labels is not None:
+        for old in set(labels) & set(RENAMED):
+            warnings.warn(
+                f"methods: {old!r} is now called {RENAMED[old]!r}", DeprecationWarning, stacklevel=2
+            )
+        labels = [RENAMED.get(label, label) for label in labels]
+    unknown = set(labels or ()) - set(LABELS)
     if unknown:
-        raise InputError(f"methods: unknown {sorted(unknown)}; choose from {known}")
+        raise InputError(f"methods: unknown {sorted(unknown)}; choose from {list(LABELS)}")
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
+    by_label: dict[str, Minimizer | None] = {m.name: m for m in METHODS}
+    by_label[SCIPY] = None
+    chosen = [label for label in LABELS if labels is None or label in labels]
     rows = []
     for alpha in alphas:
         base, model = reference_packing(alpha), ContactModel(alpha)
         for case in cases:
             start = make_case(base, case)
-            for method in chosen:
-                runs = [run(start, model, method) for _ in range(repeats)]
+            for label in chosen:
+                runs = [run(start, model, by_label[label]) for _ in range(repeats)]
                 first = runs[0]
                 row = Row(
                     case,
                     alpha,
-                    method.label,
+                    label,
                     first.iterations,
                     first.evaluations,
                     statistics.median(r.seconds for r in runs),
@@ -193,19 +199,34 @@ def table1(
 
 
 def markdown(rows: Sequence[Row]) -> str:
-    """The rows as a markdown table, with seconds relative to scipy and the seed's iterations."""
-    lines = [
-        "| alpha | case | method | iterations | evaluations | seconds | s / scipy | final energy "
-        "| max\\|grad\\| / F0 | converged | seed's iterations (alpha 2.5) |",
-        "|---:|---:|---|---:|---:|---:|---:|---:|---:|---|---:|",
-    ]
-    ref = {(r.alpha, r.case): r.seconds for r in rows if r.method == "scipy L-BFGS-B"}
+    """The rows as a markdown table: seconds relative to scipy's in the same run (where it
+    ran) and, at the seed's alpha, the seed's own iteration counts."""
+    ref = {(r.alpha, r.case): r.seconds for r in rows if r.method == SCIPY}
+    seed_column = any(r.alpha == SEED_ALPHA for r in rows)
+    header = "| alpha | case | method | iterations | evaluations | seconds |"
+    rule = "|---:|---:|---|---:|---:|---:|"
+    if ref:
+        header, rule = header + " s / scipy |", rule + "---:|"
+    header += " final energy | max\\|grad\\| / F0 | converged |"
+    rule += "---:|---:|---|"
+    if seed_column:
+        header, rule = header + f" seed's iterations (alpha {SEED_ALPHA:g}) |", rule + "---:|"
+    lines = [header, rule]
     for r in rows:
-        ratio = f"{r.seconds / ref[(r.alpha, r.case)]:.2f}" if (r.alpha, r.case) in ref else "-"
-        seed = SEED_ITERATIONS.get(r.method, ("-", "-", "-"))[r.case - 1]
-        lines.append(
-            f"| {r.alpha:g} | {r.case} | {r.method} | {r.iterations} | {r.evaluations} | "
-            f"{r.seconds:.3f} | {ratio} | {r.energy:.10e} | {r.grad_over_f0:.2e} | "
-            f"{'yes' if r.converged else 'no'} | {seed} |"
-        )
+        cells = [
+            f"{r.alpha:g}",
+            str(r.case),
+            r.method,
+            str(r.iterations),
+            str(r.evaluations),
+            f"{r.seconds:.3f}",
+        ]
+        if ref:
+            base = ref.get((r.alpha, r.case))
+            cells.append(f"{r.seconds / base:.2f}" if base else "-")
+        cells += [f"{r.energy:.10e}", f"{r.grad_over_f0:.2e}", "yes" if r.converged else "no"]
+        if seed_column:
+            seed = SEED_ITERATIONS.get(r.method)
+            cells.append(str(seed[r.case - 1]) if seed and r.alpha == SEED_ALPHA else "-")
+        lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

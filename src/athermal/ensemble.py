@@ -28,27 +28,26 @@ from typing import Any, Literal
 import numpy as np
 
 from ._validate import choice
+from .atomic import write_text
 from .checkpoint import Trajectory, jamming_step, run_id
-from .contact import ContactModel
 from .errors import InputError
+from .experiments import (
+    Compression,
+    CompressSpec,
+    IterationCounts,
+    IterationSpec,
+    JamSpec,
+    ShearSpec,
+    child_seeds,
+    compress,
+    iteration_counts,
+    jam_packing,
+    shear,
+)
 from .fitting import fit_power_law
 from .io import claim
-from .observables import measure
-from .packing import random_packing
-from .protocols import (
-    ITERATION_METHODS,
-    PHI_INIT,
-    Minimizer,
-    check_jammed,
-    compression_steps,
-    finite_strain_shear,
-    jamming_steps,
-    log_spaced,
-    scaling_exponents,
-    shear_steps,
-)
-from .protocols.compress import isostatic_z
-from .tables import write_text_atomic
+from .protocols import isostatic_z
+from .tables import Row
 
 Protocol = Literal["jam", "compress", "shear", "iterations"]
 PROTOCOLS: tuple[str, ...] = ("jam", "compress", "shear", "iterations")
@@ -57,68 +56,127 @@ INSTALL_HINT = 'the dask extra is not installed (pip install "athermal[dask]")'
 
 @dataclass(frozen=True)
 class EnsembleSpec:
-    """What every realization runs: the protocol and its physical parameters.
+    """What every realization runs: the protocol and the specs of its studies.
 
-    ``protocol``: ``jam`` (jamming by growth and bisection), ``compress`` (jam, then compress
-    over ``Delta phi`` 1e-7 ... 1e-1 and fit the scaling laws), ``shear`` (jam, compress to
-    ``shear_delta_phi``, pure shear to ``strain`` in steps ``step``) or ``iterations`` (the
-    seed's iteration experiment: jam, compress, and at each ``Delta phi`` 1e-6 ... 1e-1 count
-    the iterations per shear step for L-BFGS, P-L-BFGS and contact P-L-BFGS).
+    ``protocol``: ``jam`` (jamming by growth and bisection, ``jam``), ``compress`` (jam, then
+    compress as ``compress`` says and fit the scaling laws), ``shear`` (jam, compress, then
+    shear from the state nearest ``shear.delta_phi``) or ``iterations`` (jam, then the seed's
+    iteration experiment, ``iterations``).
     """
 
     protocol: Protocol
-    n: int = 1024
-    dim: int = 2
-    alpha: float = 2.0
-    size_ratio: float = 1.4
-    epsilon: float = 1e-6
-    method: str = "lbfgs"
-    precon: str = "exp"
-    per_decade: int = 4
-    shear_delta_phi: float = 1e-2
-    strain: float = 0.02
-    step: float = 1e-4
+    jam: JamSpec = field(default_factory=JamSpec)
+    compress: CompressSpec = field(default_factory=CompressSpec)
+    shear: ShearSpec = field(default_factory=ShearSpec)
+    iterations: IterationSpec = field(default_factory=IterationSpec)
 
     def __post_init__(self) -> None:
         choice(self.protocol, "protocol", PROTOCOLS)
-        if int(self.n) != self.n or self.n < 2:
-            raise InputError(f"n: need an integer >= 2 particles, got {self.n!r}")
-        if self.dim not in (2, 3):
-            raise InputError(f"dim: must be 2 or 3, got {self.dim}")
-        Minimizer(self.method, self.precon)  # type: ignore[arg-type]  # validates the names
-        ContactModel(self.alpha)
 
     def identity(self) -> float:
         """Digest of the spec: a directory holds the realizations of one spec only."""
         return run_id("ensemble", asdict(self))
 
 
-def child_seeds(root: int, count: int) -> list[int]:
-    """The seeds of realizations ``0 .. count-1``: one 63-bit integer from each child of
-    ``SeedSequence(root)`` (independent streams, the same whatever runs them)."""
-    if count < 0:
-        raise InputError(f"realizations: must be >= 0, got {count}")
-    children = np.random.SeedSequence(root).spawn(count)
-    return [int(c.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1)) for c in children]
+@dataclass(frozen=True)
+class CompressionRecord:
+    """A realization's compression: its table rows, fitted exponents (None: no fit), the
+    free-fit jamming point (None: no fit) and event counts."""
+
+    rows: tuple[Row, ...]
+    exponents: dict[str, float | None]
+    phi_c_fitted: float | None
+    events: dict[str, int]
+
+    @classmethod
+    def of(cls, compression: Compression) -> CompressionRecord:
+        """The record of a :class:`~athermal.experiments.Compression`."""
+        fits = compression.fits
+        laws = {"p": fits.pressure, "G": fits.shear_modulus, "z": fits.z_excess}
+        return cls(
+            tuple(s.row() for s in compression.steps),
+            {k: None if f is None else f.exponent for k, f in laws.items()},
+            fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None,
+            dict(fits.events),
+        )
+
+
+@dataclass(frozen=True)
+class ShearRecord:
+    """A realization's shear run: its table rows, plastic events and start ``Delta phi``."""
+
+    rows: tuple[Row, ...]
+    plastic_events: int
+    delta_phi: float
+
+
+@dataclass(frozen=True)
+class Realization:
+    """One realization's result: its jammed packing's numbers and checks, and the sections of
+    its protocol (None where the protocol has none)."""
+
+    index: int
+    seed: int
+    phi_c: float
+    phi_low: float
+    energy: float
+    pressure: float
+    z: float
+    z_iso: float
+    n_rattlers: int
+    excess_contacts: int
+    unjams_when_decompressed: bool
+    stable: bool
+    checks_passed: bool
+    steps: int
+    iterations: int
+    seconds: float
+    compression: CompressionRecord | None = None
+    shear: ShearRecord | None = None
+    iteration_counts: IterationCounts | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON object (``realization-KKKK.json``, the ``--json`` output)."""
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> Realization:
+        """The realization :meth:`to_json` wrote."""
+        sections: dict[str, Any] = {}
+        if data.get("compression") is not None:
+            c = data["compression"]
+            sections["compression"] = CompressionRecord(
+                tuple(c["rows"]), c["exponents"], c["phi_c_fitted"], c["events"]
+            )
+        if data.get("shear") is not None:
+            h = data["shear"]
+            sections["shear"] = ShearRecord(tuple(h["rows"]), h["plastic_events"], h["delta_phi"])
+        if data.get("iteration_counts") is not None:
+            i = data["iteration_counts"]
+            sections["iteration_counts"] = IterationCounts(
+                tuple(i["delta_phi"]),
+                {k: tuple(v) for k, v in i["iterations"].items()},
+                {k: tuple(v) for k, v in i["seconds"].items()},
+            )
+        plain = {k: v for k, v in data.items() if k not in sections and k in _FIELDS}
+        return cls(**plain, **sections)
+
+
+_FIELDS = set(Realization.__dataclass_fields__) - {"compression", "shear", "iteration_counts"}
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
-    write_text_atomic(path, json.dumps(data, indent=1) + "\n")
+    write_text(path, json.dumps(data, indent=1) + "\n")
 
 
-def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -> dict[str, Any]:
+def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -> Realization:
     """Run realization ``index`` (its ``seed``) of ``spec`` into ``directory``; return its result.
 
     The jamming trajectory is a checkpoint: a retried realization continues it.
     """
     t0 = time.perf_counter()
-    out = Path(directory)
-    stem = out / f"realization-{index:04d}"
-    model = ContactModel(spec.alpha)
-    minimizer = Minimizer(spec.method, spec.precon)  # type: ignore[arg-type]
-    start = random_packing(
-        spec.n, PHI_INIT[spec.dim], dim=spec.dim, seed=seed, size_ratio=spec.size_ratio
-    )
+    stem = Path(directory) / f"realization-{index:04d}"
+    model = spec.jam.model
     trajectory = Trajectory(
         f"{stem}.gsd",
         run_id("realization", {**asdict(spec), "index": index, "seed": seed}),
@@ -127,57 +185,41 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         resume=True,
     )
     done = [jamming_step(f) for f in trajectory.frames]
-    steps = list(done)
-    for step in jamming_steps(start, model, epsilon=spec.epsilon, minimizer=minimizer, resume=done):
-        trajectory.append(step)
-        steps.append(step)
-    jammed = steps[-1]
-    obs = measure(jammed.packing, model)
-    check = check_jammed(jammed.packing, model, epsilon=spec.epsilon, minimizer=minimizer)
-    result: dict[str, Any] = {
-        "index": index,
-        "seed": seed,
-        "phi_c": jammed.phi,
-        "phi_low": jammed.phi_low,
-        "energy": obs.energy,
-        "pressure": obs.pressure,
-        "z": obs.z,
-        "z_iso": isostatic_z(obs.n - obs.n_rattlers, spec.dim),
-        "n_rattlers": obs.n_rattlers,
-        "excess_contacts": check.excess_contacts,
-        "unjams_when_decompressed": check.unjams,
-        "stable": check.stable,
-        "checks_passed": check.passed,
-        "steps": len(steps),
-        "iterations": sum(s.iterations for s in steps),
-    }
+    jammed = jam_packing(spec.jam, seed, resume=done, on_step=trajectory.append)
+    obs, check = jammed.observables, jammed.check
+    sections: dict[str, Any] = {}
     if spec.protocol in ("compress", "shear"):
-        deltas = log_spaced(1e-7, 1e-1, spec.per_decade)
-        compressed = list(compression_steps(jammed.packing, model, delta_phis=deltas))
-        fits = scaling_exponents(compressed)
-        result["phi_c_fitted"] = fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None
-        result["events"] = fits.events
-        for key, fit in (("p", fits.pressure), ("G", fits.shear_modulus), ("z", fits.z_excess)):
-            result[f"exponent_{key}"] = fit.exponent if fit is not None else None
-        result["compression"] = [s.row() for s in compressed]
+        compression = compress(jammed.packing, model, jammed.phi_c, spec.compress)
+        sections["compression"] = CompressionRecord.of(compression)
         if spec.protocol == "shear":
-            near = min(compressed, key=lambda s: abs(np.log(s.delta_phi / spec.shear_delta_phi)))
-            sheared = list(
-                shear_steps(near.packing, model, mode="pure", strain=spec.strain, step=spec.step)
+            run = shear(compression, model, spec.shear)
+            sections["shear"] = ShearRecord(
+                tuple(s.row() for s in run.steps), run.plastic_events, run.delta_phi
             )
-            result["shear"] = [s.row() for s in sheared]
-            result["plastic_events"] = sum(int(s.plastic) for s in sheared)
     elif spec.protocol == "iterations":
-        points = log_spaced(1e-6, 1e-1, 1)
-        counts: dict[str, list[float]] = {label: [] for label in ITERATION_METHODS}
-        for state in compression_steps(jammed.packing, model, delta_phis=points):
-            for label, how in ITERATION_METHODS.items():
-                fs = finite_strain_shear(state.packing, model, minimizer=how)
-                counts[label].append(float(np.mean(fs.iterations)))
-        result["delta_phi"] = points.tolist()
-        result["iterations_per_step"] = counts
-    result["seconds"] = time.perf_counter() - t0
-    _write_json(Path(f"{stem}.json"), result)
+        sections["iteration_counts"] = iteration_counts(
+            jammed.packing, model, jammed.phi_c, spec.iterations
+        )
+    result = Realization(
+        index=index,
+        seed=seed,
+        phi_c=jammed.phi_c,
+        phi_low=jammed.phi_low,
+        energy=obs.energy,
+        pressure=obs.pressure,
+        z=obs.z,
+        z_iso=isostatic_z(obs.n - obs.n_rattlers, spec.jam.dim),
+        n_rattlers=obs.n_rattlers,
+        excess_contacts=check.excess_contacts,
+        unjams_when_decompressed=check.unjams,
+        stable=check.stable,
+        checks_passed=check.passed,
+        steps=jammed.steps,
+        iterations=jammed.iterations,
+        seconds=time.perf_counter() - t0,
+        **sections,
+    )
+    _write_json(Path(f"{stem}.json"), result.to_json())
     return result
 
 
@@ -185,7 +227,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
 class EnsembleResult:
     """The realizations (by index), which of them this call computed, and the summary."""
 
-    realizations: list[dict[str, Any]]
+    realizations: list[Realization]
     computed: list[int]
     summary: dict[str, Any]
     engine: str
@@ -194,45 +236,60 @@ class EnsembleResult:
 
 
 def _stats(values: list[float]) -> dict[str, float]:
+    """Mean, standard deviation (``sd``, n - 1), standard error of the mean and count."""
     n = len(values)
     mean = statistics.fmean(values) if n else float("nan")
     sd = statistics.stdev(values) if n > 1 else 0.0
     return {"mean": mean, "sd": sd, "stderr": sd / np.sqrt(n) if n else float("nan"), "n": n}
 
 
-def summarize(spec: EnsembleSpec, realizations: list[dict[str, Any]]) -> dict[str, Any]:
-    """Mean, standard deviation and standard error of the realizations' numbers."""
+SUMMARY_FIT_LOWER = 1e-6
+"""The pooled fits of the summary use every realization's steps with ``Delta phi`` at least
+this (as :func:`~athermal.protocols.scaling_exponents`)."""
+
+
+def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, Any]:
+    """Mean, standard deviation and standard error of the realizations' numbers, and fits of
+    all realizations' compression steps pooled (``Delta phi`` against each one's own phi_c)."""
     summary: dict[str, Any] = {
         "realizations": len(realizations),
-        "phi_c": _stats([r["phi_c"] for r in realizations]),
-        "z_minus_z_iso": _stats([r["z"] - r["z_iso"] for r in realizations]),
-        "iterations": _stats([float(r["iterations"]) for r in realizations]),
+        "phi_c": _stats([r.phi_c for r in realizations]),
+        "z_minus_z_iso": _stats([r.z - r.z_iso for r in realizations]),
+        "pressure": _stats([r.pressure for r in realizations]),
+        "n_rattlers": _stats([float(r.n_rattlers) for r in realizations]),
+        "checks_passed": sum(int(r.checks_passed) for r in realizations),
+        "iterations": _stats([float(r.iterations) for r in realizations]),
     }
-    if spec.protocol in ("compress", "shear"):
-        for key in ("p", "G", "z"):
-            values = [
-                r[f"exponent_{key}"] for r in realizations if r[f"exponent_{key}"] is not None
-            ]
-            summary[f"exponent_{key}"] = _stats(values)
-        dphi = [row["phi"] - r["phi_c_fitted"] for r in realizations for row in r["compression"]]
-        pressure = [row["pressure"] for r in realizations for row in r["compression"]]
-        try:
-            pooled = fit_power_law(dphi, pressure, lower=1e-6)
-            summary["pooled_exponent_p"] = {"exponent": pooled.exponent, "stderr": pooled.stderr}
-        except InputError:
-            pass
-    if spec.protocol == "shear":
-        summary["plastic_events"] = _stats([float(r["plastic_events"]) for r in realizations])
-    if spec.protocol == "iterations":
-        labels = realizations[0]["iterations_per_step"] if realizations else {}
+    compressed = [r.compression for r in realizations if r.compression is not None]
+    if compressed:
+        for key, column in (("p", "pressure"), ("G", "shear_modulus"), ("z", "z_excess")):
+            values = [c.exponents[key] for c in compressed]
+            summary[f"exponent_{key}"] = _stats([v for v in values if v is not None])
+            x = [float(row["delta_phi"]) for c in compressed for row in c.rows]
+            y = [float(row[column]) for c in compressed for row in c.rows]
+            try:
+                pooled = fit_power_law(x, y, lower=SUMMARY_FIT_LOWER)
+            except InputError:
+                continue
+            summary[f"pooled_exponent_{key}"] = {
+                "exponent": pooled.exponent,
+                "stderr": pooled.stderr,
+                "points": pooled.points,
+                "delta_phi_range": [pooled.x_min, pooled.x_max],
+            }
+    sheared = [r.shear for r in realizations if r.shear is not None]
+    if sheared:
+        summary["plastic_events"] = _stats([float(h.plastic_events) for h in sheared])
+    counted = [r.iteration_counts for r in realizations if r.iteration_counts is not None]
+    if counted:
+        summary["delta_phi"] = list(counted[0].delta_phi)
         summary["iterations_per_step"] = {
-            label: [
-                _stats([r["iterations_per_step"][label][k] for r in realizations])
-                for k in range(len(realizations[0]["delta_phi"]))
+            name: [
+                _stats([c.iterations[name][k] for c in counted])
+                for k in range(len(counted[0].delta_phi))
             ]
-            for label in labels
+            for name in counted[0].iterations
         }
-        summary["delta_phi"] = realizations[0]["delta_phi"] if realizations else []
     return summary
 
 
@@ -283,12 +340,12 @@ def run_ensemble(
         if stored is None:
             _write_json(manifest, identity)
         seeds = child_seeds(seed, realizations)
-        results: dict[int, dict[str, Any]] = {}
+        results: dict[int, Realization] = {}
         for k in range(realizations):
             path = out / f"realization-{k:04d}.json"
             if path.exists():
-                result = _read_json(path)
-                if result is None or result.get("seed") != seeds[k]:
+                result = _read_realization(path)
+                if result is None or result.seed != seeds[k]:
                     warnings.warn(
                         f"{path}: unreadable or not this ensemble's; computed again", stacklevel=2
                     )
@@ -321,38 +378,55 @@ def run_ensemble(
 
 
 def _summary_files(
-    spec: EnsembleSpec, out: Path, realizations: list[dict[str, Any]], summary: dict[str, Any]
+    spec: EnsembleSpec, out: Path, realizations: list[Realization], summary: dict[str, Any]
 ) -> dict[str, str]:
     """``realizations.csv`` (the scalar numbers of each realization) and ``summary.png``."""
     from . import plot
     from .tables import write_table
 
-    scalar = [k for k, v in realizations[0].items() if isinstance(v, int | float)]
+    rows = [
+        {k: v for k, v in r.to_json().items() if isinstance(v, int | float)} for r in realizations
+    ]
     table = out / "realizations.csv"
-    write_table(
-        table, [{k: r[k] if r[k] is not None else "" for k in scalar} for r in realizations]
-    )
-    if spec.protocol == "iterations":
+    write_table(table, rows)
+    jam = spec.jam
+    title = f"N = {jam.n}, {jam.dim}D, alpha = {jam.alpha:g}, {len(realizations)} realizations"
+    counted = [r.iteration_counts for r in realizations if r.iteration_counts is not None]
+    if counted:
         figure = plot.iterations_figure(
             summary["delta_phi"],
             {
-                label: [
-                    [r["iterations_per_step"][label][k] for r in realizations]
-                    for k in range(len(summary["delta_phi"]))
-                ]
-                for label in summary["iterations_per_step"]
+                name: [[c.iterations[name][k] for c in counted] for k in range(len(c0))]
+                for name, c0 in counted[0].iterations.items()
             },
-            title=f"N = {spec.n}, {len(realizations)} realizations",
+            title=title,
+            error="sd",
         )
     else:
-        phi_c = summary["phi_c"]
-        figure = plot.histogram_figure(
-            [r["phi_c"] for r in realizations],
-            xlabel=r"$\phi_c$",
-            title=f"N = {spec.n}, {spec.dim}D: phi_c = {phi_c['mean']:.5f} ± {phi_c['sd']:.5f}",
-        )
+        panels = {
+            r"$\phi_c$": [r.phi_c for r in realizations],
+            r"$z - z_{iso}$": [r.z - r.z_iso for r in realizations],
+            rf"$p / \epsilon^{{\alpha - 1}}$ ($\epsilon$ = {jam.epsilon:g})": [
+                r.pressure / jam.epsilon ** (jam.alpha - 1.0) for r in realizations
+            ],
+        }
+        compressed = [r.compression for r in realizations if r.compression is not None]
+        for key in ("p", "G"):
+            values = [c.exponents[key] for c in compressed if c.exponents[key] is not None]
+            if values:
+                panels[f"exponent of {key}"] = values
+        figure = plot.summary_figure(panels, title=title)
     picture = plot.save(figure, out / "summary.png")
     return {"table": str(table), "figure": str(picture)}
+
+
+def _read_realization(path: Path) -> Realization | None:
+    """The realization in ``path``, or None when it is not one (a damaged file)."""
+    data = _read_json(path)
+    try:
+        return None if data is None else Realization.from_json(data)
+    except (KeyError, TypeError, ValueError):
+        return None
 
 
 def _read_json(path: Path) -> dict[str, Any] | None:
@@ -372,7 +446,7 @@ def _compute(
     workers: int | None,
     scheduler: str | None,
     retries: int,
-    results: dict[int, dict[str, Any]],
+    results: dict[int, Realization],
     say: Callable[[str], None],
     prefix: str,
 ) -> str:
@@ -384,7 +458,7 @@ def _compute(
         warnings.warn(f"{INSTALL_HINT}: running the realizations one after another", stacklevel=3)
         for k in todo:
             results[k] = run_realization(spec, k, seeds[k], str(out))
-            say(f"realization {k} done (phi_c {results[k]['phi_c']:.7f})")
+            say(f"realization {k} done (phi_c {results[k].phi_c:.7f})")
         return "sequential"
     if scheduler is not None:
         client = Client(scheduler)
@@ -418,8 +492,8 @@ def _compute(
         ]
         for future in as_completed(futures):
             result = future.result()
-            results[result["index"]] = result
-            say(f"realization {result['index']} done (phi_c {result['phi_c']:.7f})")
+            results[result.index] = result
+            say(f"realization {result.index} done (phi_c {result.phi_c:.7f})")
     finally:
         client.close()
         if cluster is not None:

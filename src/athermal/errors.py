@@ -11,3 +11,8 @@ class FileFormatError(InputError):
 
 class ConvergenceError(RuntimeError):
     """A protocol step whose energy minimization did not converge (the message says how)."""
+
+
+def one_line(exc: BaseException) -> str:
+    """The message of ``exc`` on one line (its type's name when it has none)."""
+    return " ".join(str(exc).split()) or type(exc).__name__

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import uuid
 from collections.abc import Mapping
 from dataclasses import dataclass
 from math import isqrt
@@ -29,9 +28,10 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._validate import float_array
+from .atomic import replacing
 from .cell import Cell
 from .contact import ContactModel
-from .errors import FileFormatError, InputError
+from .errors import FileFormatError, InputError, one_line
 from .packing import Packing
 
 PathLike = str | os.PathLike[str]
@@ -127,23 +127,13 @@ def append_gsd(
     frame = _hoomd_frame(packing, model, seed, observables, step=count)
     # appended to a copy that replaces the file once complete: an append that fails (a full
     # disk, a kill) leaves the trajectory exactly as it was
-    temporary = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
-    try:
+    what = "cannot append a frame"
+    with replacing(target, what=what, why=lambda exc: _why(exc, target)) as temporary:
         shutil.copyfile(target, temporary)
         with gsd.hoomd.open(str(temporary), "r+") as traj:
             traj.append(frame)
             traj.flush()
             count = len(traj)
-        _fsync(temporary)
-        _replace_durably(temporary, target)
-    except BaseException as exc:
-        temporary.unlink(missing_ok=True)
-        if isinstance(exc, OSError | RuntimeError):
-            raise FileFormatError(
-                f"{target}: cannot append a frame ({_why(exc, target)}); the trajectory is "
-                "unchanged"
-            ) from exc
-        raise
     return count
 
 
@@ -167,7 +157,7 @@ def read_gsd(path: PathLike, frame: int = -1) -> Frame:
             }
         except _GSD_ERRORS as exc:
             raise FileFormatError(
-                f"{source}: frame {index} cannot be read ({_one_line(exc)})"
+                f"{source}: frame {index} cannot be read ({one_line(exc)})"
             ) from None
     where = f"{source}: frame {index}"
     packing = _packing(where, snapshot, stored)
@@ -185,10 +175,6 @@ def count_frames(path: PathLike) -> int:
         return len(traj)
 
 
-def _one_line(exc: BaseException) -> str:
-    return " ".join(str(exc).split()) or type(exc).__name__
-
-
 def _open_read(source: Path) -> gsd.hoomd.HOOMDTrajectory:
     if not source.exists():
         raise FileFormatError(f"{source}: no such file")
@@ -198,7 +184,7 @@ def _open_read(source: Path) -> gsd.hoomd.HOOMDTrajectory:
         return gsd.hoomd.open(str(source), "r")
     except _GSD_ERRORS as exc:
         raise FileFormatError(
-            f"{source}: not a readable GSD file in the HOOMD schema ({_one_line(exc)})"
+            f"{source}: not a readable GSD file in the HOOMD schema ({one_line(exc)})"
         ) from None
 
 
@@ -262,23 +248,10 @@ def claim(path: PathLike) -> Claim:
     return Claim(lock, handle)
 
 
-def _fsync(target: Path) -> None:
-    with open(target, "rb+") as handle:
-        os.fsync(handle.fileno())
-
-
 def _write_atomic(target: Path, frame: gsd.hoomd.Frame) -> None:
-    temporary = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
-    try:
+    with replacing(target, why=lambda exc: _why(exc, target)) as temporary:
         with gsd.hoomd.open(str(temporary), "x") as traj:
             traj.append(frame)
-        _fsync(temporary)
-        _replace_durably(temporary, target)
-    except BaseException as exc:
-        temporary.unlink(missing_ok=True)
-        if isinstance(exc, OSError | RuntimeError):
-            raise FileFormatError(f"{target}: cannot write ({_why(exc, target)})") from exc
-        raise
 
 
 def _why(exc: BaseException, target: Path) -> str:
@@ -286,19 +259,8 @@ def _why(exc: BaseException, target: Path) -> str:
     if isinstance(exc, RuntimeError):
         needed = 2 * (target.stat().st_size if target.exists() else 0) + 2**20
         if shutil.disk_usage(target.parent).free < needed:
-            return f"no space left on the device ({_one_line(exc)})"
-    return _one_line(exc)
-
-
-def _replace_durably(temporary: Path, target: Path) -> None:
-    """Rename ``temporary`` onto ``target`` and make the rename durable."""
-    os.replace(temporary, target)
-    if os.name == "posix":
-        directory = os.open(target.parent, os.O_RDONLY)
-        try:
-            os.fsync(directory)
-        finally:
-            os.close(directory)
+            return f"no space left on the device ({one_line(exc)})"
+    return one_line(exc)
 
 
 def _hoomd_frame(

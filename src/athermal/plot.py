@@ -1,27 +1,41 @@
 """Figures of the seed paper with matplotlib: packings with contact forces, convergence,
-scaling laws, iteration counts and shear curves. Each function returns a
+scaling laws, iteration counts, shear curves and ensemble histograms. Each function returns a
 :class:`matplotlib.figure.Figure` (no global pyplot state); :func:`save` writes one atomically.
+
+Units: the unit cell, stiffness ``k = 1``; energies ``k l^alpha``, stresses, pressures and
+moduli ``k l^(alpha-d)``, forces and gradients ``k l^(alpha-1)`` (``l`` a length).
 """
 
 from __future__ import annotations
 
 import os
-import uuid
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .atomic import replacing
 from .contact import ContactModel, find_contacts
 from .errors import InputError
 from .fitting import PowerLaw
+from .observables import rattlers
 from .packing import Packing
 
 if TYPE_CHECKING:
+    from matplotlib.artist import Artist
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
+
+MAX_FORCE_WIDTH = 2.0
+"""Width (points) of the line of the largest force in a packing of up to 1024 disks drawn
+``size = 6`` inches wide; larger packings get ``sqrt(1024 / N)`` of it."""
+MIN_FORCE_WIDTH = 0.05
+"""Force lines thinner than this (points) are not drawn."""
+FORCE_COLOR = "firebrick"
+GRADIENT_UNITS = r"($k\,\ell^{\alpha-1}$)"
+STRESS_UNITS = r"($k\,\ell^{\alpha-d}$)"
 
 
 def _figure(width: float = 5.0, height: float = 4.0) -> Figure:
@@ -34,107 +48,281 @@ def _figure(width: float = 5.0, height: float = 4.0) -> Figure:
 
 def save(figure: Figure, path: str | os.PathLike[str], *, dpi: int = 150) -> Path:
     """Write ``figure`` to ``path`` (format from the suffix), replacing it atomically."""
-    target = Path(path)
-    temporary = target.with_name(f".{target.stem}.{uuid.uuid4().hex}{target.suffix}")
-    try:
+    with replacing(path) as temporary:
         figure.savefig(temporary, dpi=dpi)
-        os.replace(temporary, target)
-    finally:
-        temporary.unlink(missing_ok=True)
-    return target
+    return Path(path)
 
 
-def packing_figure(
-    packing: Packing, model: ContactModel | None = None, *, title: str = "", size: float = 6.0
-) -> Figure:
-    """The disks of a 2D ``packing`` drawn to scale in its cell, periodic images included, and
-    (with ``model``) every contact force as a line between the centres whose width follows the
-    force. Small disks light, large dark."""
-    if packing.dim != 2:
-        raise InputError(f"packing_figure: draws 2D packings, got dim = {packing.dim}")
+def max_force_width(n: int, size: float = 6.0) -> float:
+    """Line width (points) of the force equal to the force scale, for ``n`` disks drawn in a
+    panel ``size`` inches wide: :data:`MAX_FORCE_WIDTH` x ``min(1, sqrt(1024 / n))`` x
+    ``size / 6``, so lines stay thinner than the disks."""
+    return MAX_FORCE_WIDTH * min(1.0, float(np.sqrt(1024.0 / max(n, 1)))) * size / 6.0
+
+
+def _force_scale(packing: Packing, model: ContactModel) -> float:
+    """The largest contact force of ``packing`` (``k l^(alpha-1)``), 0 without contacts."""
+    force = find_contacts(packing.wrapped(), model).force_magnitude
+    return float(force.max()) if force.size else 0.0
+
+
+def _check_force_scale(force_scale: float) -> float:
+    scale = float(force_scale)
+    if not np.isfinite(scale) or scale <= 0.0:
+        raise InputError(f"force_scale: must be a finite force > 0, got {force_scale!r}")
+    return scale
+
+
+def _draw_packing(
+    ax: Axes,
+    packing: Packing,
+    model: ContactModel | None,
+    force_scale: float | None,
+    max_width: float,
+) -> tuple[float | None, int]:
+    """Draw disks (rattlers white with a dashed grey edge), cell and force lines into ``ax``;
+    return the force scale used (None without ``model`` or contacts) and the rattler count
+    (0 when every particle is one: an unjammed packing has no network to rattle in)."""
     from matplotlib.collections import EllipseCollection, LineCollection
     from matplotlib.patches import Polygon
 
-    fig = _figure(size, size)
-    ax = fig.add_subplot()
     wrapped = packing.wrapped()
     h = packing.cell.h
-    images = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=float)
-    centres = (wrapped.positions[None, :, :] + (images @ h.T)[:, None, :]).reshape(-1, 2)
+    images = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=np.float64)
+    shifts = images @ h.T
+    centres = (wrapped.positions[None, :, :] + shifts[:, None, :]).reshape(-1, 2)
     radii = np.tile(wrapped.radii, len(images))
     corners = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]]) @ h.T
     lo, hi = corners.min(axis=0), corners.max(axis=0)
     margin = 2.0 * float(radii.max())
     keep = np.all((centres > lo - margin) & (centres < hi + margin), axis=1)
-    shade = np.where(radii[keep] > np.median(packing.radii), 0.55, 0.8)
-    disks = EllipseCollection(
-        2 * radii[keep],
-        2 * radii[keep],
-        np.zeros(int(keep.sum())),
-        units="xy",
-        offsets=centres[keep],
-        offset_transform=ax.transData,
-        facecolors=np.column_stack([shade, shade, np.full_like(shade, 0.9)]),
-        edgecolors="0.3",
-        linewidths=0.3,
-    )
-    ax.add_collection(disks)
+    rattler = np.zeros(packing.n, dtype=bool)
+    scale: float | None = None
+    segments: NDArray[np.float64] | None = None
+    widths: NDArray[np.float64] | None = None
     if model is not None:
         contacts = find_contacts(wrapped, model)
-        if contacts.i.size:
-            force = contacts.force_magnitude
-            start = wrapped.positions[contacts.i]
-            segments = np.stack([start, start - contacts.branch], axis=1)
-            segments = np.concatenate([segments + shift for shift in images @ h.T])
-            widths = np.tile(0.3 + 3.0 * force / force.max(), len(images))
-            lines = LineCollection(list(segments), linewidths=widths, colors="firebrick")
-            ax.add_collection(lines)
+        rattler = rattlers(contacts, packing.n, packing.dim)
+        if rattler.all():  # no rigid network (unjammed): every disk drawn alike, none marked
+            rattler[:] = False
+        if force_scale is not None:
+            scale = _check_force_scale(force_scale)
+        elif contacts.i.size:
+            scale = float(contacts.force_magnitude.max())
+        if scale is not None and contacts.i.size:
+            width = np.minimum(max_width * contacts.force_magnitude / scale, max_width)
+            visible = width >= MIN_FORCE_WIDTH
+            start = wrapped.positions[contacts.i[visible]]
+            pairs = np.stack([start, start - contacts.branch[visible]], axis=1)
+            segments = np.concatenate([pairs + shift for shift in shifts])
+            widths = np.tile(width[visible], len(images))
+    tiled = np.tile(rattler, len(images))
+    shade = np.where(radii > np.median(packing.radii), 0.55, 0.8)
+    face = np.column_stack([shade, shade, np.full_like(shade, 0.9)])
+    for chosen, faces, edge, style, lw in (
+        (keep & ~tiled, face[keep & ~tiled], "0.3", "solid", 0.3),
+        (keep & tiled, "white", "0.45", "--", 0.6),
+    ):
+        if chosen.any():
+            ax.add_collection(
+                EllipseCollection(
+                    2 * radii[chosen],
+                    2 * radii[chosen],
+                    np.zeros(int(chosen.sum())),
+                    units="xy",
+                    offsets=centres[chosen],
+                    offset_transform=ax.transData,
+                    facecolors=faces,
+                    edgecolors=edge,
+                    linewidths=lw,
+                    linestyles=style,
+                    gid="rattlers" if style == "--" else "disks",
+                )
+            )
+    if segments is not None and widths is not None and widths.size:
+        lines = LineCollection(
+            list(segments), linewidths=widths, colors=FORCE_COLOR, capstyle="round", zorder=3
+        )
+        lines.set_gid("forces")
+        ax.add_collection(lines)
     ax.add_patch(Polygon(corners, closed=True, fill=False, edgecolor="black", linewidth=1.0))
     ax.set_xlim(lo[0], hi[0])
     ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])
+    return scale, int(rattler.sum())
+
+
+def _packing_key(
+    scale: float | None, max_width: float, n_rattlers: int | None
+) -> tuple[list[Artist], list[str]]:
+    """Legend handles: the force key (``f = scale`` at ``max_width``) and the rattler marker
+    (with its count when ``n_rattlers`` is given)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles: list[Artist] = []
+    labels: list[str] = []
+    if scale is not None:
+        handles.append(Line2D([], [], color=FORCE_COLOR, linewidth=max_width))
+        labels.append(rf"f = {scale:.2e} $k\,\ell^{{\alpha-1}}$")
+    if n_rattlers is None or n_rattlers > 0:
+        handles.append(Patch(facecolor="white", edgecolor="0.45", linestyle="--"))
+        labels.append("rattler" if n_rattlers is None else f"rattler ({n_rattlers})")
+    return handles, labels
+
+
+def packing_figure(
+    packing: Packing,
+    model: ContactModel | None = None,
+    *,
+    title: str = "",
+    size: float = 6.0,
+    force_scale: float | None = None,
+    ax: Axes | None = None,
+) -> Figure:
+    """The disks of a 2D ``packing`` drawn to scale in its unit cell, periodic images included;
+    small disks light, large dark. With ``model``: every contact force ``f`` as a line between
+    the centres of width ``w = max_force_width(N, size) x min(1, f / force_scale)`` points
+    (lines with ``w <`` :data:`MIN_FORCE_WIDTH` omitted), rattlers (the rule of
+    :func:`athermal.observables.rattlers`) white with a dashed grey edge, and a key.
+
+    ``force_scale`` (``k l^(alpha-1)``) defaults to this packing's largest force; pass one
+    shared value to compare packings. ``size``: figure width in inches (with ``ax``, the panel
+    width, used for line widths only). With ``ax``, draws into it and returns its figure.
+    """
+    if packing.dim != 2:
+        raise InputError(f"packing_figure: draws 2D packings, got dim = {packing.dim}")
+    if ax is None:
+        fig = _figure(size, size)
+        ax = fig.add_subplot()
+    else:
+        from matplotlib.figure import Figure
+
+        owner = ax.get_figure()
+        root = owner if owner is None or isinstance(owner, Figure) else owner.figure
+        if not isinstance(root, Figure):
+            raise InputError("packing_figure: ax belongs to no figure")
+        fig = root
+    width = max_force_width(packing.n, size)
+    scale, n_rattlers = _draw_packing(ax, packing, model, force_scale, width)
+    if model is not None:
+        handles, labels = _packing_key(scale, width, n_rattlers)
+        if handles:
+            ax.legend(
+                handles,
+                labels,
+                loc="upper center",
+                bbox_to_anchor=(0.5, 0.0),
+                ncols=len(handles),
+                frameon=False,
+                fontsize="small",
+            )
     ax.set_title(title or f"N = {packing.n}, phi = {packing.phi:.6f}")
     return fig
 
 
-def convergence_figure(histories: Mapping[str, NDArray[np.float64]], *, title: str = "") -> Figure:
-    """``max_i |grad_i|`` (the l-infinity gradient norm) against the iteration, one line per
-    method (the seed's convergence figure)."""
-    fig = _figure()
+def jamming_figure(
+    snapshots: Sequence[tuple[str, Packing]], model: ContactModel, *, title: str = ""
+) -> Figure:
+    """The seed's jamming figure: one panel per ``(label, packing)`` (e.g. initial,
+    intermediate, jammed) side by side, titled ``(a) label``, ``(b) label``, ...; all force
+    lines on ONE absolute scale, the largest force over all snapshots, with one key."""
+    if not snapshots:
+        raise InputError("jamming_figure: needs at least one snapshot")
+    panel = 4.0
+    fig = _figure(panel * len(snapshots), panel + 0.9)
+    axes = fig.subplots(1, len(snapshots), squeeze=False)[0]
+    forces = [_force_scale(packing, model) for _, packing in snapshots]
+    shared = max(forces)
+    width = max_force_width(max(packing.n for _, packing in snapshots), panel)
+    for k, (ax, (label, packing)) in enumerate(zip(axes, snapshots, strict=True)):
+        if packing.dim != 2:
+            raise InputError(f"jamming_figure: draws 2D packings, got dim = {packing.dim}")
+        _, n_rattlers = _draw_packing(ax, packing, model, shared if shared > 0 else None, width)
+        ax.set_title(f"({chr(ord('a') + k)}) {label}")
+        note = f"{n_rattlers} rattlers of {packing.n}" if n_rattlers else "no rigid network"
+        ax.set_xlabel(note if model is not None else "", fontsize="small")
+    handles, labels = _packing_key(shared if shared > 0 else None, width, None)
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(handles), frameon=False)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def convergence_figure(
+    histories: Mapping[str, NDArray[np.float64]],
+    *,
+    title: str = "",
+    tolerance: float | None = None,
+    ylabel: str = r"$\max_i |\nabla_i E|$ " + GRADIENT_UNITS,
+) -> Figure:
+    """``max_i |grad_i E|`` (l-infinity gradient norm, ``k l^(alpha-1)``) against the
+    iteration, one line per method (the seed's convergence figure); ``tolerance`` (the same
+    units) as a dashed horizontal line. Put alpha and N in ``title``."""
+    fig = _figure(7.0, 4.0)
     ax = fig.add_subplot()
     for label, history in histories.items():
-        ax.semilogy(np.arange(len(history)), history, label=label, linewidth=1.0)
+        ax.semilogy(np.arange(len(history)), history, label=label, linewidth=0.8)
+    if tolerance is not None:
+        ax.axhline(float(tolerance), color="0.3", linestyle="--", linewidth=0.8, label="tolerance")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=5, integer=True))
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
     ax.set_xlabel("iteration")
-    ax.set_ylabel(r"$\max_i |\nabla_i E|$")
+    ax.set_ylabel(ylabel)
     ax.set_title(title)
-    ax.legend()
+    fig.legend(loc="outside right upper", fontsize="small", frameon=False)
     return fig
 
 
 def _loglog(
-    ax: Axes, x: Sequence[float], y: Sequence[float], fit: PowerLaw | None, label: str
+    ax: Axes,
+    x: Sequence[float],
+    y: Sequence[float],
+    fit: PowerLaw | None,
+    label: str,
+    reference: float | None,
 ) -> None:
-    """Points (filled where fitted, open outside the fit's range) and the fit over its range."""
-    xs, ys = np.asarray(x), np.asarray(y)
+    """Points (filled where fitted, open outside the fit's range), the fit over its range with
+    its window shaded, and (``reference``) a dotted line of that slope a factor 2 below the
+    middle fitted point."""
+    xs, ys = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     ok = (xs > 0) & (ys > 0)
     inside = ok if fit is None else ok & (xs >= fit.x_min) & (xs <= fit.x_max)
     (line,) = ax.loglog(xs[inside], ys[inside], "o", markersize=3, label=label)
-    ax.loglog(
-        xs[ok & ~inside], ys[ok & ~inside], "o", markersize=3, mfc="none", color=line.get_color()
-    )
+    color = line.get_color()
+    ax.loglog(xs[ok & ~inside], ys[ok & ~inside], "o", markersize=3, mfc="none", color=color)
     if fit is not None:
+        ax.axvspan(fit.x_min, fit.x_max, color=color, alpha=0.07, linewidth=0)
         grid = np.geomspace(fit.x_min, fit.x_max, 50)
         ax.loglog(
             grid,
             fit(grid),
             "-",
-            color=line.get_color(),
+            color=color,
             linewidth=0.8,
-            label=f"slope {fit.exponent:.2f} ± {fit.stderr:.2f} ({fit.points} points, "
-            f"{fit.x_min:.0e} ... {fit.x_max:.0e})",
+            label=f"fit: slope {fit.exponent:.2f} ± {fit.stderr:.2f} ({fit.points} points, "
+            f"shaded {fit.x_min:.0e} ... {fit.x_max:.0e})",
         )
+    if reference is not None:
+        anchor = inside if inside.any() else ok
+        if anchor.any():
+            order = np.argsort(xs[anchor])
+            x0 = float(xs[anchor][order][order.size // 2])
+            y0 = float(ys[anchor][order][order.size // 2]) / 2.0
+            span = np.geomspace(float(xs[ok].min()), float(xs[ok].max()), 2)
+            ax.loglog(
+                span,
+                y0 * (span / x0) ** reference,
+                ":",
+                color="0.5",
+                linewidth=1.0,
+                label=f"slope {reference:g} (expected, {label})",
+                gid="reference",
+            )
 
 
 def scaling_figure(
@@ -144,18 +332,23 @@ def scaling_figure(
     *,
     ylabel: str,
     title: str = "",
+    reference_slopes: Mapping[str, float] | None = None,
+    phi_c_note: str | None = None,
 ) -> Figure:
-    """``values[label]`` against ``delta_phi[label]`` on log-log axes with the fitted slope,
-    one series per label (e.g. ``alpha = 2`` and ``alpha = 2.5``); open markers lie outside the
-    fit (below its window, or dropped)."""
-    fig = _figure()
+    """``values[label]`` against ``delta_phi[label]`` on log-log axes, one series per label
+    (e.g. ``alpha = 2``): fitted points filled, the others open, the fit over its (shaded)
+    window, and a grey dotted line of slope ``reference_slopes[label]`` (the expected
+    exponent) where given. ``ylabel`` should carry units; ``phi_c_note`` explains phi_c."""
+    fig = _figure(6.4, 4.8)
     ax = fig.add_subplot()
+    slopes = reference_slopes or {}
     for label in values:
-        _loglog(ax, delta_phi[label], values[label], fits.get(label), label)
-    ax.set_xlabel(r"$\phi - \phi_c$ ($\phi_c$ of the jamming protocol)")
+        _loglog(ax, delta_phi[label], values[label], fits.get(label), label, slopes.get(label))
+    note = r"$\phi_c$ of the jamming protocol" if phi_c_note is None else phi_c_note
+    ax.set_xlabel(r"$\phi - \phi_c$" + (f" ({note})" if note else ""))
     ax.set_ylabel(ylabel)
     ax.set_title(title)
-    ax.legend(fontsize="small")
+    ax.legend(fontsize="x-small")
     return fig
 
 
@@ -164,62 +357,127 @@ def iterations_figure(
     counts: Mapping[str, Sequence[Sequence[float]]],
     *,
     title: str = "",
+    error: str = "sd",
 ) -> Figure:
-    """Mean iteration count against ``delta_phi`` with standard-deviation error bars, one
-    series per method; ``counts[label][k]`` are the realizations at ``delta_phi[k]``."""
-    fig = _figure()
+    """Mean iteration count against ``delta_phi``, one series per method;
+    ``counts[label][k]`` are the realizations at ``delta_phi[k]``. Error bars: the sample
+    standard deviation (``error="sd"``) or the standard error of the mean (``"stderr"``),
+    named in the y label and legend title. Tick labels are plain integers."""
+    if error not in ("sd", "stderr"):
+        raise InputError(f"error: expected 'sd' or 'stderr', got {error!r}")
+    from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
+
+    fig = _figure(5.5, 4.0)
     ax = fig.add_subplot()
+    every: list[float] = []
     for label, per_point in counts.items():
-        means = [float(np.mean(v)) for v in per_point]
-        sds = [float(np.std(v, ddof=1)) if len(v) > 1 else 0.0 for v in per_point]
-        ax.errorbar(delta_phi, means, yerr=sds, marker="o", markersize=3, capsize=2, label=label)
+        means, bars = [], []
+        for v in per_point:
+            data = np.asarray(v, dtype=np.float64)
+            sd = float(np.std(data, ddof=1)) if data.size > 1 else 0.0
+            means.append(float(np.mean(data)) if data.size else np.nan)
+            bars.append(sd / np.sqrt(data.size) if error == "stderr" and data.size else sd)
+        every.extend(m for m in means if np.isfinite(m) and m > 0)
+        ax.errorbar(delta_phi, means, yerr=bars, marker="o", markersize=3, capsize=2, label=label)
     ax.set_xscale("log")
-    ax.set_yscale("log")
+    if every and max(every) > 10.0 * min(every):
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(NullFormatter())
+    else:
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel(r"$\phi - \phi_c$")
-    ax.set_ylabel("iterations per step")
+    ax.set_ylabel(f"iterations per step (mean ± {error})")
     ax.set_title(title)
-    ax.legend(fontsize="small")
+    ax.legend(fontsize="small", title=f"mean ± {error} over realizations", title_fontsize="small")
     return fig
 
 
 def shear_figure(curves: Mapping[str, Mapping[str, Sequence[float]]], *, title: str = "") -> Figure:
-    """The seed's shear-test figure: stress (left) and fabric (right), isotropic and deviatoric
-    parts against strain; ``curves[label]`` has ``strain``, ``stress_iso``, ``stress_dev``,
-    ``fabric_iso``, ``fabric_dev`` (one curve per strain increment)."""
-    fig = _figure(10.0, 4.0)
-    stress_ax, fabric_ax = fig.subplots(1, 2)
-    for label, c in curves.items():
-        (iso,) = stress_ax.plot(c["strain"], c["stress_iso"], "-", label=f"iso, {label}")
-        stress_ax.plot(
-            c["strain"], c["stress_dev"], "--", color=iso.get_color(), label=f"dev, {label}"
-        )
-        (fiso,) = fabric_ax.plot(c["strain"], c["fabric_iso"], "-", label=f"iso, {label}")
-        fabric_ax.plot(
-            c["strain"], c["fabric_dev"], "--", color=fiso.get_color(), label=f"dev, {label}"
-        )
-    from matplotlib.ticker import MaxNLocator
+    """The seed's shear-test figure on a 2 x 2 grid against the strain (dimensionless):
+    isotropic and deviatoric stress (``k l^(alpha-d)``, top) and fabric (dimensionless,
+    bottom), one line per curve; ``curves[label]`` (label: the strain increment) has
+    ``strain``, ``stress_iso``, ``stress_dev``, ``fabric_iso``, ``fabric_dev``. One legend."""
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
 
-    for ax in (stress_ax, fabric_ax):
+    fig = _figure(8.0, 6.0)
+    axes = fig.subplots(2, 2, sharex=True)
+    panels = (
+        ("stress_iso", r"$\sigma_{iso}$ " + STRESS_UNITS),
+        ("stress_dev", r"$\sigma_{dev}$ " + STRESS_UNITS),
+        ("fabric_iso", r"$F_{iso}$"),
+        ("fabric_dev", r"$F_{dev}$"),
+    )
+    for ax, (key, ylabel) in zip(axes.flat, panels, strict=True):
+        for label, c in curves.items():
+            ax.plot(c["strain"], c[key], "-", linewidth=1.0, label=label)
+        formatter = ScalarFormatter(useMathText=True)
+        formatter.set_powerlimits((-2, 3))
+        ax.yaxis.set_major_formatter(formatter)
         ax.xaxis.set_major_locator(MaxNLocator(5))
-    stress_ax.set_xlabel(r"strain $\gamma$")
-    stress_ax.set_ylabel(r"stress $\sigma$")
-    fabric_ax.set_xlabel(r"strain $\gamma$")
-    fabric_ax.set_ylabel("fabric $F$")
-    stress_ax.legend(fontsize="x-small")
-    fabric_ax.legend(fontsize="x-small")
-    fig.suptitle(title)
+        ax.set_ylabel(ylabel)
+    for ax in axes[1]:
+        ax.set_xlabel(r"strain $\gamma$")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    if handles:
+        fig.legend(
+            handles,
+            labels,
+            loc="outside right upper",
+            title="strain increment",
+            fontsize="small",
+        )
+    if title:
+        fig.suptitle(title)
     return fig
 
 
-def histogram_figure(values: Sequence[float], *, xlabel: str, title: str = "") -> Figure:
-    """A histogram of ``values`` (e.g. phi_c over realizations) with their mean marked."""
-    fig = _figure()
-    ax = fig.add_subplot()
+def _histogram(ax: Axes, values: Sequence[float], xlabel: str) -> None:
+    """Histogram of ``values`` with integer counts, the mean (line) and mean ± sd (band)."""
+    from matplotlib.ticker import MaxNLocator
+
     data = np.asarray(values, dtype=np.float64)
-    ax.hist(data, bins=max(5, int(np.sqrt(data.size)) + 1), color="steelblue", edgecolor="white")
-    ax.axvline(float(data.mean()), color="firebrick", label=f"mean {data.mean():.5f}")
+    if data.size == 0:
+        raise InputError(f"histogram: no values for {xlabel!r}")
+    mean = float(data.mean())
+    sd = float(data.std(ddof=1)) if data.size > 1 else 0.0
+    heights, _, _ = ax.hist(
+        data, bins=max(5, int(np.sqrt(data.size)) + 1), color="steelblue", edgecolor="white"
+    )
+    if sd > 0:
+        ax.axvspan(mean - sd, mean + sd, color="firebrick", alpha=0.12, linewidth=0, zorder=0)
+    ax.axvline(mean, color="firebrick", label=f"mean ± sd = {mean:.5g} ± {sd:.2g}")
+    ax.set_ylim(0.0, 1.3 * float(np.max(heights)))
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel(xlabel)
     ax.set_ylabel("realizations")
+    ax.legend(fontsize="small")
+
+
+def histogram_figure(values: Sequence[float], *, xlabel: str, title: str = "") -> Figure:
+    """A histogram of ``values`` (e.g. phi_c over realizations; ``xlabel`` with units) with
+    integer counts and the mean ± sample sd marked (line and band)."""
+    fig = _figure()
+    ax = fig.add_subplot()
+    _histogram(ax, values, xlabel)
     ax.set_title(title)
-    ax.legend()
+    return fig
+
+
+def summary_figure(panels: Mapping[str, Sequence[float]], *, title: str = "") -> Figure:
+    """The ensemble summary: one histogram per quantity (key: its axis label with units, e.g.
+    ``phi_c``, ``z - z_iso``, ``p / eps^(alpha-1)``), integer counts of realizations and the
+    mean ± sd marked in each; up to 3 panels a row."""
+    if not panels:
+        raise InputError("summary_figure: needs at least one quantity")
+    columns = min(3, len(panels))
+    rows = -(-len(panels) // columns)
+    fig = _figure(4.0 * columns, 3.4 * rows)
+    axes: Any = fig.subplots(rows, columns, squeeze=False)
+    for ax, (label, values) in zip(axes.flat, panels.items(), strict=False):
+        _histogram(ax, values, label)
+    for ax in list(axes.flat)[len(panels) :]:
+        ax.set_visible(False)
+    if title:
+        fig.suptitle(title)
     return fig

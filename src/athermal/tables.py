@@ -1,35 +1,17 @@
-"""Per-step tables of the protocols as CSV files, and text files, written atomically."""
+"""Per-step tables of the protocols as CSV files, written atomically."""
 
 from __future__ import annotations
 
 import csv
 import io
 import os
-import uuid
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from .atomic import write_text
 from .errors import FileFormatError, InputError
 
 Row = Mapping[str, float | int | str]
-
-
-def write_text_atomic(path: str | os.PathLike[str], text: str) -> None:
-    """Replace ``path`` by ``text`` (UTF-8) atomically: a temporary file in the same directory,
-    flushed to disk, then renamed; on any error a file already at ``path`` is left untouched."""
-    target = Path(path)
-    temporary = target.with_name(f".{target.name}.{uuid.uuid4().hex}.tmp")
-    try:
-        with open(temporary, "x", newline="", encoding="utf-8") as handle:
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        os.replace(temporary, target)
-    except BaseException as exc:
-        temporary.unlink(missing_ok=True)
-        if isinstance(exc, OSError):
-            raise FileFormatError(f"{target}: cannot write ({exc})") from exc
-        raise
 
 
 def write_table(path: str | os.PathLike[str], rows: Sequence[Row]) -> None:
@@ -48,7 +30,7 @@ def write_table(path: str | os.PathLike[str], rows: Sequence[Row]) -> None:
     writer.writerow(columns)
     for row in rows:
         writer.writerow([repr(v) if isinstance(v, float) else v for v in row.values()])
-    write_text_atomic(path, buffer.getvalue())
+    write_text(path, buffer.getvalue())
 
 
 def _value(text: str) -> float | str:

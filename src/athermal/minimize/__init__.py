@@ -11,26 +11,13 @@ from __future__ import annotations
 
 from typing import Literal
 
-from .._validate import choice
 from ..objective import Objective
 from ..precon import PRECONDITIONERS, PreconName, SolverName, make_preconditioner
 from .cg import cg
 from .fire import fire
 from .lbfgs import lbfgs
 from .result import MinimizeResult, Preconditioner
-
-Method = Literal["lbfgs", "cg", "fire", "plbfgs", "pcg"]
-METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "plbfgs", "pcg")
-_ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
-
-
-def resolve_method(method: str, precon: PreconName = "none") -> tuple[str, PreconName]:
-    """The base method (``lbfgs``, ``cg``, ``fire``) and preconditioner that ``method`` with
-    ``precon`` names: ``plbfgs`` and ``pcg`` imply ``exp`` unless another is given."""
-    choice(method, "method", METHODS)
-    choice(precon, "precon", PRECONDITIONERS)
-    base, implied = _ALIASES.get(method, (method, "none"))
-    return base, implied if precon == "none" else precon
+from .spec import METHODS, RTOL, Method, Minimizer, resolve_method
 
 
 def minimize(
@@ -97,7 +84,10 @@ def minimize(
 __all__ = [
     "METHODS",
     "PRECONDITIONERS",
+    "RTOL",
+    "Method",
     "MinimizeResult",
+    "Minimizer",
     "Preconditioner",
     "minimize",
     "resolve_method",

@@ -1,6 +1,6 @@
 """Quasi-static protocols, each a generator of relaxed steps: jamming, compression, shear."""
 
-from ._relax import Minimizer
+from ..minimize import Minimizer
 from .compress import (
     EVENTS,
     CompressionStep,
@@ -10,12 +10,7 @@ from .compress import (
     log_spaced,
     scaling_exponents,
 )
-from .finite_strain import (
-    ITERATION_METHODS,
-    FiniteStrain,
-    finite_strain_bulk,
-    finite_strain_shear,
-)
+from .finite_strain import FiniteStrain, finite_strain_bulk, finite_strain_shear
 from .jamming import (
     JAMMING_MINIMIZER,
     JAMMING_SCHEME,
@@ -31,7 +26,6 @@ from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
 
 __all__ = [
     "EVENTS",
-    "ITERATION_METHODS",
     "JAMMING_MINIMIZER",
     "JAMMING_SCHEME",
     "PHI_INIT",

@@ -3,57 +3,25 @@ their tolerances are stated in."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..cell import Cell
 from ..contact import ContactModel, Contacts, find_contacts
-from ..errors import ConvergenceError, InputError
-from ..minimize import Method, MinimizeResult, minimize, resolve_method
+from ..errors import ConvergenceError
+from ..minimize import Minimizer, MinimizeResult, minimize, resolve_method
 from ..moduli import stability
 from ..objective import Objective
 from ..packing import Packing
-from ..precon import PreconName, SolverName, make_preconditioner
+from ..precon import make_preconditioner
 
 MAX_ESCAPES = 3
 """How often :meth:`Relaxer.relax_to_minimum` leaves a saddle along its negative mode before it
 gives up."""
 ROUND_OFF_MARGIN = 10.0
 """:func:`round_off_floor` is this many times the round-off estimate ``eps (L kappa + f)``."""
-
-
-@dataclass(frozen=True)
-class Minimizer:
-    """The energy minimizer a protocol relaxes every step with.
-
-    Parameters
-    ----------
-    method : ``lbfgs``, ``cg``, ``fire`` or the seed's ``plbfgs`` / ``pcg``.
-    precon : ``none``, ``exp`` (the seed's, weights parameter ``A``) or ``contact``.
-    A : Exp weight decay (dimensionless, >= 0).
-    solver : ``auto``, ``direct`` or ``amg`` for the preconditioner's linear solves.
-    maxiter : iteration limit of one relaxation; reaching it stops the protocol with a
-        :class:`~athermal.errors.ConvergenceError`.
-    """
-
-    method: Method = "lbfgs"
-    precon: PreconName = "none"
-    A: float = 0.0
-    solver: SolverName = "auto"
-    maxiter: int = 1_000_000
-
-    def __post_init__(self) -> None:
-        resolve_method(self.method, self.precon)
-        if int(self.maxiter) != self.maxiter or self.maxiter < 1:
-            raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
-
-    @property
-    def label(self) -> str:
-        """``method`` or ``method+precon``, e.g. ``lbfgs+exp``."""
-        base, precon = resolve_method(self.method, self.precon)
-        return base if precon == "none" else f"{base}+{precon}"
 
 
 class Relaxer:

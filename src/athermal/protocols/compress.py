@@ -27,7 +27,7 @@ from .._validate import float_array
 from ..contact import ContactModel, find_contacts
 from ..errors import InputError
 from ..fitting import PowerLaw, fit_jamming_point, fit_power_law
-from ..minimize import MinimizeResult
+from ..minimize import RTOL, MinimizeResult
 from ..moduli import linear_response
 from ..objective import Objective
 from ..observables import isostatic_contacts, measure
@@ -35,8 +35,6 @@ from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
 from .jamming import overlap_distance
 
-RTOL = 1e-9
-"""Default tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at a step's start."""
 EVENTS = ("unjammed", "pressure drop", "saddle left", "unstable to shear")
 """What a compression step reports when it happens (``CompressionStep.events``): no pressure or
 no rigid backbone (every particle a rattler); a pressure below the previous step's; a saddle

@@ -19,6 +19,7 @@ from .._validate import float_array
 from ..cell import isotropic, simple_shear
 from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import InputError
+from ..minimize import RTOL
 from ..objective import Objective
 from ..observables import pressure, shear_stress, stress
 from ..packing import Packing
@@ -27,14 +28,6 @@ from ._relax import Minimizer, Relaxer, force_tolerance
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
 """The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
 DEFAULT_STRAINS.setflags(write=False)
-ITERATION_METHODS = {
-    "L-BFGS": Minimizer("lbfgs"),
-    "P-L-BFGS (Exp)": Minimizer("lbfgs", "exp"),
-    "contact P-L-BFGS": Minimizer("lbfgs", "contact"),
-}
-"""The minimizers of the seed's iteration experiment (plus the contact-stiffness one)."""
-RTOL = 1e-9
-"""Default tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at a step's start."""
 
 
 @dataclass(frozen=True, eq=False)

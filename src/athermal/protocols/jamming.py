@@ -45,7 +45,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
@@ -77,7 +77,7 @@ JAMMING_SCHEME = 2
 PHI_INIT = {2: 0.8, 3: 0.6}
 """Default start fraction by dimension: unjammed after relaxation (phi_c ~ 0.84 in 2D and
 ~0.64 in 3D for the bidisperse 1:1, 1.4 mixture)."""
-RTOL = 1e-6
+TRIAL_RTOL = 1e-6
 """Default force tolerance of the trial steps, relative to the mean contact force at a step's
 start."""
 FINAL_RTOL = 1e-10
@@ -339,7 +339,7 @@ def jamming_steps(
     epsilon: float = 1e-6,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
-    rtol: float = RTOL,
+    rtol: float = TRIAL_RTOL,
     final_rtol: float = FINAL_RTOL,
     resume: Sequence[JammingStep] = (),
 ) -> Iterator[JammingStep]:
@@ -467,7 +467,9 @@ def check_jammed(
     epsilon = positive_scalar(epsilon, "epsilon")
     if energy_tol is None:
         energy_tol = (epsilon / (10.0 * packing.dim)) ** model.alpha
-    trials = _Trials(packing, model, minimizer or JAMMING_MINIMIZER, energy_tol, RTOL, FINAL_RTOL)
+    trials = _Trials(
+        packing, model, minimizer or JAMMING_MINIMIZER, energy_tol, TRIAL_RTOL, FINAL_RTOL
+    )
     delta = DECOMPRESSION * epsilon
     below = trials.relax(packing.phi - delta, packing, False, "decompression check")
     contacts = find_contacts(packing, model)
@@ -493,11 +495,17 @@ def jam(
     epsilon: float = 1e-6,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
-    rtol: float = RTOL,
+    rtol: float = TRIAL_RTOL,
     final_rtol: float = FINAL_RTOL,
+    resume: Sequence[JammingStep] = (),
+    on_step: Callable[[JammingStep], None] | None = None,
 ) -> JammingResult:
     """Run :func:`jamming_steps` to the end, check the jammed packing (:func:`check_jammed`;
     a ``UserWarning`` names any check that fails) and return it.
+
+    ``resume`` continues an interrupted run from its completed steps (as in
+    :func:`jamming_steps`); ``on_step`` sees each newly completed step (e.g. to append it to a
+    trajectory) before the next begins.
 
     Examples
     --------
@@ -507,18 +515,21 @@ def jam(
     True
     """
     t0 = time.perf_counter()
-    history = tuple(
-        jamming_steps(
-            start,
-            model,
-            dphi=dphi,
-            epsilon=epsilon,
-            minimizer=minimizer,
-            energy_tol=energy_tol,
-            rtol=rtol,
-            final_rtol=final_rtol,
-        )
-    )
+    history = list(resume)
+    for step in jamming_steps(
+        start,
+        model,
+        dphi=dphi,
+        epsilon=epsilon,
+        minimizer=minimizer,
+        energy_tol=energy_tol,
+        rtol=rtol,
+        final_rtol=final_rtol,
+        resume=resume,
+    ):
+        history.append(step)  # the resumed steps are not yielded again
+        if on_step is not None:
+            on_step(step)
     final = history[-1]
     check = check_jammed(
         final.packing, model, epsilon=epsilon, minimizer=minimizer, energy_tol=energy_tol
@@ -539,5 +550,5 @@ def jam(
         iterations=sum(s.iterations for s in history),
         evaluations=sum(s.evaluations for s in history),
         seconds=time.perf_counter() - t0,
-        history=history,
+        history=tuple(history),
     )

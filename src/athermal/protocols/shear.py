@@ -26,11 +26,11 @@ from .._validate import choice, positive_scalar
 from ..cell import pure_shear, simple_shear
 from ..contact import ContactModel
 from ..errors import InputError
+from ..minimize import RTOL
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
-from .compress import RTOL
 
 ShearMode = Literal["simple", "pure"]
 SHEAR_MODES: tuple[str, ...] = ("simple", "pure")

@@ -14,8 +14,8 @@ import stat
 from collections.abc import Callable
 from pathlib import Path
 
-from .errors import InputError
-from .protocols import PHI_INIT
+from ..errors import InputError
+from ..protocols import PHI_INIT
 
 BYTES_PER_PARTICLE = 2000
 """Memory one particle costs a protocol run, an upper estimate (positions, radii, Verlet list of
@@ -63,6 +63,8 @@ def _options(args: argparse.Namespace) -> None:
         "dphi_max": (lambda v: 0 < v < 1, "in (0, 1)"),
         "per_decade": (lambda v: v >= 1, "an integer >= 1"),
         "strain": (lambda v: v > 0, "> 0"),
+        "delta_phi": (lambda v: v > 0, "> 0"),
+        "shear_delta_phi": (lambda v: 0 < v < 1, "in (0, 1)"),
         "step": (lambda v: v > 0, "> 0"),
         "realizations": (lambda v: v >= 1, "an integer >= 1"),
         "workers": (lambda v: v >= 1, "an integer >= 1"),
@@ -98,13 +100,13 @@ def _work(args: argparse.Namespace) -> None:
                 f"--dphi: {args.dphi:g} needs ~{(1.0 - start) / args.dphi:.2g} growth steps to "
                 f"reach phi = 1 (at most {MAX_STEPS}); take a larger increment"
             )
-    if args.command == "compress":
+    if args.command in ("compress", "ensemble"):
         if not args.dphi_min < args.dphi_max:
             raise InputError(f"--from {args.dphi_min:g} must be below --to {args.dphi_max:g}")
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
-    if args.command == "shear":
+    if args.command in ("shear", "ensemble"):
         if args.step > args.strain:
             raise InputError(f"--step {args.step:g} exceeds --strain {args.strain:g}")
         if args.strain / args.step > MAX_STEPS:

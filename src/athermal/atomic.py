@@ -1,0 +1,54 @@
+"""Files replaced atomically and durably, the one way every writer of athermal uses: write a
+temporary file beside the target, flush it to disk, rename it onto the target and flush the
+directory. An error (a full disk, a kill) leaves a file already at the target untouched."""
+
+from __future__ import annotations
+
+import os
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from .errors import FileFormatError, one_line
+
+
+def _fsync(path: Path) -> None:
+    """Flush the file ``path`` to disk."""
+    with open(path, "rb+") as handle:
+        os.fsync(handle.fileno())
+
+
+@contextmanager
+def replacing(
+    path: str | os.PathLike[str],
+    *,
+    what: str = "cannot write",
+    why: Callable[[BaseException], str] = one_line,
+) -> Iterator[Path]:
+    """Yield a temporary path beside ``path`` (same suffix) to write; once the block ends, it
+    replaces ``path``. An ``OSError`` or ``RuntimeError`` in the block becomes a
+    :class:`FileFormatError` ``"{path}: {what} ({why(exc)})"``; the temporary file is removed."""
+    target = Path(path)
+    temporary = target.with_name(f".{target.stem}.{uuid.uuid4().hex}.tmp{target.suffix}")
+    try:
+        yield temporary
+        _fsync(temporary)
+        os.replace(temporary, target)
+        if os.name == "posix":
+            directory = os.open(target.parent if str(target.parent) else ".", os.O_RDONLY)
+            try:
+                os.fsync(directory)
+            finally:
+                os.close(directory)
+    except BaseException as exc:
+        temporary.unlink(missing_ok=True)
+        if isinstance(exc, OSError | RuntimeError) and not isinstance(exc, FileFormatError):
+            raise FileFormatError(f"{target}: {what} ({why(exc)})") from exc
+        raise
+
+
+def write_text(path: str | os.PathLike[str], text: str) -> None:
+    """Replace ``path`` by ``text`` (UTF-8) atomically."""
+    with replacing(path) as temporary:
+        temporary.write_text(text, encoding="utf-8")

@@ -1,0 +1,85 @@
+"""The ``athermal`` command (docs/contract.md): the parser (:mod:`.parser`), the checks of a
+request before any work (:mod:`.door`), the subcommands (:mod:`.basic`, :mod:`.protocols`,
+:mod:`.studies`) and their one printer (:mod:`.printer`)."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import warnings
+from collections.abc import Callable, Sequence
+
+from ..errors import ConvergenceError, InputError
+from . import basic, protocols, studies
+from .door import check_request
+from .parser import build, subparser
+
+COMMANDS: dict[str, Callable[[argparse.Namespace], None]] = {
+    "random": basic.random,
+    "measure": basic.measure_file,
+    "relax": basic.relax,
+    "bench": basic.bench,
+    "jam": protocols.jam,
+    "compress": protocols.compress,
+    "shear": protocols.shear,
+    "paper": studies.paper,
+    "ensemble": studies.ensemble,
+}
+"""Each subcommand's function, by name."""
+
+
+def _version() -> str:
+    """The installed package's version."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("athermal")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _one_line_warning(command: str) -> Callable[..., None]:
+    """A ``warnings.showwarning`` that prints ``athermal COMMAND: warning: message`` on stderr."""
+
+    def show(message: Warning | str, *_: object, **__: object) -> None:
+        print(f"athermal {command}: warning: {message}", file=sys.stderr)
+
+    return show
+
+
+def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
+    """The parsed arguments; an unknown option is reported by its subcommand's parser."""
+    parser = build()
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:
+        subparser(parser, args.command).error(f"unrecognized arguments: {' '.join(unknown)}")
+    return args
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``athermal`` command; returns the exit code."""
+    args = _parse(argv)
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _one_line_warning(args.command)
+            check_request(args)
+            COMMANDS[args.command](args)
+    except BrokenPipeError:  # the reader of stdout went away (`athermal ... --json | head`)
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 141
+    except KeyboardInterrupt:
+        again = "; rerun with --resume to continue" if hasattr(args, "resume") else ""
+        print(f"athermal {args.command}: interrupted{again}", file=sys.stderr)
+        return 130
+    except (InputError, ConvergenceError) as exc:
+        print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
+        return 2 if isinstance(exc, InputError) else 3
+    except basic.NotConverged as exc:
+        print(f"athermal {args.command}: {exc}", file=sys.stderr)
+        return 3
+    except OSError as exc:
+        text = f"{exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")
+        print(f"athermal {args.command}: error: {text}", file=sys.stderr)
+        return 1
+    return 0

@@ -1,0 +1,145 @@
+"""The quick subcommands: ``random``, ``measure``, ``relax`` and ``bench``."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from typing import Any
+
+from .. import bench as table1
+from ..io import read_gsd, write_gsd
+from ..minimize import RTOL, minimize
+from ..objective import Objective
+from ..observables import Observables, measure
+from ..packing import random_packing
+from .common import file_observables, minimizer_from, model_from
+from .printer import emit
+
+
+class NotConverged(RuntimeError):
+    """A minimization that stopped short of its tolerance (its result was still written)."""
+
+
+def _observables(obs: Observables, as_json: bool) -> dict[str, Any]:
+    """The observables as printed: ``--json`` keeps the contract's keys and full precision;
+    plain text names each with its unit (docs/quantities.md)."""
+    if as_json:
+        return obs.to_dict()
+    return {
+        "particles": f"{obs.n} in {obs.dim}D",
+        "packing fraction phi": repr(float(obs.phi)),
+        "energy E": obs.energy,
+        "pressure p": obs.pressure,
+        "shear stress -sigma_xy": obs.shear_stress,
+        "stress iso / dev": f"{obs.stress_iso:.6g} / {obs.stress_dev:.6g}",
+        "fabric iso / dev": f"{obs.fabric_iso:.6g} / {obs.fabric_dev:.6g}",
+        "contacts": obs.contacts,
+        "rattlers": obs.n_rattlers,
+        "z (rattlers removed)": obs.z,
+        "max |grad_i|": obs.max_gradient,
+    }
+
+
+def _exact(value: Any) -> Any:
+    """A logged float as text with every digit (integers without a decimal point)."""
+    if isinstance(value, float):
+        return str(int(value)) if value.is_integer() and abs(value) < 2**53 else repr(value)
+    return value
+
+
+def random(args: argparse.Namespace) -> None:
+    """``athermal random``: a random packing and its observables."""
+    model = model_from(args, None)
+    start = time.perf_counter()
+    packing = random_packing(
+        args.n, args.phi, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
+    )
+    obs = measure(packing, model)
+    write_gsd(args.output, packing, model=model, seed=args.seed, observables=file_observables(obs))
+    extra = {
+        "seed": args.seed,
+        "output": args.output,
+        "seconds": round(time.perf_counter() - start, 4),
+    }
+    emit({**_observables(obs, args.json), **extra}, args.json)
+
+
+def measure_file(args: argparse.Namespace) -> None:
+    """``athermal measure``: the observables of one frame and what its writer logged."""
+    frame = read_gsd(args.input, frame=args.frame)
+    model = model_from(args, frame.model)
+    obs = measure(frame.packing, model)
+    logged = {
+        key: value.item() if value.ndim == 0 else value.tolist()
+        for key, value in frame.log.items()
+        if value.size <= 3 and key not in ("phi",)
+    }
+    if not args.json:  # every digit; counts as integers
+        logged = {k: _exact(v) for k, v in logged.items()}
+    emit(
+        {**_observables(obs, args.json), "alpha": model.alpha, "frame": args.frame, "log": logged},
+        args.json,
+    )
+
+
+def relax(args: argparse.Namespace) -> None:
+    """``athermal relax``: one energy minimization."""
+    frame = read_gsd(args.input)
+    model = model_from(args, frame.model)
+    measure(frame.packing, model)  # refuses coincident particles before any work
+    how = minimizer_from(args)
+    rtol = RTOL if args.gtol is None and args.rtol is None else args.rtol
+    res = minimize(
+        Objective(frame.packing, model),
+        how.method,
+        precon=how.precon,
+        A=how.A,
+        solver=how.solver,
+        gtol=args.gtol,
+        rtol=rtol,
+        maxiter=how.maxiter,
+    )
+    obs = measure(res.packing, model)
+    write_gsd(
+        args.output, res.packing, model=model, seed=frame.seed, observables=file_observables(obs)
+    )
+    summary = {
+        "method": res.method,
+        "precon": res.precon,
+        "converged": res.converged,
+        "message": res.message,
+        "iterations": res.iterations,
+        "evaluations": res.evaluations,
+        "seconds": round(res.seconds, 6),
+        "energy": res.energy,
+        "max_gradient": res.max_gradient,
+        "gtol": res.gtol,
+        "output": args.output,
+    }
+    emit({**_observables(obs, args.json), **summary}, args.json)
+    if not res.converged:
+        raise NotConverged(f"did not converge: {res.message}")
+
+
+def bench(args: argparse.Namespace) -> None:
+    """``athermal bench``: the seed's Table."""
+    if args.quick:
+        args.cases, args.alphas, args.methods, args.repeats = [3], [2.0], table1.QUICK_LABELS, 1
+    show = not args.quiet and sys.stderr.isatty()
+
+    def progress(row: table1.Row) -> None:
+        if show:
+            print(
+                f"alpha {row.alpha:g} case {row.case} {row.method}: {row.iterations} "
+                f"iterations, {row.seconds:.2f} s",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    rows = table1.table1(args.cases, args.alphas, args.methods, args.repeats, progress)
+    if args.json:
+        emit({"rows": [dataclasses.asdict(r) for r in rows]}, True)
+    else:
+        print(table1.markdown(rows), end="")

@@ -1,0 +1,54 @@
+"""What the subcommands share: progress on stderr, the contact model and minimizer of the
+options, the observables written with a configuration."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from ..contact import ContactModel
+from ..minimize import Minimizer
+from ..observables import Observables
+
+
+class Progress:
+    """One live line on stderr; shown only on a terminal and without ``--quiet``."""
+
+    def __init__(self, quiet: bool) -> None:
+        self.show = not quiet and sys.stderr.isatty()
+
+    def __call__(self, text: str) -> None:
+        if self.show:
+            print(f"\r\033[K{text}", end="", file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if self.show:
+            print(file=sys.stderr, flush=True)
+
+
+def model_from(args: argparse.Namespace, fallback: ContactModel | None) -> ContactModel:
+    """The contact model of ``--alpha`` / ``--stiffness``, else ``fallback``'s, else the default."""
+    base = fallback if fallback is not None else ContactModel()
+    return ContactModel(
+        alpha=base.alpha if args.alpha is None else args.alpha,
+        stiffness=base.stiffness if args.stiffness is None else args.stiffness,
+    )
+
+
+def minimizer_from(args: argparse.Namespace) -> Minimizer:
+    """The minimizer of ``--method``, ``--precon``, ``--A``, ``--solver``, ``--maxiter``."""
+    return Minimizer(args.method, args.precon, args.A, args.solver, args.maxiter)
+
+
+def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
+    """The observables written with a configuration."""
+    return {
+        "energy": obs.energy,
+        "pressure": obs.pressure,
+        "stress": obs.stress,
+        "fabric": obs.fabric,
+        "phi": obs.phi,
+        "z": obs.z,
+    }

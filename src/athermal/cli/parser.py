@@ -1,0 +1,413 @@
+"""The ``athermal`` command's parser: every subcommand, option and default (docs/contract.md).
+
+Every option's default is stated once, in its ``default=``; the help formatter prints it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+from typing import Any, NoReturn
+
+from .. import bench
+from ..minimize import METHODS, PRECONDITIONERS
+from ..protocols import SHEAR_MODES
+
+
+class _Help(argparse.HelpFormatter):
+    """Help with every default printed as ``(default: X)``; options without one say in their
+    help what they do when absent."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if (
+            "%(default)" in text
+            or default is None
+            or default is False
+            or default is argparse.SUPPRESS
+            or not action.option_strings
+        ):
+            return text
+        if isinstance(default, list):
+            return text + " (default: " + " ".join(str(d) for d in default) + ")"
+        return text + " (default: %(default)s)"
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with a one-line error (``athermal CMD: error: ...``, exit 2) naming the
+    subcommand, no usage dump."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", _Help)
+        super().__init__(*args, **kwargs)
+        # read "-1e-6" as a (bad) number, not as an option: argparse's own pattern misses
+        # exponents, and then says only "expected one argument"
+        self._negative_number_matcher = NEGATIVE_NUMBER
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
+NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
+STIFFNESS_HELP = "contact stiffness k"
+
+
+def _json(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--json", action="store_true", help="print one JSON object on stdout and nothing else"
+    )
+
+
+def _model(parser: argparse.ArgumentParser, *, from_file: bool) -> None:
+    """``--alpha`` and ``--stiffness``: a command with an input file defaults to the file's."""
+    if from_file:
+        parser.add_argument(
+            "--alpha",
+            type=float,
+            default=None,
+            help="contact exponent alpha >= 2 (2 = Hooke, 2.5 = Hertz; default: the file's, "
+            "else 2)",
+        )
+        parser.add_argument(
+            "--stiffness",
+            type=float,
+            default=None,
+            help="contact stiffness k (default: the file's, else 1)",
+        )
+    else:
+        parser.add_argument(
+            "--alpha",
+            type=float,
+            default=2.0,
+            help="contact exponent alpha >= 2 (2 = Hooke, 2.5 = Hertz)",
+        )
+        parser.add_argument(
+            "--stiffness", type=float, default=None, help="contact stiffness k (default: 1)"
+        )
+    _json(parser)
+
+
+def _minimizer(
+    parser: argparse.ArgumentParser, what: str, maxiter: int = 100_000, precon: str = "none"
+) -> None:
+    parser.add_argument(
+        "--method",
+        default="lbfgs",
+        choices=METHODS,
+        help=f"minimizer {what} (plbfgs / pcg: lbfgs / cg with --precon exp)".replace("  ", " "),
+    )
+    parser.add_argument("--precon", default=precon, choices=PRECONDITIONERS, help="preconditioner")
+    parser.add_argument("--A", type=float, default=0.0, help="Exp preconditioner parameter A")
+    parser.add_argument(
+        "--solver",
+        default="auto",
+        choices=("auto", "direct", "amg"),
+        help="linear solver of the preconditioner",
+    )
+    parser.add_argument("--maxiter", type=int, default=maxiter, help="iteration limit")
+
+
+def _protocol_outputs(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--table", default=None, help="per-step CSV table (default: the output with .csv)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    again = parser.add_mutually_exclusive_group()
+    again.add_argument(
+        "--resume",
+        action="store_true",
+        help="continue the interrupted run that wrote the trajectory (same arguments)",
+    )
+    again.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace existing outputs (removed only once the first step is done)",
+    )
+
+
+def _packing(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--n", type=int, default=1024, help="number of particles")
+    parser.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions")
+    parser.add_argument(
+        "--size-ratio", type=float, default=1.4, help="large / small radius (number ratio 1:1)"
+    )
+
+
+def _compression_range(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--from", dest="dphi_min", type=float, default=1e-7, help="smallest phi - phi_c"
+    )
+    parser.add_argument(
+        "--to", dest="dphi_max", type=float, default=1e-1, help="largest phi - phi_c"
+    )
+    parser.add_argument("--per-decade", type=int, default=4, help="compression steps per decade")
+
+
+def _shear_options(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--mode", default="pure", choices=SHEAR_MODES, help="shear mode")
+    parser.add_argument("--strain", type=float, default=0.02, help="final strain")
+    parser.add_argument("--step", type=float, default=1e-4, help="strain increment")
+
+
+def _frame(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--frame K`` or ``--delta-phi D``: which state of a multi-frame input to start from."""
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument(
+        "--frame",
+        type=int,
+        default=None,
+        help=f"frame of the input to {what} (negative counts from the end; default: the last)",
+    )
+    which.add_argument(
+        "--delta-phi",
+        type=float,
+        default=None,
+        help=f"{what} the frame whose logged phi - phi_c is nearest this (a compression "
+        "trajectory)",
+    )
+
+
+def build() -> argparse.ArgumentParser:
+    """The parser of every subcommand."""
+    from . import _version
+
+    parser = _Parser(
+        prog="athermal", description="Quasi-static simulation of athermal soft-particle packings."
+    )
+    parser.add_argument("--version", action="version", version=f"athermal {_version()}")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
+    )
+
+    rnd = sub.add_parser(
+        "random",
+        help="random bidisperse packing and its observables",
+        description="Place N particles at random (number ratio 1:1, size ratio --size-ratio) "
+        "in the unit cell at packing fraction --phi, write them to a GSD file and print their "
+        "observables.",
+    )
+    _packing(rnd)
+    rnd.add_argument("--phi", type=float, default=0.84, help="packing fraction")
+    rnd.add_argument("--seed", type=int, default=0, help="random seed")
+    rnd.add_argument("-o", "--output", required=True, help="GSD file to write")
+    rnd.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    _model(rnd, from_file=False)
+
+    mea = sub.add_parser(
+        "measure",
+        help="observables of a configuration",
+        description="Print the observables of one frame of a GSD file and the numbers its "
+        "writer logged with it (phi_c, strain, Delta phi, ...). Units and signs: "
+        "docs/quantities.md.",
+    )
+    mea.add_argument("input", help="GSD file (athermal's, or any HOOMD-schema file)")
+    mea.add_argument("--frame", type=int, default=-1, help="frame index (-1: the last)")
+    _model(mea, from_file=True)
+
+    rel = sub.add_parser(
+        "relax",
+        help="one energy minimization",
+        description="Relax the last frame of a GSD file to a force tolerance and write the "
+        "relaxed packing. Exit code 3 when it did not converge (the result is written and "
+        "reported all the same).",
+    )
+    rel.add_argument("input", help="GSD file")
+    rel.add_argument("-o", "--output", required=True, help="GSD file to write")
+    rel.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    _minimizer(rel, "")
+    tol = rel.add_mutually_exclusive_group()
+    tol.add_argument("--gtol", type=float, help="absolute tolerance on max_i |grad_i|")
+    tol.add_argument(
+        "--rtol",
+        type=float,
+        help="tolerance relative to the mean contact force (default: 1e-9 unless --gtol)",
+    )
+    _model(rel, from_file=True)
+
+    jam = sub.add_parser(
+        "jam",
+        help="jam a random packing (growth + bisection, the seed's Algorithm 1)",
+        description="Place N particles at random at --phi-init, then grow them by --dphi and "
+        "relax until the relaxed packing is jammed (E > 0, p > 0), and bisect the packing "
+        "fraction down to --epsilon; check the result (decompression unjams it, isostatic, "
+        "a minimum). Writes the jammed packing (its log holds phi_c), the trajectory of every "
+        "relaxed step, a per-step table and a picture.",
+    )
+    _packing(jam)
+    jam.add_argument("--seed", type=int, default=0, help="random seed")
+    jam.add_argument(
+        "--phi-init",
+        type=float,
+        default=None,
+        help="start packing fraction (default: 0.8 in 2D, 0.6 in 3D)",
+    )
+    jam.add_argument("--dphi", type=float, default=1e-3, help="growth increment of phi")
+    jam.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy of phi_c")
+    jam.add_argument("-o", "--output", required=True, help="GSD file for the jammed packing")
+    jam.add_argument(
+        "--trajectory",
+        default=None,
+        help="GSD trajectory of every relaxed step, always written (default: the output "
+        "with .steps.gsd)",
+    )
+    jam.add_argument(
+        "--picture",
+        default=None,
+        help="PNG of the jammed packing with its contact forces (2D; default: the output "
+        "with .png; 'none' for no picture)",
+    )
+    _minimizer(jam, "of every step", 1_000_000, "exp")
+    _protocol_outputs(jam)
+    _model(jam, from_file=False)
+
+    com = sub.add_parser(
+        "compress",
+        help="quasi-static compression above jamming (scaling laws)",
+        description="Grow the particles of a jammed packing to phi_c + delta phi for "
+        "log-spaced delta phi, relaxing each state; writes every state to a GSD trajectory "
+        "and a CSV table (pressure, energy, z, moduli by linear response, iterations) and "
+        "fits p, G and z - z_iso against delta phi.",
+    )
+    com.add_argument("input", help="GSD file with a jammed packing (e.g. from athermal jam)")
+    com.add_argument("-o", "--output", required=True, help="GSD trajectory to write")
+    com.add_argument(
+        "--frame", type=int, default=None, help="frame of the input (default: the last)"
+    )
+    com.add_argument(
+        "--phi-c",
+        type=float,
+        default=None,
+        help="jamming fraction (default: the frame's logged phi_c, else its phi)",
+    )
+    _compression_range(com)
+    com.add_argument(
+        "--rtol", type=float, default=1e-9, help="force tolerance, x the mean contact force"
+    )
+    _minimizer(com, "of every step", 1_000_000)
+    _protocol_outputs(com)
+    _model(com, from_file=True)
+
+    she = sub.add_parser(
+        "shear",
+        help="quasi-static simple or pure shear",
+        description="Deform a packing by small affine shear increments, relaxing after each; "
+        "writes every state to a GSD trajectory and a CSV table (stress and fabric, their "
+        "isotropic and deviatoric parts, the driven stress tau, plastic events). "
+        "tau = -sigma_xy in simple shear, (sigma_yy - sigma_xx) / 2 in pure shear "
+        "(docs/quantities.md).",
+    )
+    she.add_argument("input", help="GSD file with the start packing (or a compression trajectory)")
+    she.add_argument("-o", "--output", required=True, help="GSD trajectory to write")
+    _frame(she, "shear")
+    _shear_options(she)
+    she.add_argument(
+        "--rtol", type=float, default=1e-9, help="force tolerance, x the mean contact force"
+    )
+    _minimizer(she, "of every step", 1_000_000)
+    _protocol_outputs(she)
+    _model(she, from_file=True)
+
+    ens = sub.add_parser(
+        "ensemble",
+        help="many realizations of a protocol on Dask",
+        description="Run M realizations of jam, compress, shear or the iteration experiment, "
+        "realization k with the k-th child seed of SeedSequence(--seed), on a local Dask "
+        "cluster started here (--workers) or an existing one (--scheduler). Each realization "
+        "writes its trajectory and result into DIR; rerunning with the same DIR skips finished "
+        "ones; a summary (JSON, CSV, figure) aggregates them. Without the dask extra the "
+        "realizations run one after another.",
+    )
+    ens.add_argument("protocol", choices=("jam", "compress", "shear", "iterations"))
+    ens.add_argument("--realizations", type=int, required=True, help="how many (M)")
+    ens.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="local worker processes (default: one per core available)",
+    )
+    ens.add_argument("--scheduler", default=None, help="address of an existing scheduler")
+    ens.add_argument("--seed", type=int, default=0, help="root seed")
+    ens.add_argument("-o", "--output", required=True, help="directory of the ensemble")
+    _packing(ens)
+    ens.add_argument("--alpha", type=float, default=2.0, help="contact exponent")
+    ens.add_argument("--dphi", type=float, default=1e-3, help="jamming: growth increment")
+    ens.add_argument("--epsilon", type=float, default=1e-6, help="jamming: bisection accuracy")
+    ens.add_argument(
+        "--method", default="lbfgs", choices=METHODS, help="jamming: minimizer of every step"
+    )
+    ens.add_argument(
+        "--precon", default="exp", choices=PRECONDITIONERS, help="jamming: preconditioner"
+    )
+    _compression_range(ens)
+    _shear_options(ens)
+    ens.add_argument(
+        "--shear-delta-phi",
+        type=float,
+        default=1e-2,
+        help="shear: start from the compressed state nearest this phi - phi_c",
+    )
+    ens.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    _json(ens)
+
+    pap = sub.add_parser(
+        "paper",
+        help="reproduce the seed paper's figures, Table and exponents",
+        description="The jamming figure, the convergence of one relaxation, the scaling laws "
+        "of p, G and z for alpha = 2 and 2.5, the iteration experiment, the pure-shear test "
+        "and the Table, written as PNG figures and report.md into DIR. --quick (the default) "
+        "runs at N = 1024 in minutes; --full at the seed's N = 4096 (hours).",
+    )
+    pap.add_argument("-o", "--output", required=True, help="directory to write into")
+    size = pap.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="N = 1024 (the default)")
+    size.add_argument("--full", action="store_true", help="the seed's N = 4096")
+    pap.add_argument("--seed", type=int, default=0, help="root seed")
+    pap.add_argument(
+        "--overwrite", action="store_true", help="replace the report of an earlier run"
+    )
+    pap.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    _json(pap)
+
+    ben = sub.add_parser(
+        "bench",
+        help="the seed's Table benchmark (docs/benchmarks.md, B1)",
+        description="Minimizers and preconditioners on the three cases of the seed's Table "
+        "(N = 4096) to 1e-9 of the mean contact force, with scipy's L-BFGS-B as the in-run "
+        "reference. Prints a markdown table.",
+    )
+    ben.add_argument(
+        "--cases",
+        type=int,
+        nargs="+",
+        default=list(bench.CASES),
+        choices=bench.CASES,
+        help="cases",
+    )
+    ben.add_argument(
+        "--alphas", type=float, nargs="+", default=list(bench.ALPHAS), help="contact exponents"
+    )
+    ben.add_argument(
+        "--methods",
+        nargs="+",
+        default=None,
+        metavar="LABEL",
+        help="methods by label (default: all, " + ", ".join(bench.LABELS) + ")",
+    )
+    ben.add_argument("--repeats", type=int, default=3, help="timing repeats (their median)")
+    ben.add_argument(
+        "--quick",
+        action="store_true",
+        help="case 3, alpha 2, " + " / ".join(bench.QUICK_LABELS) + ", one repeat",
+    )
+    ben.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    _json(ben)
+    return parser
+
+
+def subparser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:
+    """The parser of subcommand ``command``."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            return action.choices[command]
+    raise KeyError(command)

@@ -1,0 +1,380 @@
+"""The protocol subcommands: ``jam``, ``compress`` and ``shear``.
+
+Each appends every completed step to its GSD trajectory (:mod:`athermal.checkpoint`), keeps the
+per-step CSV table current, shows a live line on stderr and prints a summary (``--json``: one
+object on stdout). ``--resume`` continues an interrupted run from its trajectory, bit for bit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+import numpy as np
+
+from ..checkpoint import Trajectory, compression_step, jamming_step, run_id, shear_step
+from ..contact import ContactModel, find_contacts
+from ..errors import InputError
+from ..experiments import JamSpec, jam_packing
+from ..io import Frame, count_frames, read_gsd, write_gsd
+from ..packing import Packing
+from ..protocols import (
+    JAMMING_SCHEME,
+    PHI_INIT,
+    compression_steps,
+    log_spaced,
+    scaling_exponents,
+    shear_steps,
+)
+from ..tables import Row, write_table
+from .common import Progress, file_observables, minimizer_from, model_from
+from .printer import emit
+
+S = TypeVar("S")
+
+
+class _Recorder(Generic[S]):
+    """Appends each completed step to the trajectory, rewrites the table, shows progress."""
+
+    def __init__(
+        self,
+        trajectory: Trajectory,
+        resumed: list[S],
+        table: str,
+        row: Callable[[S], Row],
+        describe: Callable[[S], str],
+        quiet: bool,
+    ) -> None:
+        self.trajectory, self.table, self.row, self.describe = trajectory, table, row, describe
+        self.steps = list(resumed)
+        self.rows = [row(s) for s in resumed]
+        self.progress = Progress(quiet)
+
+    def __call__(self, step: S) -> None:
+        self.trajectory.append(step)  # type: ignore[arg-type]
+        self.steps.append(step)
+        self.rows.append(self.row(step))
+        write_table(self.table, self.rows)
+        self.progress(self.describe(step))
+
+    def run(self, steps: Iterable[S]) -> list[S]:
+        """Record every step of ``steps``; return all, the resumed ones first."""
+        for step in steps:
+            self(step)
+        return self.close()
+
+    def close(self) -> list[S]:
+        self.progress.close()
+        if self.rows:
+            write_table(self.table, self.rows)
+        return self.steps
+
+
+def _digits(bracket: float) -> int:
+    """Decimals that show a number known to within ``bracket``."""
+    return max(1, round(-float(np.log10(bracket)))) if 0.0 < bracket < 1.0 else 6
+
+
+def _table_path(args: argparse.Namespace, output: str) -> str:
+    return args.table if args.table is not None else str(Path(output).with_suffix(".csv"))
+
+
+def _fingerprint(packing: Packing) -> str:
+    """Digest of a start configuration, so a resumed run checks it starts from the same one."""
+    digest = hashlib.sha256()
+    for arr in (packing.positions, packing.radii, packing.cell.h):
+        digest.update(np.ascontiguousarray(arr).tobytes())
+    return digest.hexdigest()
+
+
+def _trajectory(
+    args: argparse.Namespace,
+    path: str,
+    protocol: str,
+    model: ContactModel,
+    file_seed: int | None,
+    **parameters: Any,
+) -> Trajectory:
+    """The checkpoint of this run: its identity from every parameter, ``--resume`` and
+    ``--overwrite`` as given."""
+    identity = run_id(
+        protocol,
+        {
+            "alpha": model.alpha,
+            "stiffness": model.kmat.tolist(),
+            "minimizer": [args.method, args.precon, args.A, args.solver, args.maxiter],
+            **parameters,
+        },
+    )
+    return Trajectory(
+        path, identity, model=model, seed=file_seed, resume=args.resume, overwrite=args.overwrite
+    )
+
+
+def jam(args: argparse.Namespace) -> None:
+    """``athermal jam``: random packing, jamming by growth and bisection, the jammed packing."""
+    t0 = time.perf_counter()
+    model = model_from(args, None)
+    phi_init = PHI_INIT[args.dim] if args.phi_init is None else args.phi_init
+    spec = JamSpec(
+        n=args.n,
+        dim=args.dim,
+        alpha=model.alpha,
+        stiffness=float(model.stiffness),
+        size_ratio=args.size_ratio,
+        phi_init=phi_init,
+        dphi=args.dphi,
+        epsilon=args.epsilon,
+        minimizer=minimizer_from(args),
+    )
+    trajectory_path = args.trajectory or str(Path(args.output).with_suffix(".steps.gsd"))
+    trajectory = _trajectory(
+        args,
+        trajectory_path,
+        "jam",
+        model,
+        args.seed,
+        n=args.n,
+        dim=args.dim,
+        size_ratio=args.size_ratio,
+        seed=args.seed,
+        phi_init=phi_init,
+        dphi=args.dphi,
+        epsilon=args.epsilon,
+        scheme=JAMMING_SCHEME,
+    )
+    done = [jamming_step(f) for f in trajectory.frames]
+    table = _table_path(args, args.output)
+    record = _Recorder(
+        trajectory,
+        done,
+        table,
+        lambda s: s.row(),
+        lambda s: (
+            f"step {s.index} {s.phase} phi {s.phi:.9f} {'jammed' if s.jammed else 'unjammed'} "
+            f"E {s.energy:.3e} iterations {s.iterations}"
+        ),
+        args.quiet,
+    )
+    result = jam_packing(spec, args.seed, resume=done, on_step=record)
+    record.close()
+    obs, check = result.observables, result.check
+    write_gsd(
+        args.output,
+        result.packing,
+        model=model,
+        seed=args.seed,
+        observables={
+            **file_observables(obs),
+            "phi_c": result.phi_c,
+            "phi_low": result.phi_low,
+            "phi_high": result.phi_c,
+        },
+    )
+    bracket = result.phi_c - result.phi_low
+    phi_text = f"{result.phi_c:.{_digits(bracket)}f} (bracket {bracket:.1g})"
+    picture = None
+    if args.dim == 2 and args.picture != "none":
+        from ..plot import packing_figure, save
+
+        picture = args.picture or str(Path(args.output).with_suffix(".png"))
+        title = (
+            f"jammed: N = {args.n}, alpha = {model.alpha:g}\n"
+            f"phi_c = {phi_text}, z = {obs.z:.3f} (rattlers removed)"
+        )
+        save(packing_figure(result.packing, model, title=title), picture)
+    bound = (lambda phi: phi) if args.json else (lambda phi: f"{phi:.{_digits(bracket) + 2}f}")
+    emit(
+        {
+            "phi_c": result.phi_c if args.json else phi_text,
+            "phi_low": bound(result.phi_low),
+            "phi_high": bound(result.phi_c),
+            "energy": obs.energy,
+            "pressure": obs.pressure,
+            "z": obs.z,
+            "n_rattlers": obs.n_rattlers,
+            "contacts": obs.contacts,
+            "excess_contacts": check.excess_contacts,
+            "unjams_when_decompressed": check.unjams,
+            "decompression": check.decompression,
+            "stable": check.stable,
+            "checks_passed": check.passed,
+            "steps": result.steps,
+            "resumed_steps": len(done),
+            "iterations": result.iterations,
+            "seconds": round(time.perf_counter() - t0, 3),
+            "seed": args.seed,
+            "method": spec.minimizer.label,
+            "output": args.output,
+            "trajectory": trajectory_path,
+            "table": table,
+            "picture": picture,
+        },
+        args.json,
+    )
+
+
+def _frame_index(args: argparse.Namespace) -> int:
+    """The input frame that ``--frame`` or ``--delta-phi`` names (default: the last)."""
+    count = count_frames(args.input)
+    target = getattr(args, "delta_phi", None)
+    if target is not None:
+        logged = []
+        for k in range(count):
+            log = read_gsd(args.input, frame=k).log
+            if "delta_phi" in log:
+                logged.append((abs(np.log(float(log["delta_phi"]) / target)), k))
+        if not logged:
+            raise InputError(f"--delta-phi: {args.input} logs no delta_phi (not a compression)")
+        return min(logged)[1]
+    frame = -1 if args.frame is None else args.frame
+    if not -count <= frame < count:
+        raise InputError(f"--frame: {args.input} has {count} frames, no frame {frame}")
+    return frame % count
+
+
+def _start(args: argparse.Namespace) -> tuple[Packing, ContactModel, Frame, int]:
+    index = _frame_index(args)
+    frame = read_gsd(args.input, frame=index)
+    model = model_from(args, frame.model)
+    find_contacts(frame.packing, model)  # refuses coincident particles before any work
+    return frame.packing, model, frame, index
+
+
+def compress(args: argparse.Namespace) -> None:
+    """``athermal compress``: quasi-static compression of a jammed packing, with fits."""
+    t0 = time.perf_counter()
+    packing, model, frame, index = _start(args)
+    phi_c = args.phi_c
+    if phi_c is None and "phi_c" in frame.log:
+        phi_c = float(frame.log["phi_c"].reshape(-1)[0])
+    deltas = log_spaced(args.dphi_min, args.dphi_max, args.per_decade)
+    trajectory = _trajectory(
+        args,
+        args.output,
+        "compress",
+        model,
+        frame.seed,
+        start=_fingerprint(packing),
+        phi_c=phi_c,
+        deltas=deltas.tolist(),
+        rtol=args.rtol,
+    )
+    done = [compression_step(f) for f in trajectory.frames]
+    table = _table_path(args, args.output)
+    steps = _Recorder(
+        trajectory,
+        done,
+        table,
+        lambda s: s.row(),
+        lambda s: (
+            f"step {s.index + 1}/{deltas.size} delta phi {s.delta_phi:.1e} "
+            f"p {s.pressure:.3e} G {s.shear_modulus:.3e} iterations {s.iterations}"
+        ),
+        args.quiet,
+    ).run(
+        compression_steps(
+            packing,
+            model,
+            phi_c=phi_c,
+            delta_phis=deltas,
+            minimizer=minimizer_from(args),
+            rtol=args.rtol,
+            resume=done,
+        )
+    )
+    fits = scaling_exponents(steps)
+    laws = {
+        "pressure": fits.pressure,
+        "shear_modulus": fits.shear_modulus,
+        "z_excess": fits.z_excess,
+    }
+    exponents = {
+        name: None
+        if fit is None
+        else {
+            "exponent": fit.exponent,
+            "stderr": fit.stderr,
+            "points": fit.points,
+            "delta_phi_range": [fit.x_min, fit.x_max],
+        }
+        for name, fit in laws.items()
+    }
+    emit(
+        {
+            "table": table,
+            "exponents": exponents,
+            "phi_c": fits.phi_c,
+            "phi_c_fitted": fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None,
+            "events": fits.events,
+            "frame": index,
+            "steps": len(steps),
+            "resumed_steps": len(done),
+            "iterations": sum(s.iterations for s in steps),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "output": args.output,
+        },
+        args.json,
+    )
+
+
+def shear(args: argparse.Namespace) -> None:
+    """``athermal shear``: quasi-static simple or pure shear."""
+    t0 = time.perf_counter()
+    packing, model, frame, index = _start(args)
+    trajectory = _trajectory(
+        args,
+        args.output,
+        "shear",
+        model,
+        frame.seed,
+        start=_fingerprint(packing),
+        mode=args.mode,
+        strain=args.strain,
+        step=args.step,
+        rtol=args.rtol,
+    )
+    done = [shear_step(f, model) for f in trajectory.frames]
+    table = _table_path(args, args.output)
+    steps = _Recorder(
+        trajectory,
+        done,
+        table,
+        lambda s: s.row(),
+        lambda s: (
+            f"step {s.index} strain {s.strain:.2e} tau {s.tau:.3e} "
+            f"{'plastic ' if s.plastic else ''}iterations {s.iterations}"
+        ),
+        args.quiet,
+    ).run(
+        shear_steps(
+            packing,
+            model,
+            mode=args.mode,
+            strain=args.strain,
+            step=args.step,
+            minimizer=minimizer_from(args),
+            rtol=args.rtol,
+            resume=done,
+        )
+    )
+    start_log = {k: float(v) for k, v in frame.log.items() if k in ("phi", "phi_c", "delta_phi")}
+    emit(
+        {
+            "table": table,
+            "mode": args.mode,
+            "frame": index,
+            "start": start_log,
+            "steps": len(steps),
+            "resumed_steps": len(done),
+            "plastic_events": sum(int(s.plastic) for s in steps),
+            "iterations": sum(s.iterations for s in steps),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "output": args.output,
+        },
+        args.json,
+    )

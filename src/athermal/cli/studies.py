@@ -1,0 +1,78 @@
+"""The study subcommands: ``paper`` (the seed's figures and Table) and ``ensemble``."""
+
+from __future__ import annotations
+
+import argparse
+
+from ..experiments import CompressSpec, JamSpec, ShearSpec
+from ..minimize import Minimizer
+from .common import Progress
+from .printer import emit
+
+
+def paper(args: argparse.Namespace) -> None:
+    """``athermal paper``: every figure, the Table and the exponents of the seed paper."""
+    from ..paper import FULL, QUICK, reproduce
+
+    progress = Progress(args.quiet)
+    settings = FULL if args.full else QUICK
+    result = reproduce(args.output, settings, seed=args.seed, progress=progress)
+    progress.close()
+    emit(
+        {
+            "figures": result.figures,
+            "report": result.report,
+            "exponents": result.exponents,
+            "phi_c": result.phi_c,
+            "seconds": round(result.seconds, 1),
+        },
+        args.json,
+    )
+
+
+def ensemble(args: argparse.Namespace) -> None:
+    """``athermal ensemble``: M realizations of a protocol on Dask."""
+    from ..ensemble import EnsembleSpec, run_ensemble
+
+    spec = EnsembleSpec(
+        args.protocol,
+        jam=JamSpec(
+            n=args.n,
+            dim=args.dim,
+            alpha=args.alpha,
+            size_ratio=args.size_ratio,
+            dphi=args.dphi,
+            epsilon=args.epsilon,
+            minimizer=Minimizer(args.method, args.precon),
+        ),
+        compress=CompressSpec(
+            delta_min=args.dphi_min, delta_max=args.dphi_max, per_decade=args.per_decade
+        ),
+        shear=ShearSpec(
+            mode=args.mode, strain=args.strain, step=args.step, delta_phi=args.shear_delta_phi
+        ),
+    )
+    progress = Progress(args.quiet)
+    result = run_ensemble(
+        spec,
+        args.output,
+        args.realizations,
+        seed=args.seed,
+        workers=args.workers,
+        scheduler=args.scheduler,
+        progress=progress,
+    )
+    progress.close()
+    emit(
+        {
+            "realizations": [r.to_json() for r in result.realizations]
+            if args.json
+            else len(result.realizations),
+            "summary": result.summary,
+            "computed": result.computed,
+            "engine": result.engine,
+            "seconds": round(result.seconds, 3),
+            "files": result.files,
+        },
+        args.json,
+    )
