@@ -126,6 +126,16 @@ def _protocol_outputs(parser: argparse.ArgumentParser) -> None:
     )
 
 
+def _quasi_static(parser: argparse.ArgumentParser) -> None:
+    """The options of a protocol that relaxes every step of a file's packing."""
+    parser.add_argument(
+        "--rtol", type=float, default=1e-9, help="force tolerance, x the mean contact force"
+    )
+    _minimizer(parser, "of every step", 1_000_000)
+    _protocol_outputs(parser)
+    _model(parser, from_file=True)
+
+
 def _packing(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n", type=int, default=1024, help="number of particles")
     parser.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions")
@@ -281,12 +291,7 @@ def build() -> argparse.ArgumentParser:
         help="jamming fraction (default: the frame's logged phi_c, else its phi)",
     )
     _compression_range(com)
-    com.add_argument(
-        "--rtol", type=float, default=1e-9, help="force tolerance, x the mean contact force"
-    )
-    _minimizer(com, "of every step", 1_000_000)
-    _protocol_outputs(com)
-    _model(com, from_file=True)
+    _quasi_static(com)
 
     she = sub.add_parser(
         "shear",
@@ -301,12 +306,7 @@ def build() -> argparse.ArgumentParser:
     she.add_argument("-o", "--output", required=True, help="GSD trajectory to write")
     _frame(she, "shear")
     _shear_options(she)
-    she.add_argument(
-        "--rtol", type=float, default=1e-9, help="force tolerance, x the mean contact force"
-    )
-    _minimizer(she, "of every step", 1_000_000)
-    _protocol_outputs(she)
-    _model(she, from_file=True)
+    _quasi_static(she)
 
     ens = sub.add_parser(
         "ensemble",

@@ -42,22 +42,21 @@ class _Recorder(Generic[S]):
 
     def __init__(
         self,
+        args: argparse.Namespace,
         trajectory: Trajectory,
         resumed: list[S],
-        table: str,
-        row: Callable[[S], Row],
         describe: Callable[[S], str],
-        quiet: bool,
     ) -> None:
-        self.trajectory, self.table, self.row, self.describe = trajectory, table, row, describe
+        self.trajectory, self.describe = trajectory, describe
+        self.table = _table_path(args, args.output)
         self.steps = list(resumed)
-        self.rows = [row(s) for s in resumed]
-        self.progress = Progress(quiet)
+        self.rows: list[Row] = [s.row() for s in resumed]  # type: ignore[attr-defined]
+        self.progress = Progress(args.quiet)
 
     def __call__(self, step: S) -> None:
         self.trajectory.append(step)  # type: ignore[arg-type]
         self.steps.append(step)
-        self.rows.append(self.row(step))
+        self.rows.append(step.row())  # type: ignore[attr-defined]
         write_table(self.table, self.rows)
         self.progress(self.describe(step))
 
@@ -148,17 +147,14 @@ def jam(args: argparse.Namespace) -> None:
         scheme=JAMMING_SCHEME,
     )
     done = [jamming_step(f) for f in trajectory.frames]
-    table = _table_path(args, args.output)
     record = _Recorder(
+        args,
         trajectory,
         done,
-        table,
-        lambda s: s.row(),
         lambda s: (
             f"step {s.index} {s.phase} phi {s.phi:.9f} {'jammed' if s.jammed else 'unjammed'} "
             f"E {s.energy:.3e} iterations {s.iterations}"
         ),
-        args.quiet,
     )
     result = jam_packing(spec, args.seed, resume=done, on_step=record)
     record.close()
@@ -211,7 +207,7 @@ def jam(args: argparse.Namespace) -> None:
             "method": spec.minimizer.label,
             "output": args.output,
             "trajectory": trajectory_path,
-            "table": table,
+            "table": record.table,
             "picture": picture,
         },
         args.json,
@@ -265,18 +261,16 @@ def compress(args: argparse.Namespace) -> None:
         rtol=args.rtol,
     )
     done = [compression_step(f) for f in trajectory.frames]
-    table = _table_path(args, args.output)
-    steps = _Recorder(
+    record = _Recorder(
+        args,
         trajectory,
         done,
-        table,
-        lambda s: s.row(),
         lambda s: (
             f"step {s.index + 1}/{deltas.size} delta phi {s.delta_phi:.1e} "
             f"p {s.pressure:.3e} G {s.shear_modulus:.3e} iterations {s.iterations}"
         ),
-        args.quiet,
-    ).run(
+    )
+    steps = record.run(
         compression_steps(
             packing,
             model,
@@ -306,7 +300,7 @@ def compress(args: argparse.Namespace) -> None:
     }
     emit(
         {
-            "table": table,
+            "table": record.table,
             "exponents": exponents,
             "phi_c": fits.phi_c,
             "phi_c_fitted": fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None,
@@ -339,18 +333,16 @@ def shear(args: argparse.Namespace) -> None:
         rtol=args.rtol,
     )
     done = [shear_step(f, model) for f in trajectory.frames]
-    table = _table_path(args, args.output)
-    steps = _Recorder(
+    record = _Recorder(
+        args,
         trajectory,
         done,
-        table,
-        lambda s: s.row(),
         lambda s: (
             f"step {s.index} strain {s.strain:.2e} tau {s.tau:.3e} "
             f"{'plastic ' if s.plastic else ''}iterations {s.iterations}"
         ),
-        args.quiet,
-    ).run(
+    )
+    steps = record.run(
         shear_steps(
             packing,
             model,
@@ -365,7 +357,7 @@ def shear(args: argparse.Namespace) -> None:
     start_log = {k: float(v) for k, v in frame.log.items() if k in ("phi", "phi_c", "delta_phi")}
     emit(
         {
-            "table": table,
+            "table": record.table,
             "mode": args.mode,
             "frame": index,
             "start": start_log,
