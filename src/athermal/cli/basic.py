@@ -118,6 +118,8 @@ def relax(args: argparse.Namespace) -> None:
         "gtol": res.gtol,
         "output": args.output,
     }
+    if not args.json:  # printed with the observables already
+        del summary["energy"], summary["max_gradient"]
     emit({**_observables(obs, args.json), **summary}, args.json)
     if not res.converged:
         raise NotConverged(f"did not converge: {res.message}")

@@ -13,6 +13,12 @@ import numpy as np
 
 DIGITS = 6
 """Significant digits of a printed number (``--json`` keeps every digit)."""
+PHI_DIGITS = 10
+"""Significant digits of a packing fraction (``phi``, ``phi_c``, ...): known to 1e-6 or better."""
+
+
+def _digits(key: str) -> int:
+    return PHI_DIGITS if key.startswith("phi") else DIGITS
 
 
 def plain(value: Any) -> Any:
@@ -81,7 +87,7 @@ def lines(summary: Mapping[str, Any], indent: str = "") -> list[str]:
             and all(not isinstance(v, dict | list) for v in value.values())
             and len(value) <= 6
         ):
-            text = "  ".join(f"{k} {number(v)}" for k, v in value.items())
+            text = "  ".join(f"{k} {number(v, _digits(k))}" for k, v in value.items())
             out.append(f"{indent}{key:<{width}}  {text}")
         elif isinstance(value, dict) and value:
             out.append(f"{indent}{key}")
@@ -90,7 +96,8 @@ def lines(summary: Mapping[str, Any], indent: str = "") -> list[str]:
             out.append(f"{indent}{key}")
             out += _table(value, indent + "  ")
         else:
-            out.append(f"{indent}{key:<{width}}  {_cell(value)}")
+            text = number(value, _digits(key)) if isinstance(value, float) else _cell(value)
+            out.append(f"{indent}{key:<{width}}  {text}")
     return out
 
 
