@@ -50,7 +50,6 @@ class _Parser(argparse.ArgumentParser):
 
 
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
-STIFFNESS_HELP = "contact stiffness k"
 
 
 def _json(parser: argparse.ArgumentParser) -> None:
