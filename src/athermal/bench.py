@@ -23,7 +23,7 @@ import scipy.optimize
 from .cell import Cell, simple_shear
 from .contact import ContactModel
 from .errors import InputError
-from .minimize import RTOL, Minimizer, minimize
+from .minimize import RTOL, Minimizer, relax
 from .objective import Objective
 from .packing import Packing
 
@@ -127,15 +127,7 @@ def run(start: Packing, model: ContactModel, method: Minimizer | None) -> Row:
             gmax / f0,
             gmax <= RTOL * f0,
         )
-    out = minimize(
-        objective,
-        method.method,
-        precon=method.precon,
-        A=method.A,
-        solver=method.solver,
-        rtol=RTOL,
-        maxiter=50_000,
-    )
+    out = relax(objective, method, rtol=RTOL, maxiter=50_000)
     seconds = time.perf_counter() - t0
     return Row(
         0,

@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 
 from .contact import ContactModel
 from .errors import InputError
-from .minimize import RTOL, Minimizer, minimize
+from .minimize import RTOL, Minimizer, relax
 from .objective import Objective
 from .packing import Packing, random_packing
 from .protocols import (
@@ -282,15 +282,7 @@ def convergence(jammed: Packing, model: ContactModel, spec: ConvergenceSpec) -> 
     histories = {}
     tolerance = float("nan")
     for method in spec.methods:
-        result = minimize(
-            Objective(grown, model),
-            method.method,
-            precon=method.precon,
-            A=method.A,
-            solver=method.solver,
-            rtol=spec.rtol,
-            maxiter=method.maxiter,
-        )
+        result = relax(Objective(grown, model), method, rtol=spec.rtol)
         histories[method.name] = result.history_max_gradient
         tolerance = result.gtol
     return Convergence(grown, histories, tolerance)

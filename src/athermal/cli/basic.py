@@ -10,7 +10,8 @@ from typing import Any
 
 from .. import bench as table1
 from ..io import read_gsd, write_gsd
-from ..minimize import RTOL, minimize
+from ..minimize import RTOL
+from ..minimize import relax as minimize_with
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import random_packing
@@ -89,17 +90,9 @@ def relax(args: argparse.Namespace) -> None:
     frame = read_gsd(args.input)
     model = model_from(args, frame.model)
     measure(frame.packing, model)  # refuses coincident particles before any work
-    how = minimizer_from(args)
     rtol = RTOL if args.gtol is None and args.rtol is None else args.rtol
-    res = minimize(
-        Objective(frame.packing, model),
-        how.method,
-        precon=how.precon,
-        A=how.A,
-        solver=how.solver,
-        gtol=args.gtol,
-        rtol=rtol,
-        maxiter=how.maxiter,
+    res = minimize_with(
+        Objective(frame.packing, model), minimizer_from(args), gtol=args.gtol, rtol=rtol
     )
     obs = measure(res.packing, model)
     write_gsd(

@@ -81,6 +81,28 @@ def minimize(
     return fire(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, etol=etol, precon=pre)
 
 
+def relax(
+    objective: Objective,
+    how: Minimizer,
+    *,
+    gtol: float | None = None,
+    rtol: float | None = None,
+    maxiter: int | None = None,
+) -> MinimizeResult:
+    """:func:`minimize` with the method, preconditioner, ``A``, solver and (unless given)
+    ``maxiter`` of ``how``."""
+    return minimize(
+        objective,
+        how.method,
+        precon=how.precon,
+        A=how.A,
+        solver=how.solver,
+        gtol=gtol,
+        rtol=rtol,
+        maxiter=how.maxiter if maxiter is None else maxiter,
+    )
+
+
 __all__ = [
     "METHODS",
     "PRECONDITIONERS",
@@ -90,5 +112,6 @@ __all__ = [
     "Minimizer",
     "Preconditioner",
     "minimize",
+    "relax",
     "resolve_method",
 ]
