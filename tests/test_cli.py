@@ -406,8 +406,14 @@ def test_plain_output_is_rounded_and_has_no_python_reprs(compression_file, tmp_p
     code, out, _ = run(capsys, *compress, "--per-decade", "1")
     assert code == 0
     assert "np.float64" not in out and "{" not in out and "'" not in out
-    exponent = next(line for line in out.splitlines() if line.strip().startswith("exponent "))
-    assert len(exponent.split()[-1].replace(".", "").lstrip("0")) <= 6
+    # every number has at most 6 significant digits, packing fractions 10 (whether or not the
+    # fits of this 64-disk run succeed: that depends on its trajectory)
+    for line in out.splitlines():
+        digits = 10 if line.strip().startswith("phi") else 6
+        for token in line.split():
+            mantissa = token.split("e")[0].lstrip("-")
+            if mantissa.replace(".", "").isdigit():
+                assert len(mantissa.replace(".", "").lstrip("0")) <= digits, line
 
 
 def test_unknown_option_is_named_by_its_subcommand(capsys):

@@ -10,7 +10,8 @@ import pytest
 from numpy.typing import NDArray
 
 from athermal import ContactModel, InputError, find_contacts, random_packing
-from athermal.minimize.fire import curvature_bound, default_timesteps, fire
+from athermal.minimize import MinimizeResult
+from athermal.minimize.fire import default_timesteps, fire
 from athermal.objective import Objective
 
 Function = Callable[[NDArray[np.float64]], tuple[float, NDArray[np.float64]]]
@@ -27,7 +28,7 @@ class FakeObjective:
         self.dim = dim
         self.n = self.x0.size // dim
         self.n_dof = self.x0.size
-        self.radii = np.ones(self.n)
+        self.max_step = 0.1  # FIRE's default cap: an Objective's is 0.1 x the mean radius
         self.function = function
         self.n_evaluations = 0
         self.n_rebuilds = 0
@@ -104,7 +105,7 @@ def test_first_steps_by_hand_downhill() -> None:
     # one particle in 1D, E = a x^2 / 2, small dt: both steps go downhill
     a, x0, dt, alpha = 2.0, 1.0, 0.1, 0.25
     obj = FakeObjective(np.array([x0]), 1, quadratic(np.array([a]), np.zeros(1)))
-    fire(obj, gtol=1e-300, maxiter=2, dt=dt, dt_max=1.0, alpha_start=alpha, max_step=10.0)
+    fire(obj, obj.x0, gtol=1e-300, maxiter=2, dt=dt, dt_max=1.0, alpha_start=alpha, max_step=10.0)
     # step 1: v = 0 so P = 0 (uphill branch, inside the initial delay: dt and alpha kept)
     v1 = dt * (-a * x0)  # mixing toward F leaves a velocity parallel to F unchanged
     x1 = x0 + dt * v1
@@ -120,7 +121,9 @@ def test_uphill_step_shrinks_dt_and_steps_half_back() -> None:
     # a dt so large that step 1 overshoots the minimum; the initial delay covers step 1 only
     a, x0, dt = 3.0, 1.0, 1.0
     obj = FakeObjective(np.array([x0]), 1, quadratic(np.array([a]), np.zeros(1)))
-    fire(obj, gtol=1e-300, maxiter=2, dt=dt, dt_max=1.0, n_delay=2, f_dec=0.5, max_step=10.0)
+    fire(
+        obj, obj.x0, gtol=1e-300, maxiter=2, dt=dt, dt_max=1.0, n_delay=2, f_dec=0.5, max_step=10.0
+    )
     v1 = dt * (-a * x0)
     x1 = x0 + dt * v1  # = -2: overshoot, so F(x1) v1 < 0
     assert (-a * x1) * v1 < 0
@@ -134,7 +137,17 @@ def test_dt_min_is_a_floor() -> None:
     a, x0 = 3.0, 1.0
     obj = FakeObjective(np.array([x0]), 1, quadratic(np.array([a]), np.zeros(1)))
     # dt * f_dec < dt_min: dt is kept at 1 on the uphill step
-    fire(obj, gtol=1e-300, maxiter=2, dt=1.0, dt_max=1.0, dt_min=0.9, n_delay=2, max_step=10.0)
+    fire(
+        obj,
+        obj.x0,
+        gtol=1e-300,
+        maxiter=2,
+        dt=1.0,
+        dt_max=1.0,
+        dt_min=0.9,
+        n_delay=2,
+        max_step=10.0,
+    )
     x1 = x0 - a * x0
     x2 = x1 - 0.5 * (-a * x0) + (-a * x1)
     np.testing.assert_allclose(np.ravel(obj.points), [x0, x1, x2], rtol=1e-15)
@@ -144,7 +157,7 @@ def test_max_step_caps_every_displacement() -> None:
     stiffness = np.full(40, 1e4)
     obj = FakeObjective(np.full(40, 5.0), 2, quadratic(stiffness, np.zeros(40)))
     max_step = 0.05
-    result = fire(obj, gtol=1e-8, dt=0.001, dt_max=0.01, max_step=max_step, maxiter=2000)
+    result = fire(obj, obj.x0, gtol=1e-8, dt=0.001, dt_max=0.01, max_step=max_step, maxiter=2000)
     assert result.converged
     steps = np.diff(np.array(obj.points), axis=0).reshape(len(obj.points) - 1, obj.n, 2)
     largest = np.sqrt((steps**2).sum(axis=2)).max(axis=1)
@@ -217,7 +230,7 @@ def test_matches_the_published_algorithm(preconditioned: bool) -> None:
     }  # fmt: skip
     obj = FakeObjective(rng.standard_normal(4), 2, function)
     precon = DiagonalPrecon(p) if preconditioned else None
-    fire(obj, gtol=1e-300, maxiter=120, precon=precon, max_step=1e6, **options)
+    fire(obj, obj.x0, gtol=1e-300, maxiter=120, precon=precon, max_step=1e6, **options)
     expected = reference_fire(function, obj.x0, p, 120, **options)
     np.testing.assert_allclose(np.array(obj.points), np.array(expected), rtol=1e-9, atol=1e-12)
 
@@ -230,7 +243,7 @@ def test_convex_quadratic() -> None:
     stiffness = np.logspace(-3, 0, 200)
     center = rng.standard_normal(200)
     obj = FakeObjective(rng.standard_normal(200), 2, quadratic(stiffness, center))
-    result = fire(obj, gtol=1e-10, dt=0.1, dt_max=1.0)
+    result = fire(obj, obj.x0, gtol=1e-10, dt=0.1, dt_max=1.0)
     assert result.converged
     assert result.max_gradient <= 1e-10
     np.testing.assert_allclose(result.x, center, atol=1e-10 / 1e-3 * 1.01)
@@ -242,11 +255,11 @@ def test_preconditioned_quadratic_is_faster_and_updates_every_step() -> None:
     stiffness = np.logspace(-4, 0, 200)
     x0 = rng.standard_normal(200)
     plain = fire(
-        FakeObjective(x0, 2, quadratic(stiffness, np.zeros(200))), gtol=1e-8, dt=0.1, dt_max=1.0
+        FakeObjective(x0, 2, quadratic(stiffness, np.zeros(200))), x0, gtol=1e-8, dt=0.1, dt_max=1.0
     )
     precon = DiagonalPrecon(stiffness + 1e-3)
     result = fire(
-        FakeObjective(x0, 2, quadratic(stiffness, np.zeros(200))), gtol=1e-8, precon=precon
+        FakeObjective(x0, 2, quadratic(stiffness, np.zeros(200))), x0, gtol=1e-8, precon=precon
     )
     assert result.converged and plain.converged
     assert result.precon == "diagonal"
@@ -256,7 +269,7 @@ def test_preconditioned_quadratic_is_faster_and_updates_every_step() -> None:
 
 def test_non_convex_rosenbrock() -> None:
     obj = FakeObjective(np.tile([-1.2, 1.0], 10), 2, rosenbrock)
-    result = fire(obj, gtol=1e-8, dt=2e-3, dt_max=2e-2, max_step=0.1)
+    result = fire(obj, obj.x0, gtol=1e-8, dt=2e-3, dt_max=2e-2, max_step=0.1)
     assert result.converged
     np.testing.assert_allclose(result.x, 1.0, atol=1e-7)
     assert result.energy < 1e-14
@@ -268,7 +281,7 @@ def test_non_convex_rosenbrock() -> None:
 def test_relaxes_overlapped_packing() -> None:
     obj = packing_objective()
     f0 = obj.mean_contact_force(obj.x0)
-    result = fire(obj, rtol=1e-8)
+    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
     assert result.converged, result.message
     assert result.method == "fire" and result.precon == "none"
     assert result.gtol == pytest.approx(1e-8 * f0, rel=1e-15)
@@ -287,7 +300,7 @@ def test_relaxes_overlapped_packing() -> None:
 
 def test_unjammed_packing_reaches_zero_energy_quickly() -> None:
     obj = packing_objective(phi=0.5)
-    result = fire(obj, rtol=1e-8)
+    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
     assert result.converged
     assert result.energy == 0.0 or result.max_gradient <= result.gtol
     assert result.iterations <= 115  # measured 103
@@ -295,7 +308,7 @@ def test_unjammed_packing_reaches_zero_energy_quickly() -> None:
 
 def test_iteration_limit_is_reported_not_raised() -> None:
     obj = packing_objective()
-    result = fire(obj, rtol=1e-8, maxiter=5)
+    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8), maxiter=5)
     assert not result.converged
     assert "iteration limit" in result.message
     assert result.iterations == 5
@@ -305,14 +318,18 @@ def test_iteration_limit_is_reported_not_raised() -> None:
 
 def test_maxiter_zero_evaluates_once() -> None:
     obj = packing_objective()
-    result = fire(obj, rtol=1e-8, maxiter=0)
+    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8), maxiter=0)
     assert not result.converged and result.iterations == 0 and result.evaluations == 1
     np.testing.assert_array_equal(result.x, obj.x0)
 
 
+def relax_fire(obj: Objective) -> MinimizeResult:
+    return fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
+
+
 def test_deterministic() -> None:
-    first = fire(packing_objective(), rtol=1e-8)
-    second = fire(packing_objective(), rtol=1e-8)
+    first = relax_fire(packing_objective())
+    second = relax_fire(packing_objective())
     assert first.iterations == second.iterations
     np.testing.assert_array_equal(first.x, second.x)
     np.testing.assert_array_equal(first.history_energy, second.history_energy)
@@ -320,8 +337,8 @@ def test_deterministic() -> None:
 
 def test_stiffer_contacts_same_path_in_rescaled_time() -> None:
     # E -> 4 E halves the default time step: the same iterates, energies x 4
-    soft = fire(packing_objective(), rtol=1e-8)
-    stiff = fire(packing_objective(stiffness=4.0), rtol=1e-8)
+    soft = relax_fire(packing_objective())
+    stiff = relax_fire(packing_objective(stiffness=4.0))
     assert stiff.iterations == soft.iterations
     np.testing.assert_allclose(stiff.x, soft.x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(stiff.history_energy, 4.0 * soft.history_energy, rtol=1e-9)
@@ -334,7 +351,7 @@ def test_curvature_bound_is_twice_largest_contact_count_for_hooke() -> None:
     obj = packing_objective(stiffness=2.5)
     contacts = find_contacts(obj.packing(obj.x0, internal=True), obj.model)
     z = np.bincount(contacts.i, minlength=obj.n) + np.bincount(contacts.j, minlength=obj.n)
-    assert curvature_bound(obj, obj.x0) == pytest.approx(2.0 * 2.5 * z.max(), rel=1e-12)
+    assert obj.curvature_bound(obj.x0) == pytest.approx(2.0 * 2.5 * z.max(), rel=1e-12)
 
 
 def test_curvature_bound_bounds_the_hessian() -> None:
@@ -346,25 +363,27 @@ def test_curvature_bound_bounds_the_hessian() -> None:
         obj = Objective(random_packing(64, 0.88, seed=2), ContactModel(alpha))
         contacts = find_contacts(obj.packing(obj.x0, internal=True), obj.model)
         largest = eigvalsh(hessian(contacts, obj.n).toarray())[-1]
-        assert largest <= curvature_bound(obj, obj.x0)
+        assert largest <= obj.curvature_bound(obj.x0)
 
 
 def test_default_timesteps() -> None:
     obj = packing_objective()
-    dt, dt_max, dt_min = default_timesteps(obj, None, None, None, None)
-    assert dt_max == pytest.approx(1.6 / np.sqrt(curvature_bound(obj, obj.x0)))
+    dt, dt_max, dt_min = default_timesteps(obj, obj.x0, None, None, None, None)
+    assert dt_max == pytest.approx(1.6 / np.sqrt(obj.curvature_bound(obj.x0)))
     assert dt == pytest.approx(0.1 * dt_max) and dt_min == pytest.approx(0.02 * dt)
     precon = DiagonalPrecon(np.ones(obj.n_dof))
-    assert default_timesteps(obj, precon, None, None, None) == pytest.approx((0.025, 0.25, 5e-4))
+    assert default_timesteps(obj, obj.x0, precon, None, None, None) == pytest.approx(
+        (0.025, 0.25, 5e-4)
+    )
     # a large dt alone raises the default dt_max to it
-    assert default_timesteps(obj, None, 2.0, None, None)[:2] == (2.0, 2.0)
+    assert default_timesteps(obj, obj.x0, None, 2.0, None, None)[:2] == (2.0, 2.0)
 
 
 @pytest.mark.parametrize(
     "options",
     [
-        {"gtol": 1e-8, "rtol": 1e-8},
-        {},
+        {"gtol": -1.0},  # both/neither of gtol and rtol: Objective.tolerance (test_minimize)
+        {"gtol": float("nan")},
         {"gtol": 1e-8, "dt": 0.5, "dt_max": 0.1},
         {"gtol": 1e-8, "dt": -0.1},
         {"gtol": 1e-8, "f_dec": 1.0},
@@ -378,14 +397,15 @@ def test_default_timesteps() -> None:
 )
 def test_bad_options_are_rejected(options: dict[str, Any]) -> None:
     with pytest.raises(InputError):
-        fire(packing_objective(), **options)
+        obj = packing_objective()
+        fire(obj, obj.x0, **options)
 
 
 def test_non_finite_step_stops_cleanly() -> None:
     obj = FakeObjective(np.ones(4), 2, quadratic(np.ones(4), np.zeros(4)))
     broken = DiagonalPrecon(np.zeros(4))  # P^-1 g = inf
     with np.errstate(divide="ignore", invalid="ignore"):
-        result = fire(obj, gtol=1e-8, precon=broken, dt=0.1)
+        result = fire(obj, obj.x0, gtol=1e-8, precon=broken, dt=0.1)
     assert not result.converged
     assert "non-finite" in result.message
     assert np.all(np.isfinite(result.x)) and result.iterations == 0

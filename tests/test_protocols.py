@@ -7,7 +7,7 @@ import pytest
 from athermal.cell import pure_shear
 from athermal.contact import ContactModel
 from athermal.errors import InputError
-from athermal.minimize import minimize
+from athermal.minimize import Status, minimize
 from athermal.moduli import linear_response
 from athermal.objective import Objective
 from athermal.observables import measure
@@ -235,7 +235,9 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
         calls.append(method)
         if method == "lbfgs":
             first = real(objective, method, **{**kw, "maxiter": 5})
-            return dataclasses.replace(first, converged=False, message="line search failed: x")
+            return dataclasses.replace(
+                first, converged=False, status=Status.LINE_SEARCH_FAILED, message="x"
+            )
         return real(objective, method, **kw)
 
     monkeypatch.setattr(_relax, "minimize", failing_lbfgs)

@@ -344,6 +344,16 @@ def max_displacement_sq(x, reference):  # type: ignore[no-untyped-def]
     return best
 
 
+@_jit
+def same_values(a, b):  # type: ignore[no-untyped-def]
+    """True when the flat arrays ``a`` and ``b`` (same size) hold equal values; stops at the
+    first difference (NaN equals nothing)."""
+    for p in range(a.size):
+        if a[p] != b[p]:
+            return False
+    return True
+
+
 @_jit_fast
 def max_row_norm(v, d):  # type: ignore[no-untyped-def]
     """``max_i |v_i|`` over the ``d``-vectors of a flat ``(N d,)`` array."""
@@ -357,30 +367,54 @@ def max_row_norm(v, d):  # type: ignore[no-untyped-def]
 
 
 @_jit_fast
-def lbfgs_first_loop(q, s_mem, y_mem, rho, order, alphas):  # type: ignore[no-untyped-def]
-    """First loop of the L-BFGS recursion, newest pair first: ``q -= a_k y_k`` (in place)."""
-    for t in range(order.size - 1, -1, -1):
+def lbfgs_direction(grad, z, s_mem, y_mem, py_mem, rho, gamma, order, alphas, q, out):  # type: ignore[no-untyped-def]
+    """The L-BFGS step ``out = -H grad`` by the two-loop recursion, ``H0 = gamma_newest P^-1``.
+
+    ``z = P^-1 grad`` and ``py_mem[k] = P^-1 y_k`` are given, so ``H0 q = gamma (z - sum_k a_k
+    py_k)`` needs no solve. Pairs are the rows ``order`` (oldest first) of ``s_mem``, ``y_mem``,
+    ``py_mem`` ``(m, n)`` with ``rho = 1 / s.y`` and ``gamma = s.y / y.py``. Each pass over the
+    vectors also forms the next pair's dot product. ``alphas`` ``(m,)`` and ``q`` ``(n,)`` are
+    work arrays; ``out`` ``(n,)`` receives the step.
+    """
+    n = grad.size
+    count = order.size
+    for p in range(n):
+        q[p] = grad[p]
+        out[p] = z[p]
+    if count == 0:
+        for p in range(n):
+            out[p] = -out[p]
+        return
+    k = order[count - 1]
+    dot = 0.0
+    for p in range(n):
+        dot += s_mem[k, p] * q[p]
+    for t in range(count - 1, -1, -1):
         k = order[t]
-        a = 0.0
-        for p in range(q.size):
-            a += s_mem[k, p] * q[p]
-        a *= rho[k]
+        a = rho[k] * dot
         alphas[k] = a
-        for p in range(q.size):
+        nxt = order[t - 1] if t > 0 else k
+        dot = 0.0
+        for p in range(n):
             q[p] -= a * y_mem[k, p]
-
-
-@_jit_fast
-def lbfgs_second_loop(r, s_mem, y_mem, rho, order, alphas):  # type: ignore[no-untyped-def]
-    """Second loop, oldest pair first: ``r += (a_k - rho_k y_k.r) s_k`` (in place)."""
-    for t in range(order.size):
+            out[p] -= a * py_mem[k, p]
+            dot += s_mem[nxt, p] * q[p]
+    scale = gamma[order[count - 1]]
+    k = order[0]
+    dot = 0.0
+    for p in range(n):
+        out[p] *= scale
+        dot += y_mem[k, p] * out[p]
+    for t in range(count):
         k = order[t]
-        b = 0.0
-        for p in range(r.size):
-            b += y_mem[k, p] * r[p]
-        c = alphas[k] - rho[k] * b
-        for p in range(r.size):
-            r[p] += c * s_mem[k, p]
+        c = alphas[k] - rho[k] * dot
+        nxt = order[t + 1] if t + 1 < count else k
+        dot = 0.0
+        for p in range(n):
+            out[p] += c * s_mem[k, p]
+            dot += y_mem[nxt, p] * out[p]
+    for p in range(n):
+        out[p] = -out[p]
 
 
 @_jit

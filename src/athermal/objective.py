@@ -18,6 +18,9 @@ from .errors import InputError
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
 
+MAX_STEP_FACTOR = 0.1
+"""Largest displacement of one particle in one iteration, as a multiple of the mean radius."""
+
 
 class Objective:
     """``E(x)`` and ``grad E(x)`` for the positions of ``packing`` (radii and cell fixed).
@@ -46,10 +49,17 @@ class Objective:
         self._typeid = model.typeid(inner)
         self._nlist: NeighborList | None = None
         self._shifts = np.zeros((1, self.dim))
-        self._last_x: NDArray[np.float64] | None = None
+        self._last_x = np.full(self.n_dof, np.nan)  # NaN: nothing evaluated yet
         self._last: tuple[float, NDArray[np.float64]] = (0.0, np.zeros(0))
         self.n_evaluations = 0
         self.n_rebuilds = 0
+        self.max_step = MAX_STEP_FACTOR * float(np.mean(self.radii))
+        self._noise_scale = (
+            0.25
+            * float(np.finfo(np.float64).eps)
+            * float(self.cell.widths.max())
+            * float(model.kmat.max()) ** (1.0 / model.alpha)
+        )
 
     @property
     def n_dof(self) -> int:
@@ -73,9 +83,9 @@ class Objective:
 
     def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         """Energy and gradient ``(N d,)`` at ``x``; repeated calls at the same ``x`` are free."""
-        if self._last_x is not None and np.array_equal(x, self._last_x):
-            return self._last
         x = np.ascontiguousarray(x, dtype=np.float64)
+        if x.shape == self._last_x.shape and _kernels.same_values(x, self._last_x):
+            return self._last
         nlist = self.neighbor_list(x)
         grad = np.empty(self.n_dof)
         energy = energy_gradient(
@@ -88,7 +98,7 @@ class Objective:
             grad.reshape(self.n, self.dim),
         )
         self.n_evaluations += 1
-        self._last_x = x.copy()
+        self._last_x[:] = x
         self._last = (energy, grad)
         return self._last
 
@@ -112,14 +122,53 @@ class Objective:
         ``Delta phi ~ 1e-4``, N = 1024) about 20x; a quarter of it is returned.
         """
         alpha = self.model.alpha
-        k = float(self.model.kmat.max())
-        scale = float(self.cell.widths.max())
-        force_norm = k ** (1.0 / alpha) * (alpha * max(energy, 0.0)) ** (1.0 - 1.0 / alpha)
-        return 0.25 * float(np.finfo(np.float64).eps) * scale * force_norm
+        return self._noise_scale * (alpha * max(energy, 0.0)) ** (1.0 - 1.0 / alpha)
 
     def max_gradient(self, grad: NDArray[np.float64]) -> float:
         """``max_i |grad_i|``: the largest Euclidean norm of one particle's gradient."""
         return float(_kernels.max_row_norm(grad, self.dim))
+
+    def step_limit(self, direction: NDArray[np.float64]) -> float:
+        """Largest ``a`` for which ``x + a direction`` moves no particle more than
+        :attr:`max_step` (``MAX_STEP_FACTOR`` x the mean radius); ``inf`` for a zero direction."""
+        longest = float(_kernels.max_row_norm(direction, self.dim))
+        return self.max_step / longest if longest > 0.0 else float("inf")
+
+    def tolerance(
+        self, gtol: float | None, rtol: float | None, x: NDArray[np.float64] | None = None
+    ) -> float:
+        """The absolute force tolerance on ``max_i |grad_i|``: ``gtol``, or ``rtol`` x the mean
+        contact force at ``x`` (default ``x0``); give exactly one of the two."""
+        if (gtol is None) == (rtol is None):
+            raise InputError("give exactly one of gtol (absolute) and rtol (x mean contact force)")
+        at = self.x0 if x is None else x
+        tol = gtol if gtol is not None else rtol * self.mean_contact_force(at)  # type: ignore[operator]
+        if not np.isfinite(tol) or tol < 0.0:
+            raise InputError(f"gtol/rtol: tolerance must be finite and >= 0, got {tol}")
+        return float(tol)
+
+    def curvature_bound(self, x: NDArray[np.float64]) -> float:
+        """Gershgorin bound ``lambda_G >= lambda_max(H)`` on the Hessian of the energy at ``x``.
+
+        A contact's Hessian block ``K_ij = c [(alpha - 1 + delta/l) n n^T - (delta/l) I]`` with
+        ``c = k delta^(alpha-2)`` has norm ``(alpha - 1) c``, and row ``i`` of ``H`` holds
+        ``H_ii = sum_j K_ij`` and ``H_ij = -K_ij``, so
+        ``lambda_max <= lambda_G = 2 max_i sum_j (alpha - 1) k_ij delta_ij^(alpha - 2)``
+        (``2 k z_max`` for Hooke contacts). Units ``k`` x length^(alpha-2), i.e. 1 / time^2 for
+        unit masses (FIRE's default time step). Without contacts it falls back to a particle
+        with 6 (2D) or 12 (3D) contacts of overlap ``delta`` = the mean radius.
+        """
+        model = self.model
+        contacts = find_contacts(self.packing(x, internal=True), model, self.neighbor_list(x))
+        alpha = float(model.alpha)
+        if contacts.i.size == 0:
+            z_ref = 6.0 if self.dim == 2 else 12.0
+            r_mean = float(np.mean(self.radii))
+            return 2.0 * z_ref * (alpha - 1.0) * float(np.max(model.kmat)) * r_mean ** (alpha - 2.0)
+        stiff = (alpha - 1.0) * contacts.stiffness * contacts.overlap ** (alpha - 2.0)
+        per_particle = np.bincount(contacts.i, stiff, self.n)
+        per_particle += np.bincount(contacts.j, stiff, self.n)
+        return 2.0 * float(per_particle.max())
 
     def mean_contact_force(self, x: NDArray[np.float64]) -> float:
         """Mean ``k delta^(alpha-1)`` over overlapping pairs at ``x`` (0 with no contacts)."""

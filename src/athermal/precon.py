@@ -323,8 +323,8 @@ class _PairPreconditioner(ABC):
 
         The test mode is the cell's longest wavelength, where ``v^T P_{mu=1} v`` is mostly the
         ``C_stab`` term, so ``mu`` falls with ``N`` at fixed density (Case 1 type packings:
-        0.069 at N = 4096, 0.0054 at N = 65536) and the line search needs more evaluations per
-        iteration on large systems (about 2 at N = 4096, 3 at N = 65536).
+        0.069 at N = 4096, 0.0054 at N = 65536). L-BFGS does not rely on it: its
+        ``H0 = gamma P^-1`` rescales ``P`` at every iteration; FIRE and CG use ``mu`` as is.
         """
         v = sine_perturbation(positions, self.objective, self.r_cut)
         x = positions.ravel()

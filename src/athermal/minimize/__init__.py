@@ -11,12 +11,16 @@ from __future__ import annotations
 
 from typing import Literal
 
+import numpy as np
+from numpy.typing import NDArray
+
+from ..errors import InputError
 from ..objective import Objective
 from ..precon import PRECONDITIONERS, PreconName, SolverName, make_preconditioner
 from .cg import cg
 from .fire import fire
 from .lbfgs import lbfgs
-from .result import MinimizeResult, Preconditioner
+from .result import MinimizeResult, Preconditioner, Problem, Status
 from .spec import METHODS, RTOL, Method, Minimizer, resolve_method
 
 
@@ -24,6 +28,7 @@ def minimize(
     objective: Objective,
     method: Method = "lbfgs",
     *,
+    x0: NDArray[np.float64] | None = None,
     precon: PreconName | Preconditioner = "none",
     A: float = 0.0,
     solver: SolverName = "auto",
@@ -34,11 +39,12 @@ def minimize(
     memory: int = 10,
     cg_variant: Literal["fr", "pr+"] = "fr",
 ) -> MinimizeResult:
-    """Relax ``objective`` from ``objective.x0`` to ``max_i |grad_i| <= gtol``.
+    """Relax ``objective`` from ``x0`` to ``max_i |grad_i| <= gtol``.
 
     Parameters
     ----------
     method : ``lbfgs``, ``cg``, ``fire``, or the seed's ``plbfgs`` / ``pcg``.
+    x0 : the start ``(N d,)`` in the objective's internal order; default ``objective.x0``.
     precon : preconditioner name, or a ready :class:`Preconditioner` (reused across calls,
         e.g. by the quasi-static protocols).
     A, solver : parameter of the Exp weights and the linear solver (``direct`` Cholesky,
@@ -51,7 +57,13 @@ def minimize(
         relaxation of an unjammed packing.
     memory : L-BFGS memory ``m``.
     cg_variant : ``fr`` (Fletcher-Reeves) or ``pr+`` (Polak-Ribiere+).
+
+    The result's ``status`` (:class:`Status`) says why the run stopped.
     """
+    start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
+    if start.shape != (objective.n_dof,):
+        raise InputError(f"x0: expected shape ({objective.n_dof},), got {start.shape}")
+    tol = objective.tolerance(gtol, rtol, start)
     if isinstance(precon, str):
         base, name = resolve_method(method, precon)
         pre = make_preconditioner(name, objective, A=A, solver=solver)
@@ -61,8 +73,8 @@ def minimize(
     if base == "lbfgs":
         return lbfgs(
             objective,
-            gtol=gtol,
-            rtol=rtol,
+            start,
+            gtol=tol,
             maxiter=maxiter,
             etol=etol,
             precon=pre,
@@ -71,14 +83,14 @@ def minimize(
     if base == "cg":
         return cg(
             objective,
-            gtol=gtol,
-            rtol=rtol,
+            start,
+            gtol=tol,
             maxiter=maxiter,
             etol=etol,
             precon=pre,
             variant=cg_variant,
         )
-    return fire(objective, gtol=gtol, rtol=rtol, maxiter=maxiter, etol=etol, precon=pre)
+    return fire(objective, start, gtol=tol, maxiter=maxiter, etol=etol, precon=pre)
 
 
 def relax(
@@ -88,12 +100,14 @@ def relax(
     gtol: float | None = None,
     rtol: float | None = None,
     maxiter: int | None = None,
+    x0: NDArray[np.float64] | None = None,
 ) -> MinimizeResult:
-    """:func:`minimize` with the method, preconditioner, ``A``, solver and (unless given)
-    ``maxiter`` of ``how``."""
+    """:func:`minimize` from ``x0`` with the method, preconditioner, ``A``, solver and (unless
+    given) ``maxiter`` of ``how``."""
     return minimize(
         objective,
         how.method,
+        x0=x0,
         precon=how.precon,
         A=how.A,
         solver=how.solver,
@@ -111,6 +125,8 @@ __all__ = [
     "MinimizeResult",
     "Minimizer",
     "Preconditioner",
+    "Problem",
+    "Status",
     "minimize",
     "relax",
     "resolve_method",

@@ -1,21 +1,16 @@
-"""What L-BFGS and CG share: the line search along a direction, capped per-particle moves."""
+"""What L-BFGS and CG share: the line search along a direction, with the problem's step cap."""
 
 from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..objective import Objective
 from .linesearch import LineSearchResult, strong_wolfe
-
-
-def max_particle_step(objective: Objective) -> float:
-    """Largest displacement of one particle allowed in one iteration: 0.1 x mean radius."""
-    return 0.1 * float(np.mean(objective.radii))
+from .result import Problem
 
 
 def search(
-    objective: Objective,
+    problem: Problem,
     x: NDArray[np.float64],
     energy: float,
     grad: NDArray[np.float64],
@@ -23,13 +18,12 @@ def search(
     step: float,
     c2: float,
 ) -> LineSearchResult:
-    """Strong-Wolfe search along ``direction`` from ``x``; no particle moves more than
-    :func:`max_particle_step` (the step is capped so)."""
-    longest = objective.max_gradient(direction)  # largest per-particle length of the direction
-    step_max = max_particle_step(objective) / max(longest, 1e-300)
+    """Strong-Wolfe search along ``direction`` from ``x``, the step capped at
+    :meth:`Problem.step_limit` (for an :class:`~athermal.objective.Objective`: no particle moves
+    more than its ``max_step``)."""
 
     def phi(a: float) -> tuple[float, float]:
-        f, g = objective(x + a * direction)
+        f, g = problem(x + a * direction)
         return f, float(g @ direction)
 
     return strong_wolfe(
@@ -38,6 +32,6 @@ def search(
         float(grad @ direction),
         step,
         c2=c2,
-        step_max=step_max,
-        noise=objective.energy_noise(energy),
+        step_max=problem.step_limit(direction),
+        noise=problem.energy_noise(energy),
     )

@@ -15,39 +15,39 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .._validate import choice
-from ..objective import Objective
 from ._step import search
-from .result import MinimizeResult, Preconditioner, Tracker
+from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 CGVariant = Literal["fr", "pr+"]
 _POWELL = 0.1  # restart threshold on the overlap of consecutive gradients
 
 
 def cg(
-    objective: Objective,
+    problem: Problem,
+    x0: NDArray[np.float64],
     *,
-    gtol: float | None = None,
-    rtol: float | None = None,
+    gtol: float,
     maxiter: int = 100_000,
     etol: float = 0.0,
     precon: Preconditioner | None = None,
     variant: CGVariant = "fr",
 ) -> MinimizeResult:
-    """Minimize ``objective`` from ``objective.x0`` by (preconditioned) nonlinear CG.
+    """Minimize ``problem`` from ``x0`` ``(n_dof,)`` by (preconditioned) nonlinear CG.
 
     ``variant``: ``"fr"`` (Fletcher-Reeves, the seed's) or ``"pr+"`` (Polak-Ribiere+).
     Stopping rules as :func:`~athermal.minimize.lbfgs.lbfgs`.
     """
     choice(variant, "variant", ("fr", "pr+"))
-    tracker = Tracker.start(objective, "cg", precon, gtol, rtol, maxiter, etol)
-    x = objective.x0.copy()
-    energy, grad = objective(x)
+    tracker = Tracker.start(problem, "cg", precon, gtol, maxiter, etol)
+    x = np.array(x0, dtype=np.float64, copy=True)
+    energy, grad = problem(x)
     if precon is not None:
         precon.update(x)
     if tracker.record(energy, grad):
-        return tracker.finish(x, True, "converged")
+        return tracker.finish(x, Status.CONVERGED, "converged")
     y = precon.solve(grad) if precon is not None else grad
     direction = -y
     yg = float(y @ grad)
@@ -57,14 +57,16 @@ def cg(
         slope = float(grad @ direction)
         if not slope < 0.0:
             direction, slope, restarted = -y, -yg, True
-        ls = search(objective, x, energy, grad, direction, step, c2=0.1)
+        ls = search(problem, x, energy, grad, direction, step, c2=0.1)
         if not ls.ok and not restarted:
             direction, slope, restarted = -y, -yg, True
-            ls = search(objective, x, energy, grad, direction, 1.0, c2=0.1)
+            ls = search(problem, x, energy, grad, direction, 1.0, c2=0.1)
         if not ls.ok:
-            return tracker.finish(x, False, "line search failed: no Wolfe step along descent")
+            return tracker.finish(
+                x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
+            )
         x = x + ls.step * direction
-        energy, grad_new = objective(x)
+        energy, grad_new = problem(x)
         if precon is not None:
             precon.update(x)
         y_new = precon.solve(grad_new) if precon is not None else grad_new
@@ -80,5 +82,5 @@ def cg(
         direction = beta * direction - y_new
         grad, y, yg, restarted = grad_new, y_new, yg_new, False
         if tracker.record(energy, grad):
-            return tracker.finish(x, True, "converged")
-    return tracker.finish(x, False, f"iteration limit {maxiter} reached")
+            return tracker.finish(x, Status.CONVERGED, "converged")
+    return tracker.finish(x, Status.ITERATION_LIMIT, f"iteration limit {maxiter} reached")

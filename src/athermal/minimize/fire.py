@@ -35,12 +35,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validate import positive_scalar
-from ..contact import find_contacts
 from ..errors import InputError
-from ..objective import Objective
-from .result import MinimizeResult, Preconditioner, Tracker
+from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
-#: Default largest time step, in units of ``1 / sqrt(lambda_G)`` (see :func:`curvature_bound`).
+#: Default largest time step, in units of ``1 / sqrt(lambda_G)`` (see
+#: :meth:`~athermal.objective.Objective.curvature_bound`).
 DT_MAX_FACTOR = 1.6
 #: Default first time step, as a fraction of the largest (FIRE 2.0: dt_max = 10 dt).
 DT_START_FRACTION = 0.1
@@ -51,47 +50,28 @@ DT_MIN_FACTOR = 0.02
 #: dt_max from 0.2 to 0.3 and stalled with 0.4-0.5 and above (Exp: lambda_max(P^-1 H) ~ 13;
 #: contact: ~0.9, but its many stiff modes then oscillate in phase and keep resetting FIRE).
 DT_MAX_PRECON = 0.25
-#: Default cap on one particle's displacement per step, as a multiple of the mean radius.
-MAX_STEP_FACTOR = 0.1
-
-
-def curvature_bound(objective: Objective, x: NDArray[np.float64]) -> float:
-    """Gershgorin bound ``lambda_G >= lambda_max(H)`` on the Hessian of the contact energy at ``x``.
-
-    A contact's Hessian block ``K_ij = c [(alpha - 1 + delta/l) n n^T - (delta/l) I]`` with
-    ``c = k delta^(alpha-2)`` has norm ``(alpha - 1) c``, and row ``i`` of ``H`` holds
-    ``H_ii = sum_j K_ij`` and ``H_ij = -K_ij``, so
-    ``lambda_max <= lambda_G = 2 max_i sum_j (alpha - 1) k_ij delta_ij^(alpha - 2)``
-    (``2 k z_max`` for Hooke contacts). Units ``k`` x length^(alpha-2), i.e. 1 / time^2 for unit
-    masses. Without contacts it falls back to a particle with 6 (2D) or 12 (3D) contacts of
-    overlap ``delta`` = the mean radius.
-    """
-    model = objective.model
-    contacts = find_contacts(objective.packing(x, internal=True), model, objective.neighbor_list(x))
-    alpha = float(model.alpha)
-    if contacts.i.size == 0:
-        z_ref = 6.0 if objective.dim == 2 else 12.0
-        r_mean = float(np.mean(objective.radii))
-        return 2.0 * z_ref * (alpha - 1.0) * float(np.max(model.kmat)) * r_mean ** (alpha - 2.0)
-    stiff = (alpha - 1.0) * contacts.stiffness * contacts.overlap ** (alpha - 2.0)
-    per_particle = np.bincount(contacts.i, stiff, objective.n)
-    per_particle += np.bincount(contacts.j, stiff, objective.n)
-    return 2.0 * float(per_particle.max())
 
 
 def default_timesteps(
-    objective: Objective,
+    problem: Problem,
+    x0: NDArray[np.float64],
     precon: Preconditioner | None,
     dt: float | None,
     dt_max: float | None,
     dt_min: float | None,
 ) -> tuple[float, float, float]:
-    """``(dt, dt_max, dt_min)`` with the defaults filled in (see :func:`fire`), validated."""
+    """``(dt, dt_max, dt_min)`` with the defaults filled in (see :func:`fire`), validated.
+
+    The default ``dt_max`` without a preconditioner needs ``problem.curvature_bound(x0)``
+    (:meth:`~athermal.objective.Objective.curvature_bound`)."""
     if dt_max is None:
         if precon is not None:
             dt_max = DT_MAX_PRECON
         else:
-            dt_max = DT_MAX_FACTOR / np.sqrt(curvature_bound(objective, objective.x0))
+            bound = getattr(problem, "curvature_bound", None)
+            if bound is None:
+                raise InputError("dt_max: give it, or minimize an Objective (curvature bound)")
+            dt_max = DT_MAX_FACTOR / np.sqrt(bound(x0))
         if dt is not None:
             dt_max = max(dt_max, positive_scalar(dt, "dt"))
     dt_max = positive_scalar(dt_max, "dt_max")
@@ -145,10 +125,10 @@ def _move(x, v, slope, dt, alpha, max_step, dim):  # type: ignore[no-untyped-def
 
 
 def fire(
-    objective: Objective,
+    problem: Problem,
+    x0: NDArray[np.float64],
     *,
-    gtol: float | None = None,
-    rtol: float | None = None,
+    gtol: float,
     maxiter: int = 100_000,
     etol: float = 0.0,
     precon: Preconditioner | None = None,
@@ -162,21 +142,22 @@ def fire(
     f_alpha: float = 0.99,
     max_step: float | None = None,
 ) -> MinimizeResult:
-    """Minimize ``objective`` from ``objective.x0`` by FIRE 2.0 (see the module docstring).
+    """Minimize ``problem`` from ``x0`` ``(N d,)`` by FIRE 2.0 (see the module docstring).
 
     Parameters
     ----------
-    objective : energy and gradient of a flat ``(N d,)`` vector; unit masses.
+    problem : energy and gradient of a flat ``(N d,)`` vector; unit masses.
+    x0 : the start.
     gtol : absolute tolerance on ``max_i |grad_i E|`` (force units ``k`` x length^(alpha-1)).
-    rtol : tolerance relative to the mean contact force at ``x0``; give exactly one of the two.
         The run also stops, converged, when the energy is ``<= etol`` (default 0: no overlaps).
     etol : energy tolerance (absolute, energy units).
     maxiter : the most steps (one energy+gradient evaluation each).
     precon : preconditioner; the dynamics then follow ``F_p = -P^-1 grad E``.
     dt_max : largest time step (time units ``sqrt(m / k)``, m = 1). Default
         ``1.6 / sqrt(lambda_G)`` with ``lambda_G`` the Gershgorin bound on the Hessian at ``x0``
-        (:func:`curvature_bound`; ``2 k z_max`` for Hooke contacts, so about 0.4 for a 2D
-        packing with ``k = 1``): semi-implicit Euler is stable for ``dt < 2 / sqrt(lambda_max)``,
+        (:meth:`~athermal.objective.Objective.curvature_bound`; ``2 k z_max`` for Hooke
+        contacts, so about 0.4 for a 2D packing with ``k = 1``): semi-implicit Euler is stable
+        for ``dt < 2 / sqrt(lambda_max)``,
         and FIRE ran fastest with ``dt_max`` near ``1 / sqrt(lambda_max)`` (``lambda_G`` is
         2-3.5 ``lambda_max`` in the packings measured) but stalled above
         ~``1.3 / sqrt(lambda_max)``.
@@ -189,20 +170,21 @@ def fire(
     f_inc, f_dec : growth (> 1) and shrink (< 1) factors of the time step.
     alpha_start, f_alpha : initial mixing parameter and its decay factor per step downhill.
     max_step : largest displacement of one particle in one step (length units); default
-        ``0.1 x`` the mean radius. A step that would move a particle further is scaled down,
-        velocity included.
+        ``problem.max_step`` (an Objective's: ``0.1 x`` the mean radius). A step that would
+        move a particle further is scaled down, velocity included. FIRE also reads
+        ``problem.dim``, the length of one particle's block of ``x``.
 
     Returns
     -------
-    MinimizeResult with ``method="fire"``; ``converged=False`` and a message when ``maxiter``
-    steps did not reach the tolerance or the energy became non-finite.
+    MinimizeResult with ``method="fire"``; status ``ITERATION_LIMIT`` when ``maxiter`` steps did
+    not reach the tolerance, ``NOT_FINITE`` when the energy or a step became non-finite.
 
     Examples
     --------
     >>> from athermal import ContactModel, random_packing
     >>> from athermal.objective import Objective
     >>> obj = Objective(random_packing(64, 0.88, seed=1), ContactModel(2.0))
-    >>> result = fire(obj, rtol=1e-8)
+    >>> result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
     >>> result.converged, result.evaluations == result.iterations + 1
     (True, True)
     """
@@ -218,23 +200,23 @@ def fire(
         raise InputError(f"f_alpha: must be in (0, 1], got {f_alpha!r}")
     if max_step is not None:
         max_step = positive_scalar(max_step, "max_step")
-    tracker = Tracker.start(objective, "fire", precon, gtol, rtol, maxiter, etol)
-    dt, dt_max, dt_min = default_timesteps(objective, precon, dt, dt_max, dt_min)
+    tracker = Tracker.start(problem, "fire", precon, gtol, maxiter, etol)
+    dt, dt_max, dt_min = default_timesteps(problem, x0, precon, dt, dt_max, dt_min)
     if max_step is None:
-        max_step = MAX_STEP_FACTOR * float(np.mean(objective.radii))
+        max_step = float(problem.max_step)  # type: ignore[attr-defined]
 
-    dim = objective.dim
-    x = np.array(objective.x0, dtype=np.float64, copy=True)
-    energy, grad = objective(x)
+    dim = problem.dim  # type: ignore[attr-defined]
+    x = np.array(x0, dtype=np.float64, copy=True)
+    energy, grad = problem(x)
     if tracker.record(energy, grad):
-        return tracker.finish(x, True, "converged at the start")
+        return tracker.finish(x, Status.CONVERGED, "converged at the start")
     v = np.zeros_like(x)
     alpha = float(alpha_start)
     n_positive = 0
 
     for step in range(1, tracker.maxiter + 1):
         if not np.isfinite(energy):
-            return tracker.finish(x, False, "stopped: the energy is not finite")
+            return tracker.finish(x, Status.NOT_FINITE, "stopped: the energy is not finite")
         x_recorded = x
         if precon is not None:
             precon.update(x)
@@ -259,10 +241,14 @@ def fire(
         x, finite = _move(x, v, slope, dt, alpha, max_step, dim)
         if not finite:
             hint = " (is the preconditioner positive definite?)" if precon is not None else ""
-            return tracker.finish(x_recorded, False, f"stopped: non-finite gradient or step{hint}")
+            return tracker.finish(
+                x_recorded, Status.NOT_FINITE, f"stopped: non-finite gradient or step{hint}"
+            )
 
-        energy, grad = objective(x)
+        energy, grad = problem(x)
         if tracker.record(energy, grad):
-            return tracker.finish(x, True, f"converged after {step} steps")
+            return tracker.finish(x, Status.CONVERGED, f"converged after {step} steps")
 
-    return tracker.finish(x, False, f"iteration limit reached ({tracker.maxiter} steps)")
+    return tracker.finish(
+        x, Status.ITERATION_LIMIT, f"iteration limit reached ({tracker.maxiter} steps)"
+    )

@@ -1,18 +1,17 @@
 """Limited-memory BFGS (seed Algorithm 2), optionally preconditioned (seed's boxed step).
 
-The two-loop recursion with memory ``m``; the initial inverse Hessian is
-``B0 = (s.y / y.y) I`` (seed) or ``P^-1`` with a preconditioner (the seed's boxed step). Steps
-come from the strong-Wolfe line search of :mod:`.linesearch` (``c1 = 1e-4``, ``c2 = 0.9``),
-unit step tried first.
+The two-loop recursion with memory ``m`` and the initial inverse Hessian
+``H0 = gamma P^-1`` (``P = I`` without a preconditioner), ``gamma = s.y / y.P^-1 y`` of the
+newest pair (Nocedal & Wright, eq. 7.20, in the metric of ``P``). Steps come from the
+strong-Wolfe line search of :mod:`.linesearch` (``c1 = 1e-4``, ``c2 = 0.9``), unit step tried
+first.
 
-Measured on the seed's Case 1 (N = 4096, alpha = 2): with the Exp preconditioner the accepted
-steps cluster near 0.3 (the sine-test ``mu`` leaves ``P`` softer than the Hessian), costing a
-second evaluation per iteration. Rescaling ``B0`` by the newest pair's ``s.P s / s.y`` made
-steps ~0.03, and calibrating a scale from the first accepted steps traded iterations for
-evaluations (1159 -> 1440 iterations, no gain in time); both were dropped.
-``benchmarks/precon_scan.py`` scans ``mu``, ``C_stab``, ``r_cut``, ``A`` and the memory: no
-single change brings the iteration ratio to L-BFGS below 0.42 on Cases 1 and 2 at N = 4096
-(the best per problem: 0.42-0.50).
+One solve per iteration: the method keeps ``z = P^-1 g`` and, for each pair, ``P^-1 y =
+z_{k+1} - z_k``, so ``H0`` applied inside the recursion is a combination of stored vectors
+(recomputed by ``m`` solves when ``P`` is rebuilt). The seed's unscaled ``H0 = P^-1`` left the
+Exp preconditioner about 3x too soft on Case 1 (N = 4096, alpha = 2): accepted steps 0.29-0.32,
+the unit step never accepted, two evaluations per iteration. With ``gamma`` the unit step is
+the accepted one (``benchmarks/results/breakdown*.md``).
 """
 
 from __future__ import annotations
@@ -21,19 +20,22 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels
-from ..objective import Objective
 from ._step import search
-from .result import MinimizeResult, Preconditioner, Tracker
+from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 
 class _Memory:
-    """The last ``m`` pairs ``s = x_{k+1} - x_k``, ``y = g_{k+1} - g_k`` in ring buffers."""
+    """The last ``m`` pairs ``s = x_{k+1} - x_k``, ``y = g_{k+1} - g_k`` and ``P^-1 y`` in ring
+    buffers ``(m, n)``; without a preconditioner ``P^-1 y`` is ``y`` (the same buffer)."""
 
-    def __init__(self, m: int, n: int) -> None:
+    def __init__(self, m: int, n: int, precon: Preconditioner | None) -> None:
         self.s = np.zeros((m, n))
         self.y = np.zeros((m, n))
+        self.py = np.zeros((m, n)) if precon is not None else self.y
         self.rho = np.zeros(m)
+        self.gamma = np.zeros(m)
         self.alphas = np.zeros(m)
+        self.work = np.zeros(n)
         self.order = np.zeros(0, dtype=np.int64)  # slots from oldest to newest
 
     def __len__(self) -> int:
@@ -42,80 +44,105 @@ class _Memory:
     def clear(self) -> None:
         self.order = self.order[:0]
 
-    def push(self, s: NDArray[np.float64], y: NDArray[np.float64], sy: float) -> None:
+    def push(
+        self, s: NDArray[np.float64], y: NDArray[np.float64], py: NDArray[np.float64], sy: float
+    ) -> None:
+        """Store a pair with ``s.y = sy > 0``; dropped when ``y.P^-1 y`` is not positive."""
+        ypy = float(y @ py)
+        if not ypy > 0.0:
+            return
         m = self.rho.size
         slot = int((self.order[-1] + 1) % m) if len(self) else 0
-        self.s[slot], self.y[slot], self.rho[slot] = s, y, 1.0 / sy
+        self.s[slot], self.y[slot], self.py[slot] = s, y, py
+        self.rho[slot], self.gamma[slot] = 1.0 / sy, sy / ypy
         self.order = np.append(self.order[-(m - 1) :] if m > 1 else self.order[:0], slot)
 
-    def b0(self, q: NDArray[np.float64], precon: Preconditioner | None) -> NDArray[np.float64]:
-        """The boxed step ``r = B0 q``: ``P^-1 q``, else ``(s.y / y.y) q`` for the newest pair
-        ``(s, y)`` (``q`` before the first pair)."""
-        if precon is not None:
-            return precon.solve(q)
-        if len(self):
-            newest = self.order[-1]
-            y = self.y[newest]
-            return q / (self.rho[newest] * float(y @ y))
-        return q.copy()
+    def refresh(self, precon: Preconditioner) -> None:
+        """Recompute ``P^-1 y`` and ``gamma`` of every stored pair after ``P`` was rebuilt."""
+        for slot in self.order.tolist():
+            self.py[slot] = precon.solve(self.y[slot])
+            ypy = float(self.y[slot] @ self.py[slot])
+            if not ypy > 0.0:  # cannot happen for an SPD P; keep the recursion well defined
+                self.clear()
+                return
+            self.gamma[slot] = 1.0 / (self.rho[slot] * ypy)
 
-    def apply(
-        self, grad: NDArray[np.float64], precon: Preconditioner | None
-    ) -> NDArray[np.float64]:
-        """``B grad`` by the two-loop recursion (compiled loops, ``B0`` in between)."""
-        q = grad.copy()
-        _kernels.lbfgs_first_loop(q, self.s, self.y, self.rho, self.order, self.alphas)
-        r = self.b0(q, precon)
-        _kernels.lbfgs_second_loop(r, self.s, self.y, self.rho, self.order, self.alphas)
-        return r
+    def direction(self, grad: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``-H grad`` by the compiled two-loop recursion, with ``z = P^-1 grad``."""
+        out = np.empty_like(grad)
+        _kernels.lbfgs_direction(
+            grad,
+            z,
+            self.s,
+            self.y,
+            self.py,
+            self.rho,
+            self.gamma,
+            self.order,
+            self.alphas,
+            self.work,
+            out,
+        )
+        return out
 
 
 def lbfgs(
-    objective: Objective,
+    problem: Problem,
+    x0: NDArray[np.float64],
     *,
-    gtol: float | None = None,
-    rtol: float | None = None,
+    gtol: float,
     maxiter: int = 100_000,
     etol: float = 0.0,
     precon: Preconditioner | None = None,
     memory: int = 10,
 ) -> MinimizeResult:
-    """Minimize ``objective`` from ``objective.x0`` by (preconditioned) L-BFGS.
+    """Minimize ``problem`` from ``x0`` ``(n_dof,)`` by (preconditioned) L-BFGS.
 
-    Stops when ``max_i |grad_i| <= gtol`` (or ``rtol`` x the mean contact force at the start),
-    when the energy is ``<= etol`` (default: exactly zero), after ``maxiter`` iterations, or
-    when no step satisfying the Wolfe conditions exists even along steepest descent (reported,
-    ``converged=False``).
+    Stops when ``problem.max_gradient(grad) <= gtol`` or the energy is ``<= etol`` (default:
+    exactly zero; status ``CONVERGED``), after ``maxiter`` iterations (``ITERATION_LIMIT``), or
+    when no step satisfying the Wolfe conditions exists even along the (preconditioned)
+    gradient (``LINE_SEARCH_FAILED``).
     """
-    tracker = Tracker.start(objective, "lbfgs", precon, gtol, rtol, maxiter, etol)
-    x = objective.x0.copy()
-    energy, grad = objective(x)
+    tracker = Tracker.start(problem, "lbfgs", precon, gtol, maxiter, etol)
+    x = np.array(x0, dtype=np.float64, copy=True)
+    energy, grad = problem(x)
     if precon is not None:
         precon.update(x)
-    pairs = _Memory(memory, objective.n_dof)
+    z = precon.solve(grad) if precon is not None else grad
+    builds = precon.n_builds if precon is not None else 0
+    pairs = _Memory(memory, problem.n_dof, precon)
     if tracker.record(energy, grad):
-        return tracker.finish(x, True, "converged")
+        return tracker.finish(x, Status.CONVERGED, "converged")
     while tracker.iterations < maxiter:
-        direction = -pairs.apply(grad, precon)
+        direction = pairs.direction(grad, z)
         if not float(grad @ direction) < 0.0:  # curvature pairs gone stale: restart
             pairs.clear()
-            direction = -pairs.b0(grad, precon)
-        ls = search(objective, x, energy, grad, direction, 1.0, c2=0.9)
+            direction = -z
+        ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
         if not ls.ok and pairs:
             pairs.clear()  # stale curvature pairs: restart from the (preconditioned) gradient
-            direction = -pairs.b0(grad, precon)
-            ls = search(objective, x, energy, grad, direction, 1.0, c2=0.9)
+            direction = -z
+            ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
         if not ls.ok:
-            return tracker.finish(x, False, "line search failed: no Wolfe step along descent")
+            return tracker.finish(
+                x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
+            )
         x_new = x + ls.step * direction
-        energy, grad_new = objective(x_new)
+        energy, grad_new = problem(x_new)
+        rebuilt = False
+        if precon is not None:
+            precon.update(x_new)
+            rebuilt, builds = precon.n_builds != builds, precon.n_builds
+        z_new = precon.solve(grad_new) if precon is not None else grad_new
         s, y = x_new - x, grad_new - grad
         sy = float(s @ y)
+        if rebuilt:
+            assert precon is not None
+            pairs.refresh(precon)
         if sy > 0.0:
-            pairs.push(s, y, sy)
-        x, grad = x_new, grad_new
-        if precon is not None:
-            precon.update(x)
+            py = y if precon is None else (precon.solve(y) if rebuilt else z_new - z)
+            pairs.push(s, y, py, sy)
+        x, grad, z = x_new, grad_new, z_new
         if tracker.record(energy, grad):
-            return tracker.finish(x, True, "converged")
-    return tracker.finish(x, False, f"iteration limit {maxiter} reached")
+            return tracker.finish(x, Status.CONVERGED, "converged")
+    return tracker.finish(x, Status.ITERATION_LIMIT, f"iteration limit {maxiter} reached")

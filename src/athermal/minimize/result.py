@@ -1,17 +1,68 @@
-"""What every minimizer returns, and the bookkeeping they share."""
+"""What every minimizer is given and returns, and the bookkeeping they share.
+
+The minimizers know a :class:`Problem`: ``f`` and ``grad f`` of a flat vector ``x``, a norm
+of the gradient, the longest step allowed along a direction and the round-off of ``f``. An
+:class:`~athermal.objective.Objective` is one; the packing-aware parts (the ``rtol`` of the
+mean contact force, the per-particle step cap, FIRE's curvature bound) live there.
+"""
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..objective import Objective
 from ..packing import Packing
+
+
+class Problem(Protocol):
+    """A function to minimize, as the minimizers see it (:class:`~athermal.objective.Objective`
+    is one; a test may pass any object with these members)."""
+
+    n_evaluations: int
+    n_rebuilds: int
+
+    @property
+    def n_dof(self) -> int:
+        """Length of ``x``."""
+        ...
+
+    def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        """``f(x)`` and ``grad f(x)`` ``(n_dof,)``."""
+        ...
+
+    def max_gradient(self, grad: NDArray[np.float64]) -> float:
+        """The norm the tolerance is stated in (``max_i |grad_i|``)."""
+        ...
+
+    def step_limit(self, direction: NDArray[np.float64]) -> float:
+        """Largest step ``a`` allowed along ``direction`` in one iteration."""
+        ...
+
+    def energy_noise(self, energy: float) -> float:
+        """Absolute round-off of ``f`` near ``energy``."""
+        ...
+
+    def packing(self, x: NDArray[np.float64], *, internal: bool = False) -> Packing | None:
+        """The configuration at ``x`` for the result (``None`` for a plain function)."""
+        ...
+
+
+class Status(StrEnum):
+    """Why a minimization stopped (the protocols test this, never the message text)."""
+
+    CONVERGED = "converged"
+    """``max_gradient <= gtol``, or the energy reached ``etol``."""
+    ITERATION_LIMIT = "iteration limit"
+    LINE_SEARCH_FAILED = "line search failed"
+    """No step met the Wolfe conditions, even along the (preconditioned) gradient."""
+    NOT_FINITE = "not finite"
+    """The energy, gradient or step became NaN or infinite."""
 
 
 class Preconditioner(Protocol):
@@ -36,7 +87,8 @@ class MinimizeResult:
     """Outcome of one minimization.
 
     ``x`` is the final flat vector (the objective's internal order) and ``packing`` the final
-    configuration in the caller's order. ``history_energy`` and ``history_max_gradient`` have one
+    configuration in the caller's order; ``status`` says why the run stopped (``converged`` is
+    ``status is Status.CONVERGED``). ``history_energy`` and ``history_max_gradient`` have one
     entry per iteration plus the start (index 0). ``max_gradient`` is ``max_i |grad_i|``
     (Euclidean norm per particle); ``gtol`` the absolute tolerance on it that was used.
     """
@@ -44,6 +96,7 @@ class MinimizeResult:
     x: NDArray[np.float64]
     packing: Packing
     converged: bool
+    status: Status
     message: str
     method: str
     precon: str
@@ -63,7 +116,7 @@ class MinimizeResult:
 class Tracker:
     """Shared bookkeeping of a minimizer run: tolerance, history, timing, final result."""
 
-    objective: Objective
+    objective: Problem
     method: str
     precon: Preconditioner | None
     gtol: float
@@ -78,21 +131,17 @@ class Tracker:
     @classmethod
     def start(
         cls,
-        objective: Objective,
+        objective: Problem,
         method: str,
         precon: Preconditioner | None,
-        gtol: float | None,
-        rtol: float | None,
+        gtol: float,
         maxiter: int,
         etol: float = 0.0,
     ) -> Tracker:
-        """Fix the absolute tolerance: ``gtol``, or ``rtol`` x the mean contact force at ``x0``;
-        ``etol`` is the energy at or below which the run also stops, converged."""
-        if (gtol is None) == (rtol is None):
-            raise InputError("give exactly one of gtol (absolute) and rtol (x mean contact force)")
-        tol = gtol if gtol is not None else rtol * objective.mean_contact_force(objective.x0)  # type: ignore[operator]
-        if not np.isfinite(tol) or tol < 0.0:
-            raise InputError(f"gtol/rtol: tolerance must be finite and >= 0, got {tol}")
+        """Check the absolute tolerance ``gtol`` on :meth:`Problem.max_gradient`, ``maxiter``
+        and ``etol``, the energy at or below which the run also stops, converged."""
+        if not np.isfinite(gtol) or gtol < 0.0:
+            raise InputError(f"gtol: tolerance must be finite and >= 0, got {gtol}")
         if maxiter < 0:
             raise InputError(f"maxiter: must be >= 0, got {maxiter}")
         if not np.isfinite(etol) or etol < 0.0:
@@ -101,7 +150,7 @@ class Tracker:
             objective,
             method,
             precon,
-            float(tol),
+            float(gtol),
             int(maxiter),
             float(etol),
             start_evaluations=objective.n_evaluations,
@@ -120,13 +169,14 @@ class Tracker:
         """Iterations done so far (recorded iterates minus the start)."""
         return len(self.energies) - 1
 
-    def finish(self, x: NDArray[np.float64], converged: bool, message: str) -> MinimizeResult:
+    def finish(self, x: NDArray[np.float64], status: Status, message: str) -> MinimizeResult:
         """The result at ``x`` (which must be the last recorded iterate)."""
         obj = self.objective
         return MinimizeResult(
             x=x,
-            packing=obj.packing(x),
-            converged=converged,
+            packing=obj.packing(x),  # type: ignore[arg-type]
+            converged=status is Status.CONVERGED,
+            status=status,
             message=message,
             method=self.method,
             precon=self.precon.name if self.precon is not None else "none",

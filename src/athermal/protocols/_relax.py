@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 from ..cell import Cell
 from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import ConvergenceError
-from ..minimize import Minimizer, MinimizeResult, minimize, resolve_method
+from ..minimize import Minimizer, MinimizeResult, Status, minimize, resolve_method
 from ..moduli import stability
 from ..objective import Objective
 from ..packing import Packing
@@ -47,16 +47,16 @@ class Relaxer:
     ) -> MinimizeResult:
         """Minimize from ``x`` ``(N d,)`` (internal order) to ``max_i |grad_i| <= gtol`` or
         energy ``<= etol``; raises :class:`ConvergenceError` naming ``what`` otherwise."""
-        self.objective.start_from(x)
         result = minimize(
             self.objective,
             self.method,  # type: ignore[arg-type]
+            x0=x,
             precon=self.precon if self.precon is not None else "none",
             gtol=gtol,
             etol=etol,
             maxiter=self.minimizer.maxiter,
         )
-        if not result.converged and result.message.startswith("line search failed"):
+        if result.status is Status.LINE_SEARCH_FAILED:
             result = self._finish_with_fire(result, gtol, etol)
         if not result.converged:
             raise ConvergenceError(
@@ -131,10 +131,10 @@ class Relaxer:
         return best
 
     def _finish_with_fire(self, first: MinimizeResult, gtol: float, etol: float) -> MinimizeResult:
-        self.objective.start_from(first.x)
         rest = minimize(
             self.objective,
             "fire",
+            x0=first.x,
             precon=self.precon if self.precon is not None else "none",
             gtol=gtol,
             etol=etol,

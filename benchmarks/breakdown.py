@@ -1,0 +1,220 @@
+"""B1 supplement: where one iteration's time goes (Table Case 1, N = 4096, pinned).
+
+Each method relaxes Case 1 (alpha = 2 by default) to 1e-9 F0 while the parts of an iteration
+are timed by wrappers (about 1 us per call): the compiled energy+gradient kernel, the rest of
+``Objective.__call__`` (its bookkeeping), the preconditioner's solve, the L-BFGS two-loop
+recursion, the line search without its evaluations, and the rest. The floor an iteration
+should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, with the kernel
+and the solve timed bare, in a loop, on the same configuration; the issue's target is
+``ms / iteration <= 1.3 x floor``.
+
+    python benchmarks/breakdown.py                     # N = 4096 Case 1, alpha 2
+    python benchmarks/breakdown.py --name breakdown_before
+
+Results: ``benchmarks/results/<name>.md`` and ``.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable
+from contextlib import ExitStack
+from importlib import import_module
+from pathlib import Path
+from typing import Any
+from unittest import mock
+
+import numpy as np
+
+from athermal.bench import make_case, reference_packing
+from athermal.contact import ContactModel
+from athermal.minimize import RTOL, Minimizer, relax
+from athermal.objective import Objective
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from machine import ROOT, pin, save
+
+# athermal.minimize is also a function name: the modules by import_module
+contact_module = import_module("athermal.contact")
+step_module = import_module("athermal.minimize._step")
+lbfgs_module = import_module("athermal.minimize.lbfgs")
+objective_module = import_module("athermal.objective")
+precon_module = import_module("athermal.precon")
+
+METHODS = (
+    Minimizer("lbfgs"),
+    Minimizer("lbfgs", "exp"),
+    Minimizer("lbfgs", "contact"),
+    Minimizer("cg"),
+    Minimizer("cg", "exp"),
+    Minimizer("fire"),
+)
+PARTS = ("kernel", "objective", "solve", "two-loop", "line search", "other")
+
+
+class Clock:
+    """Accumulated seconds and calls per part; parts nest (an inner part is subtracted)."""
+
+    def __init__(self) -> None:
+        self.seconds = dict.fromkeys(PARTS, 0.0)
+        self.calls = dict.fromkeys(PARTS, 0)
+        self._stack: list[list[float]] = []
+
+    def wrap(self, part: str, func: Callable[..., Any]) -> Callable[..., Any]:
+        def timed(*args: Any, **kwargs: Any) -> Any:
+            self._stack.append([time.perf_counter(), 0.0])
+            try:
+                return func(*args, **kwargs)
+            finally:
+                start, inner = self._stack.pop()
+                spent = time.perf_counter() - start
+                self.seconds[part] += spent - inner
+                self.calls[part] += 1
+                if self._stack:
+                    self._stack[-1][1] += spent
+
+        return timed
+
+
+def bare(func: Callable[[], Any], repeats: int = 200) -> float:
+    """Median seconds of ``func()`` over ``repeats`` calls, after a warm-up."""
+    func()
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        func()
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def floors(start: Any, model: ContactModel) -> dict[str, float]:
+    """Bare seconds of one energy+gradient kernel call and one solve of each preconditioner."""
+    obj = Objective(start, model)
+    x = obj.x0
+    obj(x)
+    nlist = obj.neighbor_list(x)
+    grad = np.empty(obj.n_dof)
+    pos = x.reshape(obj.n, obj.dim)
+
+    def kernel() -> None:
+        contact_module.energy_gradient(
+            pos, obj.radii, obj._typeid, obj._shifts, nlist, model, grad.reshape(obj.n, obj.dim)
+        )
+
+    out = {"kernel": bare(kernel)}
+    for name in ("exp", "contact"):
+        pre = precon_module.make_preconditioner(name, obj)  # type: ignore[arg-type]
+        assert pre is not None
+        pre.update(x)
+        g = obj(x)[1].copy()
+        out[f"solve {name}"] = bare(lambda pre=pre, g=g: pre.solve(g))
+    return out
+
+
+def profile(start: Any, model: ContactModel, how: Minimizer) -> dict[str, Any]:
+    """One relaxation of ``start`` by ``how`` with every part timed."""
+    clock = Clock()
+    with ExitStack() as stack:
+        stack.enter_context(
+            mock.patch.object(
+                objective_module,
+                "energy_gradient",
+                clock.wrap("kernel", objective_module.energy_gradient),
+            )
+        )
+        stack.enter_context(
+            mock.patch.object(
+                objective_module.Objective,
+                "__call__",
+                clock.wrap("objective", objective_module.Objective.__call__),
+            )
+        )
+        for cls in (precon_module.ExpPreconditioner, precon_module.ContactPreconditioner):
+            stack.enter_context(mock.patch.object(cls, "solve", clock.wrap("solve", cls.solve)))
+        stack.enter_context(
+            mock.patch.object(
+                lbfgs_module._Memory,
+                "direction",
+                clock.wrap("two-loop", lbfgs_module._Memory.direction),
+            )
+        )
+        stack.enter_context(
+            mock.patch.object(
+                step_module, "strong_wolfe", clock.wrap("line search", step_module.strong_wolfe)
+            )
+        )
+        obj = Objective(start, model)
+        t0 = time.perf_counter()
+        result = relax(obj, how, rtol=RTOL, maxiter=50_000)
+        total = time.perf_counter() - t0
+    clock.seconds["other"] = total - sum(clock.seconds[p] for p in PARTS if p != "other")
+    iters = max(result.iterations, 1)
+    return {
+        "method": how.name,
+        "iterations": result.iterations,
+        "evaluations": result.evaluations,
+        "solves": clock.calls["solve"],
+        "converged": result.converged,
+        "seconds": total,
+        "ms_per_iteration": 1e3 * total / iters,
+        "parts_ms_per_iteration": {p: 1e3 * clock.seconds[p] / iters for p in PARTS},
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--alpha", type=float, default=2.0)
+    parser.add_argument("--case", type=int, default=1)
+    parser.add_argument("--name", default="breakdown")
+    parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
+    args = parser.parse_args(argv)
+    pin()
+    model = ContactModel(args.alpha)
+    start = make_case(reference_packing(args.alpha), args.case)
+    floor = floors(start, model)
+    rows = []
+    for how in METHODS:
+        profile(start, model, how)  # warm-up: compilation, caches
+        row = profile(start, model, how)
+        precon = how.precon if how.precon != "none" else None
+        solve = floor[f"solve {precon}"] if precon else 0.0
+        iters = max(row["iterations"], 1)
+        row["floor_ms"] = 1e3 * (
+            row["evaluations"] / iters * floor["kernel"] + row["solves"] / iters * solve
+        )
+        row["ratio_to_floor"] = row["ms_per_iteration"] / row["floor_ms"]
+        rows.append(row)
+        print(f"{how.name}: {row['ms_per_iteration']:.3f} ms/it", file=sys.stderr, flush=True)
+    header = "| method | iterations | evaluations / it | solves / it | ms / it | floor ms / it "
+    header += "| ratio | " + " | ".join(PARTS) + " |"
+    md = [
+        f"# Per-iteration breakdown: Table Case {args.case}, alpha = {args.alpha:g}, N = 4096",
+        "",
+        f"Bare kernel (energy+gradient) {1e3 * floor['kernel']:.4f} ms; bare solve: Exp "
+        f"{1e3 * floor['solve exp']:.4f} ms, contact {1e3 * floor['solve contact']:.4f} ms. "
+        "floor = evaluations/it x kernel + solves/it x solve; target ratio <= 1.3. "
+        "Parts in ms per iteration (objective: Objective.__call__ without the kernel).",
+        "",
+        header,
+        "|---|" + "---:|" * (7 + len(PARTS)),
+    ]
+    for r in rows:
+        iters = max(r["iterations"], 1)
+        parts = " | ".join(f"{r['parts_ms_per_iteration'][p]:.3f}" for p in PARTS)
+        md.append(
+            f"| {r['method']} | {r['iterations']} | {r['evaluations'] / iters:.2f} | "
+            f"{r['solves'] / iters:.2f} | {r['ms_per_iteration']:.3f} | {r['floor_ms']:.3f} | "
+            f"{r['ratio_to_floor']:.2f} | {parts} |"
+        )
+    md.append("")
+    text = "\n".join(md)
+    print(text)
+    data = {"alpha": args.alpha, "case": args.case, "floor_seconds": floor, "rows": rows}
+    save(args.output_dir, args.name, data, text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
