@@ -99,7 +99,7 @@ def floors(start: Any, model: ContactModel) -> dict[str, float]:
     pos = x.reshape(obj.n, obj.dim)
 
     def kernel() -> None:
-        contact_module.energy_gradient(
+        contact_module.energy_gradient_contacts(
             pos, obj.radii, obj._typeid, obj._shifts, nlist, model, grad.reshape(obj.n, obj.dim)
         )
 
@@ -120,8 +120,8 @@ def profile(start: Any, model: ContactModel, how: Minimizer) -> dict[str, Any]:
         stack.enter_context(
             mock.patch.object(
                 objective_module,
-                "energy_gradient",
-                clock.wrap("kernel", objective_module.energy_gradient),
+                "energy_gradient_contacts",
+                clock.wrap("kernel", objective_module.energy_gradient_contacts),
             )
         )
         stack.enter_context(

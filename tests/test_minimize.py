@@ -253,7 +253,8 @@ def test_compiled_two_loop_matches_the_textbook_recursion():
     for _ in range(6):  # more pairs than the memory: the ring drops the oldest
         s = rng.standard_normal(n)
         y = diag * s + 0.1 * rng.standard_normal(n)
-        memory.push(s, y, solve(y), float(s @ y))
+        zero = np.zeros(n)  # a step from 0 to s with gradients 0 -> y
+        memory.store(zero, s, zero, y, zero, solve(y))
         pairs = [*pairs[-3:], (s, y)]
     grad = rng.standard_normal(n)
     np.testing.assert_allclose(

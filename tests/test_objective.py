@@ -24,3 +24,16 @@ def test_start_from_moves_the_start_and_checks_the_shape():
     np.testing.assert_array_equal(obj.x0, x)
     with pytest.raises(InputError, match="x:"):
         obj.start_from(x[:-1])
+
+
+def test_contact_count_of_the_last_evaluation_matches_a_separate_pass():
+    packing = random_packing(200, 0.86, seed=9)
+    evaluated = Objective(packing, ContactModel(2.0))
+    evaluated(evaluated.x0)  # counts from the energy pass
+    fresh = Objective(packing, ContactModel(2.0))  # nothing evaluated: the compiled count
+    brute = 0
+    for i in range(packing.n):
+        sep = packing.cell.minimum_image(packing.positions[i + 1 :] - packing.positions[i])
+        reach = packing.radii[i + 1 :] + packing.radii[i]
+        brute += int(np.sum(np.einsum("ij,ij->i", sep, sep) < reach**2))
+    assert evaluated.count_contacts(evaluated.x0) == fresh.count_contacts(fresh.x0) == brute

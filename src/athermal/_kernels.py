@@ -269,8 +269,10 @@ def _pair_force(delta, k, alpha):  # type: ignore[no-untyped-def]
 # and skipping the species lookup for a uniform stiffness saves ~3 ns per pair.
 @_jit_fast
 def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
-    """Energy ``sum k delta^alpha / alpha`` over pairs; gradient written into ``grad (N, 2)``."""
+    """Energy ``sum k delta^alpha / alpha`` over pairs and the number of overlapping pairs
+    (``|x_i - x_j + shift|^2 < (r_i + r_j)^2``); gradient written into ``grad (N, 2)``."""
     energy = 0.0
+    contacts = 0
     grad[:] = 0.0
     uniform = kmat.size == 1
     k = kmat[0, 0]
@@ -280,8 +282,11 @@ def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha
         c = code[p]
         dx = x[i, 0] - x[j, 0] + shift[c, 0]
         dy = x[i, 1] - x[j, 1] + shift[c, 1]
-        dist = np.sqrt(dx * dx + dy * dy)
-        delta = max(radii[i] + radii[j] - dist, 0.0)
+        dist_sq = dx * dx + dy * dy
+        reach = radii[i] + radii[j]
+        contacts += dist_sq < reach * reach
+        dist = np.sqrt(dist_sq)
+        delta = max(reach - dist, 0.0)
         if not uniform:
             k = kmat[typeid[i], typeid[j]]
         f = _pair_force(delta, k, alpha)
@@ -293,13 +298,14 @@ def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha
         grad[i, 1] -= fy
         grad[j, 0] += fx
         grad[j, 1] += fy
-    return energy / alpha
+    return energy / alpha, contacts
 
 
 @_jit_fast
 def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
     """3D twin of :func:`energy_gradient_2d` (``grad (N, 3)``)."""
     energy = 0.0
+    contacts = 0
     grad[:] = 0.0
     uniform = kmat.size == 1
     k = kmat[0, 0]
@@ -310,8 +316,11 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
         dx = x[i, 0] - x[j, 0] + shift[c, 0]
         dy = x[i, 1] - x[j, 1] + shift[c, 1]
         dz = x[i, 2] - x[j, 2] + shift[c, 2]
-        dist = np.sqrt(dx * dx + dy * dy + dz * dz)
-        delta = max(radii[i] + radii[j] - dist, 0.0)
+        dist_sq = dx * dx + dy * dy + dz * dz
+        reach = radii[i] + radii[j]
+        contacts += dist_sq < reach * reach
+        dist = np.sqrt(dist_sq)
+        delta = max(reach - dist, 0.0)
         if not uniform:
             k = kmat[typeid[i], typeid[j]]
         f = _pair_force(delta, k, alpha)
@@ -326,7 +335,7 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
         grad[j, 0] += fx
         grad[j, 1] += fy
         grad[j, 2] += fz
-    return energy / alpha
+    return energy / alpha, contacts
 
 
 @_jit
@@ -415,6 +424,25 @@ def lbfgs_direction(grad, z, s_mem, y_mem, py_mem, rho, gamma, order, alphas, q,
             dot += y_mem[nxt, p] * out[p]
     for p in range(n):
         out[p] = -out[p]
+
+
+@_jit_fast
+def lbfgs_pair(x, x_new, g, g_new, z, z_new, s, y, py):  # type: ignore[no-untyped-def]
+    """One L-BFGS pair in one pass: ``s = x_new - x``, ``y = g_new - g``, ``py = z_new - z``
+    (written into the given rows; ``py`` may be ``y`` itself when ``z`` is ``g``). Returns
+    ``(s.y, y.py)``."""
+    sy = 0.0
+    ypy = 0.0
+    for p in range(x.size):
+        sp = x_new[p] - x[p]
+        yp = g_new[p] - g[p]
+        pyp = z_new[p] - z[p]
+        s[p] = sp
+        y[p] = yp
+        py[p] = pyp
+        sy += sp * yp
+        ypy += yp * pyp
+    return sy, ypy
 
 
 @_jit

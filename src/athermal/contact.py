@@ -75,21 +75,33 @@ def energy_gradient(
 
     ``shifts`` is ``nlist.shifts(cell)``; all arrays C-contiguous float64 (no checks here).
     """
+    return energy_gradient_contacts(positions, radii, typeid, shifts, nlist, model, grad)[0]
+
+
+def energy_gradient_contacts(
+    positions: NDArray[np.float64],
+    radii: NDArray[np.float64],
+    typeid: NDArray[np.int32],
+    shifts: NDArray[np.float64],
+    nlist: NeighborList,
+    model: ContactModel,
+    grad: NDArray[np.float64],
+) -> tuple[float, int]:
+    """:func:`energy_gradient` and the number of overlapping pairs, from the same pass."""
     kernel = _kernels.energy_gradient_2d if positions.shape[1] == 2 else _kernels.energy_gradient_3d
-    return float(
-        kernel(
-            positions,
-            radii,
-            nlist.first,
-            nlist.second,
-            nlist.code,
-            shifts,
-            typeid,
-            model.kmat,
-            model.alpha,
-            grad,
-        )
+    energy, contacts = kernel(
+        positions,
+        radii,
+        nlist.first,
+        nlist.second,
+        nlist.code,
+        shifts,
+        typeid,
+        model.kmat,
+        model.alpha,
+        grad,
     )
+    return float(energy), int(contacts)
 
 
 @dataclass(frozen=True, eq=False)

@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _kernels
-from .contact import ContactModel, energy_gradient, find_contacts
+from .contact import ContactModel, energy_gradient_contacts, find_contacts
 from .errors import InputError
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
@@ -51,6 +51,7 @@ class Objective:
         self._shifts = np.zeros((1, self.dim))
         self._last_x = np.full(self.n_dof, np.nan)  # NaN: nothing evaluated yet
         self._last: tuple[float, NDArray[np.float64]] = (0.0, np.zeros(0))
+        self._last_contacts = 0
         self.n_evaluations = 0
         self.n_rebuilds = 0
         self.max_step = MAX_STEP_FACTOR * float(np.mean(self.radii))
@@ -88,7 +89,7 @@ class Objective:
             return self._last
         nlist = self.neighbor_list(x)
         grad = np.empty(self.n_dof)
-        energy = energy_gradient(
+        energy, self._last_contacts = energy_gradient_contacts(
             x.reshape(self.n, self.dim),
             self.radii,
             self._typeid,
@@ -103,9 +104,13 @@ class Objective:
         return self._last
 
     def count_contacts(self, x: NDArray[np.float64]) -> int:
-        """Number of overlapping pairs at ``x`` (compiled; the Verlet list is kept fresh)."""
-        nlist = self.neighbor_list(x)
-        positions = np.ascontiguousarray(x, dtype=np.float64).reshape(self.n, self.dim)
+        """Number of overlapping pairs at ``x``: counted by the last evaluation when ``x`` is
+        its point, else by a compiled pass (the Verlet list is kept fresh)."""
+        positions = np.ascontiguousarray(x, dtype=np.float64)
+        if positions.shape == self._last_x.shape and _kernels.same_values(positions, self._last_x):
+            return self._last_contacts
+        nlist = self.neighbor_list(positions)
+        positions = positions.reshape(self.n, self.dim)
         return int(
             _kernels.count_overlaps(
                 positions, self.radii, nlist.first, nlist.second, nlist.code, self._shifts

@@ -26,36 +26,57 @@ from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 class _Memory:
     """The last ``m`` pairs ``s = x_{k+1} - x_k``, ``y = g_{k+1} - g_k`` and ``P^-1 y`` in ring
-    buffers ``(m, n)``; without a preconditioner ``P^-1 y`` is ``y`` (the same buffer)."""
+    buffers of ``m + 1`` rows ``(m + 1, n)`` (a new pair is written into the free row, so a
+    rejected pair costs no stored one); without a preconditioner ``P^-1 y`` is ``y`` (the
+    same buffer)."""
 
     def __init__(self, m: int, n: int, precon: Preconditioner | None) -> None:
-        self.s = np.zeros((m, n))
-        self.y = np.zeros((m, n))
-        self.py = np.zeros((m, n)) if precon is not None else self.y
-        self.rho = np.zeros(m)
-        self.gamma = np.zeros(m)
-        self.alphas = np.zeros(m)
+        self.m = m
+        self.s = np.zeros((m + 1, n))
+        self.y = np.zeros((m + 1, n))
+        self.py = np.zeros((m + 1, n)) if precon is not None else self.y
+        self.rho = np.zeros(m + 1)
+        self.gamma = np.zeros(m + 1)
+        self.alphas = np.zeros(m + 1)
         self.work = np.zeros(n)
-        self.order = np.zeros(0, dtype=np.int64)  # slots from oldest to newest
+        self.slots: list[int] = []  # rows in use, oldest to newest
+        self.order = np.zeros(0, dtype=np.int64)  # the same, for the compiled recursion
+        self.free = 0
 
     def __len__(self) -> int:
-        return int(self.order.size)
+        return len(self.slots)
 
     def clear(self) -> None:
+        self.slots = []
         self.order = self.order[:0]
 
-    def push(
-        self, s: NDArray[np.float64], y: NDArray[np.float64], py: NDArray[np.float64], sy: float
+    def store(
+        self,
+        x: NDArray[np.float64],
+        x_new: NDArray[np.float64],
+        grad: NDArray[np.float64],
+        grad_new: NDArray[np.float64],
+        z: NDArray[np.float64],
+        z_new: NDArray[np.float64],
+        precon: Preconditioner | None = None,
     ) -> None:
-        """Store a pair with ``s.y = sy > 0``; dropped when ``y.P^-1 y`` is not positive."""
-        ypy = float(y @ py)
-        if not ypy > 0.0:
+        """Form and keep the pair of the step ``x -> x_new`` (``z = P^-1 grad``, or ``grad``
+        without a preconditioner); ``P^-1 y`` by the solve of ``precon`` when given (``P`` was
+        just rebuilt, so ``z_new - z`` mixes two matrices). Kept only when ``s.y > 0`` and
+        ``y.P^-1 y > 0``."""
+        row = self.free
+        sy, ypy = _kernels.lbfgs_pair(
+            x, x_new, grad, grad_new, z, z_new, self.s[row], self.y[row], self.py[row]
+        )
+        if precon is not None:
+            self.py[row] = precon.solve(self.y[row])
+            ypy = float(self.y[row] @ self.py[row])
+        if not (sy > 0.0 and ypy > 0.0):
             return
-        m = self.rho.size
-        slot = int((self.order[-1] + 1) % m) if len(self) else 0
-        self.s[slot], self.y[slot], self.py[slot] = s, y, py
-        self.rho[slot], self.gamma[slot] = 1.0 / sy, sy / ypy
-        self.order = np.append(self.order[-(m - 1) :] if m > 1 else self.order[:0], slot)
+        self.rho[row], self.gamma[row] = 1.0 / sy, sy / ypy
+        self.slots = [*self.slots[-(self.m - 1) :], row] if self.m > 1 else [row]
+        self.order = np.array(self.slots, dtype=np.int64)
+        self.free = (row + 1) % (self.m + 1)
 
     def refresh(self, precon: Preconditioner) -> None:
         """Recompute ``P^-1 y`` and ``gamma`` of every stored pair after ``P`` was rebuilt."""
@@ -134,14 +155,10 @@ def lbfgs(
             precon.update(x_new)
             rebuilt, builds = precon.n_builds != builds, precon.n_builds
         z_new = precon.solve(grad_new) if precon is not None else grad_new
-        s, y = x_new - x, grad_new - grad
-        sy = float(s @ y)
         if rebuilt:
             assert precon is not None
             pairs.refresh(precon)
-        if sy > 0.0:
-            py = y if precon is None else (precon.solve(y) if rebuilt else z_new - z)
-            pairs.push(s, y, py, sy)
+        pairs.store(x, x_new, grad, grad_new, z, z_new, precon if rebuilt else None)
         x, grad, z = x_new, grad_new, z_new
         if tracker.record(energy, grad):
             return tracker.finish(x, Status.CONVERGED, "converged")
