@@ -7,7 +7,12 @@ adds what a results file needs: the machine, the commit, one pinned core and ato
 Run from the repository root::
 
     python benchmarks/table1.py            # full table, median of 3 (10-20 minutes)
+    python benchmarks/table1.py --lammps   # the same, with LAMMPS min cg rows from the same run
     python benchmarks/table1.py --quick    # smoke test: case 3, alpha 2, three methods, 1 repeat
+
+``--lammps`` needs LAMMPS (``python benchmarks/lammps_cg.py --install``); it adds a row
+"LAMMPS min cg" per case (:func:`lammps_cg.run_case`, same criterion) and a comparison:
+athermal's fastest method against LAMMPS, and P-L-BFGS against L-BFGS, in wall time.
 
 Results: ``benchmarks/results/table1.md`` and ``table1.json``.
 """
@@ -19,7 +24,18 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-from athermal.bench import ALPHAS, CASES, LABELS, QUICK_LABELS, RTOL, Row, markdown, table1
+from athermal.bench import (
+    ALPHAS,
+    CASES,
+    LABELS,
+    QUICK_LABELS,
+    RTOL,
+    Row,
+    make_case,
+    markdown,
+    reference_packing,
+    table1,
+)
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import pin, save
@@ -41,6 +57,62 @@ def report(row: Row) -> None:
     )
 
 
+LAMMPS = "LAMMPS min cg"
+
+
+def lammps_rows(cases: list[int], alphas: list[float], repeats: int) -> list[Row]:
+    """One LAMMPS ``min cg`` row per case (:mod:`lammps_cg`)."""
+    import lammps_cg
+
+    if lammps_cg.load_lammps() is None:
+        raise SystemExit(lammps_cg.HOW_TO_INSTALL)
+    rows = []
+    for alpha in alphas:
+        base = reference_packing(alpha)
+        for case in cases:
+            out = lammps_cg.run_case(make_case(base, case), alpha, repeats)
+            row = Row(
+                case,
+                alpha,
+                f"{LAMMPS} ({out['pair_style']})",
+                out["iterations"],
+                out["evaluations"],
+                out["seconds"],
+                out["energy"],
+                out["grad_over_f0"],
+                out["converged"],
+            )
+            report(row)
+            rows.append(row)
+    return rows
+
+
+def comparison(rows: list[Row]) -> str:
+    """Per case: athermal's fastest converged method against LAMMPS, P-L-BFGS against L-BFGS."""
+    lines = [
+        "| alpha | case | fastest athermal method | seconds | LAMMPS seconds | LAMMPS / fastest "
+        "| P-L-BFGS / L-BFGS seconds |",
+        "|---:|---:|---|---:|---:|---:|---:|",
+    ]
+    for alpha, case in dict.fromkeys((r.alpha, r.case) for r in rows):
+        mine = [r for r in rows if (r.alpha, r.case) == (alpha, case)]
+        ours = [r for r in mine if r.converged and not r.method.startswith(("LAMMPS", "scipy"))]
+        theirs = [r for r in mine if r.method.startswith(LAMMPS)]
+        by_name = {r.method: r.seconds for r in mine}
+        if not ours:
+            continue
+        best = min(ours, key=lambda r: r.seconds)
+        ratio = "-"
+        if "P-L-BFGS" in by_name and "L-BFGS" in by_name:
+            ratio = f"{by_name['P-L-BFGS'] / by_name['L-BFGS']:.2f}"
+        lammps = f"{theirs[0].seconds:.3f} | {theirs[0].seconds / best.seconds:.2f}"
+        lines.append(
+            f"| {alpha:g} | {case} | {best.method} | {best.seconds:.3f} | "
+            f"{lammps if theirs else '- | -'} | {ratio} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--cases", type=int, nargs="+", default=list(CASES), choices=CASES)
@@ -53,15 +125,19 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="smoke test (seconds)")
+    parser.add_argument("--lammps", action="store_true", help="add LAMMPS min cg rows")
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
     if args.quick:
         args.cases, args.alphas, args.repeats, args.methods = [3], [2.0], 1, list(QUICK_LABELS)
     pin()
     rows = table1(args.cases, args.alphas, args.methods, args.repeats, progress=report)
+    if args.lammps:
+        rows += lammps_rows(args.cases, args.alphas, args.repeats)
+        rows.sort(key=lambda r: (r.alpha, r.case))
     header = ["# B1 — the seed's Table (N = 4096, phi = 0.8438)", ""]
     header += [f"- {key}: {value}" for key, value in META.items()]
-    text = "\n".join(header) + "\n\n" + markdown(rows)
+    text = "\n".join(header) + "\n\n" + markdown(rows) + "\n" + comparison(rows)
     save(args.output_dir, "table1", {"meta": dict(META), "rows": [asdict(r) for r in rows]}, text)
     print(text)
     return 0

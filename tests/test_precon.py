@@ -3,7 +3,7 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-import athermal.precon as precon
+import athermal.linalg as linalg
 from athermal.cell import Cell, simple_shear
 from athermal.contact import ContactModel, find_contacts, hessian
 from athermal.errors import InputError
@@ -187,8 +187,8 @@ def test_splu_fallback_without_cholespy(kind, monkeypatch):
     obj = objective(2, seed=6)
     reference = kind(obj, A=3.0, mu=0.7, solver="direct")
     reference.update(obj.x0)
-    real_available = precon._available
-    monkeypatch.setattr(precon, "_available", lambda m: m != "cholespy" and real_available(m))
+    real_available = linalg.available
+    monkeypatch.setattr(linalg, "available", lambda m: m != "cholespy" and real_available(m))
     pre = kind(obj, A=3.0, mu=0.7, solver="direct")
     pre.update(obj.x0)
     assert pre.backend == "splu"
@@ -224,7 +224,7 @@ def test_amg_is_a_fixed_spd_linear_operator_that_reduces_the_residual(dim, kind,
 def test_auto_solver_threshold():
     obj = objective(2)
     assert ExpPreconditioner(obj, solver="auto").solver == "direct"
-    assert precon.AUTO_DIRECT_MAX_N == 200_000
+    assert linalg.AUTO_DIRECT_MAX_N == 200_000
 
 
 # --- rebuild rule and reuse ---------------------------------------------------------------------

@@ -29,11 +29,7 @@ Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x le
 
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
 import warnings
-from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Literal
 
@@ -45,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._validate import float_array
 from .cell import simple_shear
 from .contact import ContactModel, Contacts, find_contacts, hessian
+from .linalg import cholesky
 from .observables import pressure, rattlers, stress
 from .packing import Packing
 
@@ -329,43 +326,9 @@ def _solve(
 
 
 def _cholesky_solve(h: sp.csr_matrix, b: NDArray[np.float64]) -> NDArray[np.float64] | None:
-    """``h^-1 b`` by CHOLMOD (lower triangle passed: cholespy ignores the upper one); None when
-    ``h`` is not positive definite."""
-    from cholespy import CholeskySolverD, MatrixType
-
-    lower = sp.tril(h, format="coo")
-    try:
-        with _c_output_silenced():  # CHOLMOD prints a warning on stdout before raising
-            solver = CholeskySolverD(
-                h.shape[0],
-                np.ascontiguousarray(lower.row, dtype=np.int32),
-                np.ascontiguousarray(lower.col, dtype=np.int32),
-                np.ascontiguousarray(lower.data, dtype=np.float64),
-                MatrixType.COO,
-            )
-    except ValueError:  # "Matrix is not positive definite!"
-        return None
-    y = np.empty_like(b)
-    solver.solve(b, y)
-    return y
-
-
-@contextlib.contextmanager
-def _c_output_silenced() -> Iterator[None]:
-    """Send what C code writes to file descriptors 1 and 2 to the null device meanwhile (so
-    that ``--json`` output stays one object)."""
-    sys.stdout.flush()
-    sys.stderr.flush()
-    saved = [os.dup(1), os.dup(2)]
-    try:
-        with open(os.devnull, "w") as null:
-            os.dup2(null.fileno(), 1)
-            os.dup2(null.fileno(), 2)
-            yield
-    finally:
-        for fd, copy in zip((1, 2), saved, strict=True):
-            os.dup2(copy, fd)
-            os.close(copy)
+    """``h^-1 b`` by CHOLMOD; None when ``h`` is not positive definite."""
+    factor = cholesky(h)
+    return None if factor is None else factor.solve(b)
 
 
 def _relative_residual(

@@ -11,37 +11,38 @@ Two preconditioners satisfy :class:`~athermal.minimize.result.Preconditioner`:
   (normal) part of every contact's Hessian block and ``L`` is the Exp matrix as stabilization.
 
 Flat vectors are ``(N d,)``, particle-major (``x.reshape(N, d)``), in the objective's internal
-order. Both factor ``P`` once per rebuild and reuse the factor for every :meth:`solve`: the
-direct solver is CHOLMOD through cholespy (given the lower triangle only: it ignores the upper
-one) or, without cholespy, SciPy's ``splu``; the AMG solver applies a fixed number of
-smoothed-aggregation V-cycles from a zero start, a fixed symmetric linear operator.
+order. Both factor ``P`` once per rebuild and reuse the factor for every :meth:`solve`, with
+the solvers of :mod:`athermal.linalg` (CHOLMOD, SuperLU without cholespy, or AMG V-cycles).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import time
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING, Literal, Protocol
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
 from . import _kernels
 from ._validate import choice, positive_scalar
 from .contact import assemble_blocks, find_contacts
 from .errors import InputError
+from .linalg import (
+    AMG_CYCLES,
+    Factor,
+    SolverName,
+    factorize,
+    resolve_solver,
+)
 from .neighbors import build_neighbor_list
 from .objective import Objective
 
 if TYPE_CHECKING:  # the protocol lives with its users, above this module
     from .minimize.result import Preconditioner
 
-SolverName = Literal["auto", "direct", "amg"]
 PreconName = Literal["none", "exp", "contact"]
-SOLVERS: tuple[str, ...] = ("auto", "direct", "amg")
 PRECONDITIONERS: tuple[str, ...] = ("none", "exp", "contact")
 
 R_CUT_FACTOR = 2.2
@@ -54,119 +55,6 @@ SINE_AMPLITUDE = 1e-3
 """Amplitude of the sine test perturbation in units of ``r_cut`` (seed: ``M = 1e-3 r_cut``)."""
 CONTACT_CHANGE = 0.1
 """The contact preconditioner rebuilds when the contact number changes by more than 10 %."""
-AUTO_DIRECT_MAX_N = 200_000
-"""``solver="auto"``: direct below this number of particles, AMG from it on."""
-AMG_CYCLES = 1
-"""Default number of AMG V-cycles per application (N = 65536, 2D: ~19 matrix-vector products)."""
-
-
-class _Factor(Protocol):
-    """A fixed approximation of ``P^-1``: ``solve`` maps ``(n, k)`` columns to ``(n, k)``."""
-
-    backend: str
-
-    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]: ...
-
-
-class _CholespyFactor:
-    """Sparse Cholesky factor (CHOLMOD via cholespy) of an SPD matrix, built once.
-
-    cholespy reads only the lower triangle (``row >= col``) of what it is given, so exactly that
-    triangle is passed; an upper triangle would silently factor a different matrix.
-    """
-
-    backend = "cholespy"
-
-    def __init__(self, matrix: sp.spmatrix) -> None:
-        from cholespy import CholeskySolverD, MatrixType
-
-        lower = sp.tril(matrix, format="coo")
-        self._solver = CholeskySolverD(
-            matrix.shape[0],
-            np.ascontiguousarray(lower.row, dtype=np.int32),
-            np.ascontiguousarray(lower.col, dtype=np.int32),
-            np.ascontiguousarray(lower.data, dtype=np.float64),
-            MatrixType.COO,
-        )
-
-    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-        b = np.ascontiguousarray(rhs, dtype=np.float64)
-        out = np.empty_like(b)
-        self._solver.solve(b, out)
-        return out
-
-
-class _SpluFactor:
-    """SciPy SuperLU factor with a symmetric ordering and no pivoting (cholespy missing)."""
-
-    backend = "splu"
-
-    def __init__(self, matrix: sp.spmatrix) -> None:
-        self._lu = spla.splu(
-            sp.csc_matrix(matrix),
-            permc_spec="MMD_AT_PLUS_A",
-            diag_pivot_thresh=0.0,
-            options={"SymmetricMode": True},
-        )
-
-    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-        return np.asarray(self._lu.solve(np.asarray(rhs, dtype=np.float64)), dtype=np.float64)
-
-
-class _AmgFactor:
-    """``cycles`` smoothed-aggregation V-cycles from a zero start: a fixed SPD linear operator.
-
-    pyamg's default smoothers (symmetric Gauss-Seidel before and after) and exact coarse solve
-    make one V-cycle symmetric; with ``tol=0`` no cycle is skipped, so the map is linear. With
-    ``k > 1`` near-null vectors (the ``d`` translations of an ``(N d)`` system) the matrix is
-    aggregated by ``k x k`` blocks (one block per particle).
-    """
-
-    backend = "pyamg"
-
-    def __init__(self, matrix: sp.spmatrix, cycles: int, near_null: NDArray[np.float64]) -> None:
-        import pyamg
-
-        block = near_null.shape[1]
-        system = sp.bsr_matrix(matrix, blocksize=(block, block)) if block > 1 else matrix
-        self._cycles = cycles
-        self._ml = pyamg.smoothed_aggregation_solver(system, B=near_null, symmetry="hermitian")
-
-    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-        b = np.asarray(rhs, dtype=np.float64)
-        out = np.empty_like(b)
-        for col in range(b.shape[1]):
-            out[:, col] = self._ml.solve(
-                b[:, col], x0=np.zeros(b.shape[0]), tol=0.0, maxiter=self._cycles, cycle="V"
-            )
-        return out
-
-
-def _available(module: str) -> bool:
-    return importlib.util.find_spec(module) is not None
-
-
-def _resolve_solver(solver: str, n: int) -> str:
-    """``"direct"`` or ``"amg"`` for ``solver`` and ``n`` particles (``"auto"`` resolved)."""
-    choice(solver, "solver", SOLVERS)
-    if solver == "amg" and not _available("pyamg"):
-        raise InputError(
-            "solver: 'amg' needs pyamg; install it with `pip install athermal[solvers]`"
-        )
-    if solver == "auto":
-        return "amg" if n >= AUTO_DIRECT_MAX_N and _available("pyamg") else "direct"
-    return solver
-
-
-def _factorize(
-    matrix: sp.spmatrix, solver: str, cycles: int, near_null: NDArray[np.float64]
-) -> _Factor:
-    """Factor (direct: cholespy, else splu) or build the AMG hierarchy of an SPD ``matrix``."""
-    if solver == "amg":
-        return _AmgFactor(matrix, cycles, near_null)
-    if _available("cholespy"):
-        return _CholespyFactor(matrix)
-    return _SpluFactor(matrix)
 
 
 def cutoff_pairs(
@@ -272,7 +160,7 @@ class _PairPreconditioner(ABC):
         if int(amg_cycles) != amg_cycles or amg_cycles < 1:
             raise InputError(f"amg_cycles: must be an integer >= 1, got {amg_cycles!r}")
         self.amg_cycles = int(amg_cycles)
-        self.solver = _resolve_solver(solver, objective.n)
+        self.solver = resolve_solver(solver, objective.n)
         self.mu = float("nan")
         self.r_nn = float("nan")
         self.matrix: sp.csr_matrix | None = None
@@ -282,7 +170,7 @@ class _PairPreconditioner(ABC):
         self.n_solves = 0
         self.build_seconds = 0.0
         self.factorize_seconds = 0.0
-        self._factor: _Factor | None = None
+        self._factor: Factor | None = None
         self._reference: NDArray[np.float64] | None = None
 
     def update(self, x: NDArray[np.float64]) -> None:
@@ -352,7 +240,7 @@ class _PairPreconditioner(ABC):
         start = time.perf_counter()
         self.matrix = self._assemble(positions)
         mid = time.perf_counter()
-        self._factor = _factorize(self.matrix, self.solver, self.amg_cycles, self._near_null())
+        self._factor = factorize(self.matrix, self.solver, self.amg_cycles, self._near_null())
         end = time.perf_counter()
         self.backend = self._factor.backend
         self._reference = positions.copy()
@@ -361,7 +249,7 @@ class _PairPreconditioner(ABC):
         self.factorize_seconds += end - mid
         self.build_seconds += end - start
 
-    def _ready(self, vec: NDArray[np.float64], what: str) -> tuple[sp.csr_matrix, _Factor]:
+    def _ready(self, vec: NDArray[np.float64], what: str) -> tuple[sp.csr_matrix, Factor]:
         if self.matrix is None or self._factor is None:
             raise RuntimeError(f"{self.name} preconditioner: call update(x) before {what}()")
         if np.shape(vec) != (self.objective.n_dof,):

@@ -1,0 +1,177 @@
+"""Sparse symmetric solvers, factored once and applied many times: one module for the
+preconditioners (:mod:`athermal.precon`) and the moduli (:mod:`athermal.moduli`).
+
+* :class:`CholeskyFactor`: CHOLMOD through cholespy, given the lower triangle only (cholespy
+  ignores the upper one: passing it would silently factor another matrix);
+* :class:`SpluFactor`: SciPy's SuperLU with a symmetric ordering and no pivoting, when cholespy
+  is missing;
+* :class:`AmgFactor`: a fixed number of smoothed-aggregation V-cycles from a zero start
+  (pyamg), a fixed symmetric linear operator.
+
+Each maps right-hand sides ``(n, k)`` to solutions ``(n, k)``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import importlib.util
+import os
+import sys
+from collections.abc import Iterator
+from typing import Literal, Protocol
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from numpy.typing import NDArray
+
+from ._validate import choice
+from .errors import InputError
+
+SolverName = Literal["auto", "direct", "amg"]
+SOLVERS: tuple[str, ...] = ("auto", "direct", "amg")
+AUTO_DIRECT_MAX_N = 200_000
+"""``solver="auto"``: direct below this number of particles, AMG from it on."""
+AMG_CYCLES = 1
+"""Default number of AMG V-cycles per application (N = 65536, 2D: ~19 matrix-vector products)."""
+
+
+class NotPositiveDefinite(ValueError):
+    """CHOLMOD found the matrix not positive definite."""
+
+
+class Factor(Protocol):
+    """A fixed approximation of ``A^-1``: ``solve`` maps ``(n, k)`` columns to ``(n, k)``."""
+
+    backend: str
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]: ...
+
+
+class CholeskyFactor:
+    """Sparse Cholesky factor (CHOLMOD via cholespy) of an SPD matrix, built once; raises
+    :class:`NotPositiveDefinite` (with CHOLMOD's own warning kept off stdout) otherwise."""
+
+    backend = "cholespy"
+
+    def __init__(self, matrix: sp.spmatrix) -> None:
+        from cholespy import CholeskySolverD, MatrixType
+
+        lower = sp.tril(matrix, format="coo")
+        try:
+            with c_output_silenced():  # CHOLMOD prints a warning on stdout before raising
+                self._solver = CholeskySolverD(
+                    matrix.shape[0],
+                    np.ascontiguousarray(lower.row, dtype=np.int32),
+                    np.ascontiguousarray(lower.col, dtype=np.int32),
+                    np.ascontiguousarray(lower.data, dtype=np.float64),
+                    MatrixType.COO,
+                )
+        except ValueError as error:  # "Matrix is not positive definite!"
+            raise NotPositiveDefinite(str(error)) from None
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        b = np.ascontiguousarray(rhs, dtype=np.float64)
+        out = np.empty_like(b)
+        self._solver.solve(b, out)
+        return out
+
+
+class SpluFactor:
+    """SciPy SuperLU factor with a symmetric ordering and no pivoting (cholespy missing)."""
+
+    backend = "splu"
+
+    def __init__(self, matrix: sp.spmatrix) -> None:
+        self._lu = spla.splu(
+            sp.csc_matrix(matrix),
+            permc_spec="MMD_AT_PLUS_A",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        return np.asarray(self._lu.solve(np.asarray(rhs, dtype=np.float64)), dtype=np.float64)
+
+
+class AmgFactor:
+    """``cycles`` smoothed-aggregation V-cycles from a zero start: a fixed SPD linear operator.
+
+    pyamg's default smoothers (symmetric Gauss-Seidel before and after) and exact coarse solve
+    make one V-cycle symmetric; with ``tol=0`` no cycle is skipped, so the map is linear. With
+    ``k > 1`` near-null vectors (the ``d`` translations of an ``(N d)`` system) the matrix is
+    aggregated by ``k x k`` blocks (one block per particle).
+    """
+
+    backend = "pyamg"
+
+    def __init__(self, matrix: sp.spmatrix, cycles: int, near_null: NDArray[np.float64]) -> None:
+        import pyamg
+
+        block = near_null.shape[1]
+        system = sp.bsr_matrix(matrix, blocksize=(block, block)) if block > 1 else matrix
+        self._cycles = cycles
+        self._ml = pyamg.smoothed_aggregation_solver(system, B=near_null, symmetry="hermitian")
+
+    def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
+        b = np.asarray(rhs, dtype=np.float64)
+        out = np.empty_like(b)
+        for col in range(b.shape[1]):
+            out[:, col] = self._ml.solve(
+                b[:, col], x0=np.zeros(b.shape[0]), tol=0.0, maxiter=self._cycles, cycle="V"
+            )
+        return out
+
+
+def available(module: str) -> bool:
+    """True when ``module`` can be imported (an optional solver's package)."""
+    return importlib.util.find_spec(module) is not None
+
+
+def resolve_solver(solver: str, n: int) -> str:
+    """``"direct"`` or ``"amg"`` for ``solver`` and ``n`` particles (``"auto"`` resolved)."""
+    choice(solver, "solver", SOLVERS)
+    if solver == "amg" and not available("pyamg"):
+        raise InputError(
+            "solver: 'amg' needs pyamg; install it with `pip install athermal[solvers]`"
+        )
+    if solver == "auto":
+        return "amg" if n >= AUTO_DIRECT_MAX_N and available("pyamg") else "direct"
+    return solver
+
+
+def factorize(
+    matrix: sp.spmatrix, solver: str, cycles: int, near_null: NDArray[np.float64]
+) -> Factor:
+    """Factor (direct: cholespy, else splu) or build the AMG hierarchy of an SPD ``matrix``."""
+    if solver == "amg":
+        return AmgFactor(matrix, cycles, near_null)
+    if available("cholespy"):
+        return CholeskyFactor(matrix)
+    return SpluFactor(matrix)
+
+
+def cholesky(matrix: sp.spmatrix) -> CholeskyFactor | None:
+    """The CHOLMOD factor of a symmetric ``matrix``; None when it is not positive definite."""
+    try:
+        return CholeskyFactor(matrix)
+    except NotPositiveDefinite:
+        return None
+
+
+@contextlib.contextmanager
+def c_output_silenced() -> Iterator[None]:
+    """Send what C code writes to file descriptors 1 and 2 to the null device meanwhile (so
+    that ``--json`` output stays one object)."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = [os.dup(1), os.dup(2)]
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            os.dup2(null.fileno(), 2)
+            yield
+    finally:
+        for fd, copy in zip((1, 2), saved, strict=True):
+            os.dup2(copy, fd)
+            os.close(copy)
