@@ -260,3 +260,44 @@ def test_compiled_two_loop_matches_the_textbook_recursion():
     np.testing.assert_allclose(
         memory.direction(grad, solve(grad)), two_loop_reference(grad, pairs, solve), rtol=1e-12
     )
+
+
+class Rebuilding:
+    """A diagonal P whose entries change at every 5th update (a rebuild)."""
+
+    name = "rebuilding"
+
+    def __init__(self, n):
+        self.n_builds, self.updates, self.diag = 0, 0, np.ones(n)
+
+    def update(self, x):
+        if self.updates % 5 == 0:
+            self.n_builds += 1
+            self.diag = np.linspace(0.5, 2.0, x.size) * (1.0 + 0.3 * (self.n_builds % 3))
+        self.updates += 1
+
+    def solve(self, g):
+        return g / self.diag
+
+    def dot(self, v):
+        return v * self.diag
+
+
+def test_pairs_are_refreshed_when_the_preconditioner_is_rebuilt():
+    from athermal.minimize.lbfgs import _Memory
+
+    start = np.linspace(-2.0, 3.0, 40)
+    res = lbfgs(FunctionObjective(quadratic, start), start, gtol=1e-10, precon=Rebuilding(40))
+    assert res.converged and res.precon_builds > 3
+    memory, pre = _Memory(3, 40, Rebuilding(40)), Rebuilding(40)
+    rng = np.random.default_rng(2)
+    for _ in range(3):
+        s = rng.standard_normal(40)
+        zero = np.zeros(40)
+        memory.store(zero, s, zero, 2.0 * s, zero, 2.0 * s)  # a stale P^-1 y = y
+    pre.update(start)
+    memory.refresh(pre)
+    for slot in memory.slots:
+        np.testing.assert_allclose(memory.py[slot], pre.solve(memory.y[slot]), rtol=1e-15)
+        ypy = memory.y[slot] @ memory.py[slot]
+        assert memory.gamma[slot] == pytest.approx((memory.s[slot] @ memory.y[slot]) / ypy)
