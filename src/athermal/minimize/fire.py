@@ -26,6 +26,11 @@ the true power ``F . v = -dE/dt``, the rate of energy change whatever the metric
 happens exactly when the motion climbs. ``precon.update(x)`` is called at every iterate before
 its solve. (A preconditioned FIRE came with the Exp preconditioner of Packwood et al., J. Chem.
 Phys. 144, 164109 (2016); the choices above are ours, in the FIRE 2.0 form.)
+
+One compiled step (:func:`_step`) serves two drivers: a Python loop for any :class:`Problem`
+and any preconditioner, and, for an :class:`~athermal.objective.Objective` without one,
+compiled runs of steps with the energy kernel inside (:func:`_run`) that return to Python only
+to rebuild the Verlet list and to log. Both take the same iterates.
 """
 
 from __future__ import annotations
