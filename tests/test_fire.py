@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -410,44 +409,3 @@ def test_non_finite_step_stops_cleanly() -> None:
     assert not result.converged
     assert "non-finite" in result.message
     assert np.all(np.isfinite(result.x)) and result.iterations == 0
-
-
-class Delegate:
-    """An Objective seen through a plain object: FIRE then takes its step-by-step driver."""
-
-    def __init__(self, objective: Objective) -> None:
-        self._objective = objective
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._objective, name)
-
-    def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-        return self._objective(x)
-
-
-@pytest.mark.parametrize("dim", [2, 3])
-def test_compiled_run_takes_the_same_steps_as_the_step_by_step_driver(dim: int) -> None:
-    packing = random_packing(128, 0.88 if dim == 2 else 0.7, dim=dim, seed=3)
-    fast_obj, slow_obj = (
-        Objective(packing, ContactModel(2.0)),
-        Objective(packing, ContactModel(2.0)),
-    )
-    gtol = fast_obj.tolerance(None, 1e-9)
-    fast = fire(fast_obj, fast_obj.x0, gtol=gtol)
-    slow = fire(Delegate(slow_obj), slow_obj.x0, gtol=gtol)
-    assert fast.converged and slow.converged and fast.neighbor_rebuilds > 1
-    assert fast.iterations == slow.iterations and fast.evaluations == slow.evaluations
-    np.testing.assert_array_equal(fast.x, slow.x)
-    np.testing.assert_array_equal(fast.history_energy, slow.history_energy)
-    np.testing.assert_array_equal(fast.history_max_gradient, slow.history_max_gradient)
-    assert fast_obj.n_rebuilds == slow_obj.n_rebuilds
-    # the objective's cache holds the final evaluation
-    assert fast_obj(fast.x)[0] == fast.energy and fast_obj.n_evaluations == fast.evaluations
-
-
-def test_compiled_run_stops_at_the_iteration_limit_across_chunks(monkeypatch) -> None:
-    monkeypatch.setattr(sys.modules["athermal.minimize.fire"], "_CHUNK", 7)
-    obj = packing_objective()
-    result = fire(obj, obj.x0, gtol=0.0, maxiter=30)
-    assert result.status.value == "iteration limit" and result.iterations == 30
-    assert result.evaluations == 31 and result.history_energy.size == 31

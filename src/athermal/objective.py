@@ -76,43 +76,6 @@ class Objective:
             self.n_rebuilds += 1
         return self._nlist
 
-    def kernel_inputs(self, x: NDArray[np.float64]) -> tuple[object, ...]:
-        """What a compiled loop needs to evaluate the energy itself near ``x`` (the Verlet
-        list made current there): ``(radii, first, second, code, shifts, typeid, kmat, alpha,
-        reference, stale_sq)``; the list stays valid while no particle is further than
-        ``sqrt(stale_sq)`` from ``reference`` ``(N, d)``. Report the evaluations with
-        :meth:`note_evaluations`."""
-        nlist = self.neighbor_list(x)
-        return (
-            self.radii,
-            nlist.first,
-            nlist.second,
-            nlist.code,
-            self._shifts,
-            self._typeid,
-            self.model.kmat,
-            float(self.model.alpha),
-            nlist.reference,
-            0.25 * self.skin * self.skin,
-        )
-
-    def note_evaluations(
-        self,
-        count: int,
-        x: NDArray[np.float64],
-        energy: float,
-        grad: NDArray[np.float64],
-        contacts: int,
-    ) -> None:
-        """Count ``count`` evaluations done outside (:meth:`kernel_inputs`), the last at ``x``
-        with ``energy``, ``grad`` and ``contacts``: it becomes the cached evaluation."""
-        if count == 0:
-            return
-        self.n_evaluations += count
-        self._last_x[:] = x
-        self._last = (energy, grad.copy())
-        self._last_contacts = contacts
-
     def start_from(self, x: NDArray[np.float64]) -> None:
         """Make ``x`` ``(N d,)`` (internal order) the start ``x0`` of the next minimization."""
         if np.shape(x) != (self.n_dof,):

@@ -39,10 +39,8 @@ import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
-from .. import _kernels
 from .._validate import positive_scalar
 from ..errors import InputError
-from ..objective import Objective
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 #: Default largest time step, in units of ``1 / sqrt(lambda_G)`` (see
@@ -129,88 +127,6 @@ def _move(x, v, slope, dt, alpha, max_step, dim):  # type: ignore[no-untyped-def
         v[p] *= scale
         out[p] = x[p] + dt * v[p]
     return out, True
-
-
-# FIRE's state between steps, in two small arrays so that one compiled step serves both drivers:
-# real[0] dt, real[1] alpha; count[0] n_positive, count[1] the step number (from 1).
-# params: dt_max, dt_min, f_inc, f_dec, alpha_start, f_alpha, max_step, n_delay.
-@nb.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
-def _step(x, v, grad, slope, real, count, params, dim):  # type: ignore[no-untyped-def]
-    """One FIRE 2.0 step from ``x`` (module docstring): the power test, the time step and
-    mixing updates, the half step back, then :func:`_move`. Returns ``(x_new, finite)``;
-    ``real``, ``count`` and ``v`` are updated in place."""
-    dt_max, dt_min, f_inc, f_dec, alpha_start, f_alpha, max_step, n_delay = params
-    power = 0.0
-    for p in range(x.size):
-        power -= grad[p] * v[p]
-    if power > 0.0:  # F . v > 0: downhill
-        count[0] += 1
-        if count[0] > n_delay:
-            real[0] = min(real[0] * f_inc, dt_max)
-            real[1] *= f_alpha
-        start = x
-    else:
-        count[0] = 0
-        if count[1] >= n_delay:
-            if real[0] * f_dec >= dt_min:
-                real[0] *= f_dec
-            real[1] = alpha_start
-        start = x - 0.5 * real[0] * v
-        v[:] = 0.0
-    return _move(start, v, slope, real[0], real[1], max_step, dim)
-
-
-@nb.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
-def _run(x, v, grad, energy, real, count, params, dim, last, gtol, etol, arrays, energies, gmaxes):  # type: ignore[no-untyped-def]
-    """Compiled FIRE steps on the contact energy, from the evaluated ``x`` (``energy``,
-    ``grad``) up to step ``last``: ``arrays`` are :meth:`Objective.kernel_inputs`.
-
-    Returns ``(reason, evaluations, x, evaluated, energy, contacts)``: ``evaluated`` is the
-    last point evaluated (``energy``, ``contacts``, and ``grad`` in place); ``energies`` and
-    ``gmaxes`` receive one entry per evaluation. ``reason``: 0 converged, 1 the Verlet list
-    is stale at ``x`` (moved, not evaluated: the caller rebuilds and evaluates), 2 step
-    ``last`` done, 3 energy not finite (at ``x``), 4 non-finite step (``x`` unchanged).
-    """
-    radii, first, second, code, shifts, typeid, kmat, alpha, reference, stale_sq = arrays
-    n = x.size // dim
-    done = 0
-    contacts = 0
-    evaluated = x
-    while count[1] < last:
-        if not np.isfinite(energy):
-            return 3, done, x, evaluated, energy, contacts
-        count[1] += 1
-        x_new, finite = _step(x, v, grad, grad, real, count, params, dim)
-        if not finite:
-            return 4, done, x, evaluated, energy, contacts
-        x = x_new
-        moved = 0.0
-        for i in range(n):
-            d2 = 0.0
-            for a in range(dim):
-                t = x[i * dim + a] - reference[i, a]
-                d2 += t * t
-            moved = max(moved, d2)
-        if moved > stale_sq:
-            return 1, done, x, evaluated, energy, contacts
-        positions = x.reshape((n, dim))
-        grad2d = grad.reshape((n, dim))
-        if dim == 2:
-            energy, contacts = _kernels.energy_gradient_2d(
-                positions, radii, first, second, code, shifts, typeid, kmat, alpha, grad2d
-            )
-        else:
-            energy, contacts = _kernels.energy_gradient_3d(
-                positions, radii, first, second, code, shifts, typeid, kmat, alpha, grad2d
-            )
-        evaluated = x
-        gmax = _kernels.max_row_norm(grad, dim)
-        energies[done] = energy
-        gmaxes[done] = gmax
-        done += 1
-        if gmax <= gtol or energy <= etol:
-            return 0, done, x, evaluated, energy, contacts
-    return 2, done, x, evaluated, energy, contacts
 
 
 def fire(
@@ -300,88 +216,44 @@ def fire(
     if tracker.record(energy, grad):
         return tracker.finish(x, Status.CONVERGED, "converged at the start")
     v = np.zeros_like(x)
-    real = np.array([dt, alpha_start])
-    count = np.zeros(2, dtype=np.int64)
-    params = np.array([dt_max, dt_min, f_inc, f_dec, alpha_start, f_alpha, max_step, n_delay])
-    if precon is None and isinstance(problem, Objective):
-        return _compiled(problem, tracker, x, v, energy, grad, real, count, params)
-    while count[1] < tracker.maxiter:
+    alpha = float(alpha_start)
+    n_positive = 0
+
+    for step in range(1, tracker.maxiter + 1):
         if not np.isfinite(energy):
             return tracker.finish(x, Status.NOT_FINITE, "stopped: the energy is not finite")
-        count[1] += 1
+        x_recorded = x
         if precon is not None:
             precon.update(x)
             slope = precon.solve(grad)  # P^-1 grad: the direction is -slope
         else:
             slope = grad
-        x_new, finite = _step(x, v, grad, slope, real, count, params, dim)
+
+        if float(grad @ v) < 0.0:  # power F . v > 0: downhill
+            n_positive += 1
+            if n_positive > n_delay:
+                dt = min(dt * f_inc, dt_max)
+                alpha *= f_alpha
+        else:
+            n_positive = 0
+            if step >= n_delay:
+                if dt * f_dec >= dt_min:
+                    dt *= f_dec
+                alpha = float(alpha_start)
+            x = x - 0.5 * dt * v
+            v[:] = 0.0
+
+        x, finite = _move(x, v, slope, dt, alpha, max_step, dim)
         if not finite:
             hint = " (is the preconditioner positive definite?)" if precon is not None else ""
             return tracker.finish(
-                x, Status.NOT_FINITE, f"stopped: non-finite gradient or step{hint}"
+                x_recorded, Status.NOT_FINITE, f"stopped: non-finite gradient or step{hint}"
             )
-        x = x_new
+
         energy, grad = problem(x)
         if tracker.record(energy, grad):
-            return tracker.finish(x, Status.CONVERGED, f"converged after {count[1]} steps")
+            return tracker.finish(x, Status.CONVERGED, f"converged after {step} steps")
+
     return tracker.finish(
         x, Status.ITERATION_LIMIT, f"iteration limit reached ({tracker.maxiter} steps)"
     )
-
-
-_CHUNK = 4096  # history entries per compiled run
-
-
-def _compiled(
-    objective: Objective,
-    tracker: Tracker,
-    x: NDArray[np.float64],
-    v: NDArray[np.float64],
-    energy: float,
-    grad: NDArray[np.float64],
-    real: NDArray[np.float64],
-    count: NDArray[np.int64],
-    params: NDArray[np.float64],
-) -> MinimizeResult:
-    """FIRE on an :class:`Objective` without a preconditioner: the steps of :func:`_step` run
-    in compiled loops (:func:`_run`) with the energy kernel inside, returning here only to
-    rebuild the Verlet list and to log; the same iterates as the step-by-step driver."""
-    energies, gmaxes = np.empty(_CHUNK), np.empty(_CHUNK)
-    grad = grad.copy()
-    while True:
-        last = min(tracker.maxiter, int(count[1]) + _CHUNK)
-        arrays = objective.kernel_inputs(x)
-        reason, done, x, evaluated, energy, contacts = _run(
-            x,
-            v,
-            grad,
-            energy,
-            real,
-            count,
-            params,
-            objective.dim,
-            last,
-            tracker.gtol,
-            tracker.etol,
-            arrays,
-            energies,
-            gmaxes,
-        )
-        tracker.energies.extend(energies[:done].tolist())
-        tracker.gradients.extend(gmaxes[:done].tolist())
-        objective.note_evaluations(done, evaluated, energy, grad, contacts)
-        if reason == 0:
-            return tracker.finish(x, Status.CONVERGED, f"converged after {count[1]} steps")
-        if reason == 1:  # the list is stale at the moved x: rebuilt by this evaluation
-            energy, fresh = objective(x)
-            grad[:] = fresh
-            if tracker.record(energy, grad):
-                return tracker.finish(x, Status.CONVERGED, f"converged after {count[1]} steps")
-        elif reason == 3:
-            return tracker.finish(x, Status.NOT_FINITE, "stopped: the energy is not finite")
-        elif reason == 4:
-            return tracker.finish(x, Status.NOT_FINITE, "stopped: non-finite gradient or step")
-        if count[1] >= tracker.maxiter:
-            return tracker.finish(
-                x, Status.ITERATION_LIMIT, f"iteration limit reached ({tracker.maxiter} steps)"
-            )
