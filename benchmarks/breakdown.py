@@ -8,8 +8,14 @@ should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, wi
 and the solve timed bare, in a loop, on the same configuration; the issue's target is
 ``ms / iteration <= 1.3 x floor``.
 
-    python benchmarks/breakdown.py                     # N = 4096 Case 1, alpha 2
+    python benchmarks/breakdown.py                     # N = 4096 Case 1, alpha 2 (~30 s)
     python benchmarks/breakdown.py --name breakdown_before
+    python benchmarks/breakdown.py --tile 16 --maxiter 40 --methods L-BFGS P-L-BFGS FR-CG FIRE \
+        --name breakdown_n1048576                      # scale.py's start at N = 1048576
+
+``--tile K`` takes ``scale.py``'s start (the Table packing tiled K x K, Case 3's displacements,
+Case 1's growth); ``--maxiter`` stops each run early (ms per iteration of its first
+iterations).
 
 Results: ``benchmarks/results/<name>.md`` and ``.json``.
 """
@@ -89,7 +95,7 @@ def bare(func: Callable[[], Any], repeats: int = 200) -> float:
     return float(np.median(times))
 
 
-def floors(start: Any, model: ContactModel) -> dict[str, float]:
+def floors(start: Any, model: ContactModel, precons: set[str]) -> dict[str, float]:
     """Bare seconds of one energy+gradient kernel call and one solve of each preconditioner."""
     obj = Objective(start, model)
     x = obj.x0
@@ -103,7 +109,8 @@ def floors(start: Any, model: ContactModel) -> dict[str, float]:
             pos, obj.radii, obj._typeid, obj._shifts, nlist, model, grad.reshape(obj.n, obj.dim)
         )
 
-    out = {"kernel": bare(kernel)}
+    repeats = 200 if obj.n <= 65536 else 5
+    out = {"kernel": bare(kernel, repeats)}
     rng = np.random.default_rng(0)
     for label, precon in (("two-loop", None), ("two-loop P", object())):
         memory = lbfgs_module._Memory(10, obj.n_dof, precon)  # a full memory, m = 10
@@ -111,17 +118,17 @@ def floors(start: Any, model: ContactModel) -> dict[str, float]:
             step, change = rng.standard_normal(obj.n_dof), rng.standard_normal(obj.n_dof)
             memory.store(x, x + step, grad, grad + step + 0.1 * change, grad, grad + step)
         g = rng.standard_normal(obj.n_dof)
-        out[label] = bare(lambda memory=memory, g=g: memory.direction(g, g))
-    for name in ("exp", "contact"):
+        out[label] = bare(lambda memory=memory, g=g: memory.direction(g, g), repeats)
+    for name in sorted(precons):
         pre = precon_module.make_preconditioner(name, obj)  # type: ignore[arg-type]
         assert pre is not None
         pre.update(x)
         g = obj(x)[1].copy()
-        out[f"solve {name}"] = bare(lambda pre=pre, g=g: pre.solve(g))
+        out[f"solve {name}"] = bare(lambda pre=pre, g=g: pre.solve(g), repeats)
     return out
 
 
-def profile(start: Any, model: ContactModel, how: Minimizer) -> dict[str, Any]:
+def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> dict[str, Any]:
     """One relaxation of ``start`` by ``how`` with every part timed."""
     clock = Clock()
     with ExitStack() as stack:
@@ -155,7 +162,7 @@ def profile(start: Any, model: ContactModel, how: Minimizer) -> dict[str, Any]:
         )
         obj = Objective(start, model)
         t0 = time.perf_counter()
-        result = relax(obj, how, rtol=RTOL, maxiter=50_000)
+        result = relax(obj, how, rtol=RTOL, maxiter=maxiter)
         total = time.perf_counter() - t0
     clock.seconds["other"] = total - sum(clock.seconds[p] for p in PARTS if p != "other")
     iters = max(result.iterations, 1)
@@ -176,16 +183,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--alpha", type=float, default=2.0)
     parser.add_argument("--case", type=int, default=1)
     parser.add_argument("--name", default="breakdown")
+    parser.add_argument("--tile", type=int, default=1, help="scale.py's start, tiled K x K")
+    parser.add_argument("--maxiter", type=int, default=50_000)
+    parser.add_argument("--methods", nargs="+", default=[m.name for m in METHODS])
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args(argv)
     pin()
     model = ContactModel(args.alpha)
-    start = make_case(reference_packing(args.alpha), args.case)
-    floor = floors(start, model)
+    if args.tile > 1:
+        from scale import start_packing
+
+        start = start_packing(args.alpha, args.tile)
+        what = f"scale.py's start tiled {args.tile} x {args.tile}"
+    else:
+        start = make_case(reference_packing(args.alpha), args.case)
+        what = f"Table Case {args.case}"
+    chosen = [how for how in METHODS if how.name in args.methods]
+    floor = floors(start, model, {how.precon for how in chosen} - {"none"})
     rows = []
-    for how in METHODS:
-        profile(start, model, how)  # warm-up: compilation, caches
-        row = profile(start, model, how)
+    for how in chosen:
+        if start.n <= 65536:
+            profile(start, model, how, args.maxiter)  # warm-up: compilation, caches
+        row = profile(start, model, how, args.maxiter)
         precon = how.precon if how.precon != "none" else None
         solve = floor[f"solve {precon}"] if precon else 0.0
         iters = max(row["iterations"], 1)
@@ -203,10 +222,11 @@ def main(argv: list[str] | None = None) -> int:
     header = "| method | iterations | evaluations / it | solves / it | ms / it | floor ms / it "
     header += "| ratio | floor + two-loop | ratio | " + " | ".join(PARTS) + " |"
     md = [
-        f"# Per-iteration breakdown: Table Case {args.case}, alpha = {args.alpha:g}, N = 4096",
+        f"# Per-iteration breakdown: {what}, alpha = {args.alpha:g}, N = {start.n}",
         "",
-        f"Bare kernel (energy+gradient) {1e3 * floor['kernel']:.4f} ms; bare solve: Exp "
-        f"{1e3 * floor['solve exp']:.4f} ms, contact {1e3 * floor['solve contact']:.4f} ms; bare "
+        f"Bare kernel (energy+gradient) {1e3 * floor['kernel']:.4f} ms; bare solve: "
+        + ", ".join(f"{k[6:]} {1e3 * v:.4f} ms" for k, v in floor.items() if k.startswith("solve"))
+        + "; bare "
         f"L-BFGS two-loop recursion (m = 10, full memory) {1e3 * floor['two-loop']:.4f} ms, with "
         f"a preconditioner (P^-1 y kept) {1e3 * floor['two-loop P']:.4f} ms. "
         "floor = evaluations/it x kernel + solves/it x solve (the issue's; target ratio <= 1.3); "
@@ -220,7 +240,8 @@ def main(argv: list[str] | None = None) -> int:
         iters = max(r["iterations"], 1)
         parts = " | ".join(f"{r['parts_ms_per_iteration'][p]:.3f}" for p in PARTS)
         md.append(
-            f"| {r['method']} | {r['iterations']} | {r['evaluations'] / iters:.2f} | "
+            f"| {r['method']} | {r['iterations']}{'' if r['converged'] else ' (stopped)'} | "
+            f"{r['evaluations'] / iters:.2f} | "
             f"{r['solves'] / iters:.2f} | {r['ms_per_iteration']:.3f} | {r['floor_ms']:.3f} | "
             f"{r['ratio_to_floor']:.2f} | {r['floor_with_recursion_ms']:.3f} | "
             f"{r['ratio_to_floor_with_recursion']:.2f} | {parts} |"
@@ -228,7 +249,8 @@ def main(argv: list[str] | None = None) -> int:
     md.append("")
     text = "\n".join(md)
     print(text)
-    data = {"alpha": args.alpha, "case": args.case, "floor_seconds": floor, "rows": rows}
+    data = {"alpha": args.alpha, "case": args.case, "tile": args.tile, "n": start.n}
+    data |= {"maxiter": args.maxiter, "floor_seconds": floor, "rows": rows}
     save(args.output_dir, args.name, data, text)
     return 0
 

@@ -224,7 +224,9 @@ def test_amg_is_a_fixed_spd_linear_operator_that_reduces_the_residual(dim, kind,
 def test_auto_solver_threshold():
     obj = objective(2)
     assert ExpPreconditioner(obj, solver="auto").solver == "direct"
-    assert linalg.AUTO_DIRECT_MAX_N == 200_000
+    assert linalg.AUTO_DIRECT_MAX_N == 200_000 and linalg.AUTO_DIRECT_MAX_N_2D == 2_000_000
+    assert linalg.resolve_solver("auto", 1_048_576, 2) == "direct"
+    assert linalg.resolve_solver("auto", 262_144, 3) == "amg"
 
 
 # --- rebuild rule and reuse ---------------------------------------------------------------------

@@ -31,7 +31,11 @@ from .errors import InputError
 SolverName = Literal["auto", "direct", "amg"]
 SOLVERS: tuple[str, ...] = ("auto", "direct", "amg")
 AUTO_DIRECT_MAX_N = 200_000
-"""``solver="auto"``: direct below this number of particles, AMG from it on."""
+"""``solver="auto"`` in 3D: direct below this number of particles, AMG from it on."""
+AUTO_DIRECT_MAX_N_2D = 2_000_000
+"""``solver="auto"`` in 2D. Measured (``benchmarks/results/scale.md``, Exp P-L-BFGS, one core):
+the direct solve is 2.1x faster per iteration than AMG at N = 262144 (82 against 169 ms), and
+at N = 1048576 ran at 424 ms per iteration in 1.8 GB while AMG did not finish in its time."""
 AMG_CYCLES = 1
 """Default number of AMG V-cycles per application (N = 65536, 2D: ~19 matrix-vector products)."""
 
@@ -128,15 +132,17 @@ def available(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
-def resolve_solver(solver: str, n: int) -> str:
-    """``"direct"`` or ``"amg"`` for ``solver`` and ``n`` particles (``"auto"`` resolved)."""
+def resolve_solver(solver: str, n: int, dim: int = 3) -> str:
+    """``"direct"`` or ``"amg"`` for ``solver`` and ``n`` particles in ``dim`` dimensions
+    (``"auto"`` resolved)."""
     choice(solver, "solver", SOLVERS)
     if solver == "amg" and not available("pyamg"):
         raise InputError(
             "solver: 'amg' needs pyamg; install it with `pip install athermal[solvers]`"
         )
     if solver == "auto":
-        return "amg" if n >= AUTO_DIRECT_MAX_N and available("pyamg") else "direct"
+        limit = AUTO_DIRECT_MAX_N_2D if dim == 2 else AUTO_DIRECT_MAX_N
+        return "amg" if n >= limit and available("pyamg") else "direct"
     return solver
 
 

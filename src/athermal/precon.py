@@ -160,7 +160,7 @@ class _PairPreconditioner(ABC):
         if int(amg_cycles) != amg_cycles or amg_cycles < 1:
             raise InputError(f"amg_cycles: must be an integer >= 1, got {amg_cycles!r}")
         self.amg_cycles = int(amg_cycles)
-        self.solver = resolve_solver(solver, objective.n)
+        self.solver = resolve_solver(solver, objective.n, objective.dim)
         self.mu = float("nan")
         self.r_nn = float("nan")
         self.matrix: sp.csr_matrix | None = None
@@ -275,8 +275,8 @@ class ExpPreconditioner(_PairPreconditioner):
     mu : energy scale (energy / length^2); default re-estimated at every build by the seed's
         sine test (:meth:`_estimate_mu`).
     solver : ``"direct"`` (cholespy Cholesky, SciPy ``splu`` without cholespy), ``"amg"``
-        (pyamg, ``amg_cycles`` V-cycles) or ``"auto"`` (direct for N < 200 000, else AMG;
-        direct without pyamg).
+        (pyamg, ``amg_cycles`` V-cycles) or ``"auto"`` (direct for N < 2 000 000 in 2D and
+        200 000 in 3D, else AMG; direct without pyamg).
     amg_cycles : V-cycles per AMG application (default 1).
 
     Attributes

@@ -27,10 +27,10 @@ happens exactly when the motion climbs. ``precon.update(x)`` is called at every 
 its solve. (A preconditioned FIRE came with the Exp preconditioner of Packwood et al., J. Chem.
 Phys. 144, 164109 (2016); the choices above are ours, in the FIRE 2.0 form.)
 
-One compiled step (:func:`_step`) serves two drivers: a Python loop for any :class:`Problem`
-and any preconditioner, and, for an :class:`~athermal.objective.Objective` without one,
-compiled runs of steps with the energy kernel inside (:func:`_run`) that return to Python only
-to rebuild the Verlet list and to log. Both take the same iterates.
+Measured: running the steps of an :class:`~athermal.objective.Objective` in compiled loops
+with the energy kernel inside (returning to Python only to rebuild the Verlet list) took no
+less time per step than this loop on the Table's Case 1 (0.13-0.17 ms both, N = 4096), so the
+loop stays in Python.
 """
 
 from __future__ import annotations
