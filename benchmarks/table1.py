@@ -105,10 +105,11 @@ def comparison(rows: list[Row]) -> str:
         ratio = "-"
         if "P-L-BFGS" in by_name and "L-BFGS" in by_name:
             ratio = f"{by_name['P-L-BFGS'] / by_name['L-BFGS']:.2f}"
-        lammps = f"{theirs[0].seconds:.3f} | {theirs[0].seconds / best.seconds:.2f}"
+        lammps = "- | -"
+        if theirs:
+            lammps = f"{theirs[0].seconds:.3f} | {theirs[0].seconds / best.seconds:.2f}"
         lines.append(
-            f"| {alpha:g} | {case} | {best.method} | {best.seconds:.3f} | "
-            f"{lammps if theirs else '- | -'} | {ratio} |"
+            f"| {alpha:g} | {case} | {best.method} | {best.seconds:.3f} | {lammps} | {ratio} |"
         )
     return "\n".join(lines) + "\n"
 
