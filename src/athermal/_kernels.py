@@ -1,4 +1,5 @@
-"""Compiled (numba) kernels: the cell-list pair search and the energy+gradient loops.
+"""Compiled (numba) kernels: the cell-list pair search, the energy+gradient loops (which also
+count the overlapping pairs) and the L-BFGS recursion's vector loops.
 
 Pair convention everywhere: pair ``p`` joins ``first[p] <= second[p]``
 with the image table index ``code[p]``; the separation is ``x[first] - x[second] + shift[code]``
