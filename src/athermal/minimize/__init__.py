@@ -63,13 +63,13 @@ def minimize(
     start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
     if start.shape != (objective.n_dof,):
         raise InputError(f"x0: expected shape ({objective.n_dof},), got {start.shape}")
+    base, name = resolve_method(method, precon if isinstance(precon, str) else "none")
     tol = objective.tolerance(gtol, rtol, start)
-    if isinstance(precon, str):
-        base, name = resolve_method(method, precon)
-        pre = make_preconditioner(name, objective, A=A, solver=solver)
-    else:
-        base, _ = resolve_method(method)
-        pre = precon
+    pre = (
+        make_preconditioner(name, objective, A=A, solver=solver)
+        if isinstance(precon, str)
+        else precon
+    )
     if base == "lbfgs":
         return lbfgs(
             objective,
