@@ -462,3 +462,66 @@ def count_overlaps(x, radii, first, second, code, shift):  # type: ignore[no-unt
         if r2 < reach * reach:
             count += 1
     return count
+
+
+
+@_jit_fast
+def hessian_terms(x, radii, first, second, code, shift, typeid, kmat, alpha, pairs, sep, coef):  # type: ignore[no-untyped-def]
+    """The overlapping pairs' Hessian blocks ``K = a b b^T - c I`` (``b`` the separation
+    ``x_i - x_j + shift``, ``l = |b|``): ``a = kappa (alpha - 1 + delta/l) / l^2``,
+    ``c = kappa delta/l`` with ``kappa = k delta^(alpha-2)``. Writes ``pairs (P, 2)``,
+    ``sep (P, d)`` and ``coef (P, 2)`` = ``(a, c)`` for the first M rows; returns M."""
+    d = x.shape[1]
+    uniform = kmat.size == 1
+    k = kmat[0, 0]
+    m = 0
+    for p in range(first.size):
+        i = first[p]
+        j = second[p]
+        if i == j:  # a particle and its own image: no relative displacement, no block
+            continue
+        dist_sq = 0.0
+        for a in range(d):
+            t = x[i, a] - x[j, a] + shift[code[p], a]
+            sep[m, a] = t
+            dist_sq += t * t
+        reach = radii[i] + radii[j]
+        if not dist_sq < reach * reach:
+            continue
+        dist = np.sqrt(dist_sq)
+        delta = reach - dist
+        if not uniform:
+            k = kmat[typeid[i], typeid[j]]
+        if alpha == 2.0:
+            kappa = k
+        elif alpha == 2.5:
+            kappa = k * np.sqrt(delta)
+        else:
+            kappa = k * delta ** (alpha - 2.0)
+        ratio = delta / dist
+        pairs[m, 0] = i
+        pairs[m, 1] = j
+        coef[m, 0] = kappa * (alpha - 1.0 + ratio) / dist_sq
+        coef[m, 1] = kappa * ratio
+        m += 1
+    return m
+
+
+@_jit_fast
+def hessian_product(pairs, sep, coef, v, out):  # type: ignore[no-untyped-def]
+    """``out = H v`` ``(N, d)`` from the blocks of :func:`hessian_terms`: each adds
+    ``K (v_i - v_j)`` to ``out_i`` and subtracts it from ``out_j``."""
+    out[:] = 0.0
+    d = v.shape[1]
+    for p in range(pairs.shape[0]):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        bu = 0.0
+        for a in range(d):
+            bu += sep[p, a] * (v[i, a] - v[j, a])
+        a_n = coef[p, 0] * bu
+        c_t = coef[p, 1]
+        for a in range(d):
+            ku = a_n * sep[p, a] - c_t * (v[i, a] - v[j, a])
+            out[i, a] += ku
+            out[j, a] -= ku

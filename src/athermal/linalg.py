@@ -97,6 +97,11 @@ class SpluFactor:
     def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
         return np.asarray(self._lu.solve(np.asarray(rhs, dtype=np.float64)), dtype=np.float64)
 
+    def positive_pivots(self) -> bool:
+        """True when every pivot is > 0: without pivoting ``LU = L D L^T``, so the symmetric
+        matrix is positive definite."""
+        return bool(np.all(self._lu.U.diagonal() > 0.0))
+
 
 class AmgFactor:
     """``cycles`` smoothed-aggregation V-cycles from a zero start: a fixed SPD linear operator.
@@ -157,12 +162,19 @@ def factorize(
     return SpluFactor(matrix)
 
 
-def cholesky(matrix: sp.spmatrix) -> CholeskyFactor | None:
-    """The CHOLMOD factor of a symmetric ``matrix``; None when it is not positive definite."""
+def cholesky(matrix: sp.spmatrix) -> Factor | None:
+    """A factor of the symmetric ``matrix`` when it is positive definite, else None: CHOLMOD,
+    or (cholespy missing) SuperLU without pivoting, whose pivots are then those of ``L D L^T``."""
+    if available("cholespy"):
+        try:
+            return CholeskyFactor(matrix)
+        except NotPositiveDefinite:
+            return None
     try:
-        return CholeskyFactor(matrix)
-    except NotPositiveDefinite:
+        factor = SpluFactor(matrix)
+    except RuntimeError:  # "Factor is exactly singular"
         return None
+    return factor if factor.positive_pivots() else None
 
 
 @contextlib.contextmanager

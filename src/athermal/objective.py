@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from . import _kernels
 from .contact import ContactModel, energy_gradient_contacts, find_contacts
+from .hessian import HessianOperator
 from .errors import InputError
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
@@ -102,6 +103,31 @@ class Objective:
         self._last_x[:] = x
         self._last = (energy, grad)
         return self._last
+
+    def hessian(self, x: NDArray[np.float64]) -> HessianOperator:
+        """The Hessian of the energy at ``x`` (internal order) over the overlapping pairs of
+        the Verlet list, as an operator (products, and the sparse matrix)."""
+        positions = np.ascontiguousarray(x, dtype=np.float64)
+        nlist = self.neighbor_list(positions)
+        size = nlist.first.size
+        pairs = np.empty((size, 2), dtype=np.int64)
+        sep = np.empty((size, self.dim))
+        coef = np.empty((size, 2))
+        m = _kernels.hessian_terms(
+            positions.reshape(self.n, self.dim),
+            self.radii,
+            nlist.first,
+            nlist.second,
+            nlist.code,
+            self._shifts,
+            self._typeid,
+            self.model.kmat,
+            self.model.alpha,
+            pairs,
+            sep,
+            coef,
+        )
+        return HessianOperator(self.n, pairs[:m], sep[:m], coef[:m])
 
     def count_contacts(self, x: NDArray[np.float64]) -> int:
         """Number of overlapping pairs at ``x``: counted by the last evaluation when ``x`` is

@@ -1,7 +1,8 @@
 """Energy minimizers on an :class:`~athermal.objective.Objective`: one entry, a registry.
 
 Methods: ``"lbfgs"`` (seed Algorithm 2), ``"cg"`` (Fletcher-Reeves, seed Algorithms 3-4, or
-Polak-Ribiere+), ``"fire"`` (FIRE 2.0, the community's baseline); ``"plbfgs"`` and ``"pcg"`` are
+Polak-Ribiere+), ``"fire"`` (FIRE 2.0, the community's baseline), ``"newton"`` (truncated Newton with a lagged
+Cholesky factor of the Hessian, beyond the seed: robust near jamming); ``"plbfgs"`` and ``"pcg"`` are
 the seed's names for ``lbfgs`` and ``cg`` with the Exp preconditioner. Preconditioners:
 ``"none"``, ``"exp"`` (the seed's universal preconditioner, parameter ``A``) and ``"contact"``
 (contact stiffness + Exp stabilization).
@@ -20,6 +21,7 @@ from ..precon import PRECONDITIONERS, PreconName, SolverName, make_preconditione
 from .cg import cg
 from .fire import fire
 from .lbfgs import lbfgs
+from .newton import newton
 from .result import MinimizeResult, Preconditioner, Problem, Status
 from .spec import METHODS, RTOL, Method, Minimizer, resolve_method
 
@@ -43,7 +45,8 @@ def minimize(
 
     Parameters
     ----------
-    method : ``lbfgs``, ``cg``, ``fire``, or the seed's ``plbfgs`` / ``pcg``.
+    method : ``lbfgs``, ``cg``, ``fire``, ``newton``, or the seed's ``plbfgs`` / ``pcg``
+        (``newton`` takes no ``precon``: its inner CG uses its own factored Hessian).
     x0 : the start ``(N d,)`` in the objective's internal order; default ``objective.x0``.
     precon : preconditioner name, or a ready :class:`Preconditioner` (reused across calls,
         e.g. by the quasi-static protocols).
@@ -64,7 +67,11 @@ def minimize(
     if start.shape != (objective.n_dof,):
         raise InputError(f"x0: expected shape ({objective.n_dof},), got {start.shape}")
     base, name = resolve_method(method, precon if isinstance(precon, str) else "none")
+    if base == "newton" and not isinstance(precon, str):
+        raise InputError("precon: newton preconditions with its own Hessian factor; give 'none'")
     tol = objective.tolerance(gtol, rtol, start)
+    if base == "newton":
+        return newton(objective, start, gtol=tol, maxiter=maxiter, etol=etol)
     pre = (
         make_preconditioner(name, objective, A=A, solver=solver)
         if isinstance(precon, str)

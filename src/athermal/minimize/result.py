@@ -82,6 +82,13 @@ class Preconditioner(Protocol):
     def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]: ...
 
 
+class Counted(Protocol):
+    """What a result reports of the linear operator a method used: its name and builds."""
+
+    name: str
+    n_builds: int
+
+
 @dataclass(frozen=True, eq=False)
 class MinimizeResult:
     """Outcome of one minimization.
@@ -91,6 +98,8 @@ class MinimizeResult:
     ``status is Status.CONVERGED``). ``history_energy`` and ``history_max_gradient`` have one
     entry per iteration plus the start (index 0). ``max_gradient`` is ``max_i |grad_i|``
     (Euclidean norm per particle); ``gtol`` the absolute tolerance on it that was used.
+    ``precon_builds`` counts preconditioner builds (Hessian factorizations for ``newton``),
+    ``linear_iterations`` the inner CG iterations of ``newton`` (0 for the other methods).
     """
 
     x: NDArray[np.float64]
@@ -110,6 +119,7 @@ class MinimizeResult:
     history_max_gradient: NDArray[np.float64]
     neighbor_rebuilds: int
     precon_builds: int
+    linear_iterations: int = 0
 
 
 @dataclass
@@ -118,7 +128,7 @@ class Tracker:
 
     objective: Problem
     method: str
-    precon: Preconditioner | None
+    precon: Counted | None
     gtol: float
     maxiter: int
     etol: float = 0.0
@@ -127,13 +137,14 @@ class Tracker:
     start_time: float = field(default_factory=time.perf_counter)
     start_evaluations: int = 0
     start_rebuilds: int = 0
+    linear_iterations: int = 0
 
     @classmethod
     def start(
         cls,
         objective: Problem,
         method: str,
-        precon: Preconditioner | None,
+        precon: Counted | None,
         gtol: float,
         maxiter: int,
         etol: float = 0.0,
@@ -190,4 +201,5 @@ class Tracker:
             history_max_gradient=np.array(self.gradients),
             neighbor_rebuilds=obj.n_rebuilds - self.start_rebuilds,
             precon_builds=self.precon.n_builds if self.precon is not None else 0,
+            linear_iterations=self.linear_iterations,
         )

@@ -10,20 +10,26 @@ from .._validate import choice
 from ..errors import InputError
 from ..precon import PRECONDITIONERS, PreconName, SolverName
 
-Method = Literal["lbfgs", "cg", "fire", "plbfgs", "pcg"]
-METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "plbfgs", "pcg")
+Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
+METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
-_NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE"}
+_NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE", "newton": "Newton-CG"}
 RTOL = 1e-9
 """The seed's tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at the start of a
 relaxation (the Table, every quasi-static step)."""
 
 
 def resolve_method(method: str, precon: PreconName = "none") -> tuple[str, PreconName]:
-    """The base method (``lbfgs``, ``cg``, ``fire``) and preconditioner that ``method`` with
-    ``precon`` names: ``plbfgs`` and ``pcg`` imply ``exp`` unless another is given."""
+    """The base method (``lbfgs``, ``cg``, ``fire``, ``newton``) and preconditioner that
+    ``method`` with ``precon`` names: ``plbfgs`` and ``pcg`` imply ``exp`` unless another is
+    given; ``newton`` takes none (its own factored Hessian preconditions its inner CG)."""
     choice(method, "method", METHODS)
     choice(precon, "precon", PRECONDITIONERS)
+    if method == "newton" and precon != "none":
+        raise InputError(
+            f"precon: newton preconditions with its own Hessian factor; got {precon!r}, "
+            "give 'none'"
+        )
     base, implied = _ALIASES.get(method, (method, "none"))
     return base, implied if precon == "none" else precon
 
@@ -35,7 +41,7 @@ class Minimizer:
 
     Parameters
     ----------
-    method : ``lbfgs``, ``cg``, ``fire`` or the seed's ``plbfgs`` / ``pcg``.
+    method : ``lbfgs``, ``cg``, ``fire``, ``newton`` or the seed's ``plbfgs`` / ``pcg``.
     precon : ``none``, ``exp`` (the seed's, weights parameter ``A``) or ``contact``.
     A : Exp weight decay (dimensionless, >= 0).
     solver : ``auto``, ``direct`` or ``amg`` for the preconditioner's linear solves.

@@ -1,0 +1,186 @@
+"""Truncated Newton (line-search Newton-CG) with a lagged sparse Cholesky factor of the Hessian.
+
+Beyond the seed, for its open problem: near jamming every gradient method slows down as a power
+of ``Delta phi`` (the soft modes of the contact network), while the exact Newton step of a
+quasi-static step is one linear solve with the stiffness matrix. Each iteration:
+
+1. ``H`` = the sparse Hessian at ``x`` (contacts, rattlers and zero modes included);
+2. the Newton direction ``p`` from preconditioned CG on ``H p = -g``, stopped at
+   ``|r| <= eta |g|`` with the forcing term ``eta = min(0.5, sqrt(|g| / |g_0|))`` (superlinear
+   convergence, Eisenstat & Walker), or at a direction of non-positive curvature (Nocedal &
+   Wright, Algorithm 7.1: the iterate so far, or the preconditioned gradient at the first one);
+3. the strong-Wolfe line search of :mod:`.linesearch` along ``p``, unit step first.
+
+The preconditioner of step 2 is a CHOLMOD factor of ``H(x_b) + sigma kappa I`` at an earlier
+iterate ``x_b`` (``kappa`` the mean diagonal of ``H``, ``sigma`` the smallest power of ten from
+:data:`SHIFT_MIN` that makes it positive definite: the tangential terms of rattlers with one or
+two contacts and saddles make ``H`` indefinite). It is refactored when CG needed more than
+:data:`REFACTOR_INNER` iterations: while the contact network holds, ``H`` barely changes and
+CG converges in a few iterations on the lagged factor.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from ..linalg import Factor, cholesky
+from ._step import search
+from .result import MinimizeResult, Problem, Status, Tracker
+
+SHIFT_MIN = 1e-10
+"""Smallest shift ``sigma`` of the factored matrix, in units of its mean diagonal."""
+SHIFT_MAX = 1e2
+"""Largest; beyond it the preconditioner is the scaled identity (``H`` tells nothing)."""
+REFACTOR_INNER = 50
+"""CG iterations of one Newton direction beyond which ``H`` is factored anew."""
+INNER_MAX = 200
+"""Hard cap on the CG iterations of one Newton direction."""
+ETA_MAX = 0.5
+"""Largest forcing term ``eta`` (relative residual CG stops at)."""
+
+
+class Hessian(Protocol):
+    """``d^2 f / dx dx`` ``(n_dof, n_dof)`` at one point (e.g.
+    :class:`~athermal.hessian.HessianOperator`)."""
+
+    def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``H v`` ``(n_dof,)``."""
+        ...
+
+    def matrix(self) -> sp.csr_matrix:
+        """``H`` as a symmetric sparse matrix."""
+        ...
+
+
+class SecondOrderProblem(Problem, Protocol):
+    """A :class:`Problem` that also gives its Hessian."""
+
+    def hessian(self, x: NDArray[np.float64]) -> Hessian:
+        """The Hessian at ``x``."""
+        ...
+
+
+class LaggedFactor:
+    """The factor of ``M = H(x_b) + sigma kappa I`` that CG is preconditioned with (module doc).
+
+    ``n_builds`` counts factorizations, ``n_failed`` the attempts that found ``M`` indefinite
+    (each raises ``sigma`` tenfold); ``shift`` is the last ``sigma``.
+    """
+
+    name = "hessian"
+
+    def __init__(self) -> None:
+        self.n_builds = 0
+        self.n_failed = 0
+        self.shift = SHIFT_MIN
+        self._factor: Factor | None = None
+        self._scale = 1.0
+        self._lowered_ok = True  # the last build needed no raise: try a lower shift next
+
+    def build(self, hessian: Hessian) -> None:
+        """Factor ``M`` at ``hessian``, ``sigma`` from a tenth of the last one up."""
+        matrix = hessian.matrix()
+        diagonal = matrix.diagonal()
+        positive = diagonal[diagonal > 0.0]
+        self._scale = float(positive.mean()) if positive.size else 1.0
+        identity = sp.identity(matrix.shape[0], format="csr")
+        failed = self.n_failed
+        shift = max(SHIFT_MIN, 0.1 * self.shift) if self._lowered_ok else self.shift
+        while True:
+            self._factor = cholesky(matrix + (shift * self._scale) * identity)
+            if self._factor is not None or shift >= SHIFT_MAX:
+                break
+            self.n_failed += 1
+            shift *= 10.0
+        self.shift = shift
+        self._lowered_ok = self.n_failed == failed
+        self.n_builds += 1
+
+    def solve(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``M^-1 r`` (a scaled identity when even ``SHIFT_MAX`` left ``M`` indefinite)."""
+        if self._factor is None:
+            return r / (self.shift * self._scale)
+        return self._factor.solve(r[:, None])[:, 0]
+
+
+def newton_direction(
+    hessian: Hessian,
+    grad: NDArray[np.float64],
+    factor: LaggedFactor,
+    eta: float,
+    maxiter: int,
+) -> tuple[NDArray[np.float64], int]:
+    """An approximate solution ``p`` of ``H p = -grad`` by CG preconditioned with ``factor``,
+    and the iterations it took. Stops at ``|r| <= eta |grad|``, after ``maxiter`` iterations,
+    or at non-positive curvature ``d.H d <= 0``: then the iterate so far, or ``-M^-1 grad`` when
+    that is the first direction. Every ``p`` returned has ``p.grad < 0`` (for ``grad != 0``)."""
+    r = -grad
+    z = factor.solve(r)
+    p = np.zeros_like(grad)
+    d = z.copy()
+    rz = float(r @ z)
+    stop = eta * float(np.linalg.norm(grad))
+    for k in range(maxiter):
+        hd = hessian.dot(d)
+        curvature = float(d @ hd)
+        if not curvature > 0.0:
+            return (z if k == 0 else p), k
+        a = rz / curvature
+        p += a * d
+        r -= a * hd
+        if float(np.linalg.norm(r)) <= stop:
+            return p, k + 1
+        z = factor.solve(r)
+        rz_new = float(r @ z)
+        d = z + (rz_new / rz) * d
+        rz = rz_new
+    return p, maxiter
+
+
+def newton(
+    problem: SecondOrderProblem,
+    x0: NDArray[np.float64],
+    *,
+    gtol: float,
+    maxiter: int = 100_000,
+    etol: float = 0.0,
+) -> MinimizeResult:
+    """Minimize ``problem`` from ``x0`` ``(n_dof,)`` by truncated Newton (see module doc).
+
+    Stopping rules as :func:`~athermal.minimize.lbfgs.lbfgs`; the result's ``precon_builds``
+    counts factorizations and ``linear_iterations`` the CG iterations (Hessian-vector products).
+    """
+    factor = LaggedFactor()
+    tracker = Tracker.start(problem, "newton", factor, gtol, maxiter, etol)
+    x = np.array(x0, dtype=np.float64, copy=True)
+    energy, grad = problem(x)
+    if tracker.record(energy, grad):
+        return tracker.finish(x, Status.CONVERGED, "converged")
+    start_norm = float(np.linalg.norm(grad))
+    refactor = True
+    while tracker.iterations < maxiter:
+        hessian = problem.hessian(x)
+        if refactor:
+            factor.build(hessian)
+        eta = min(ETA_MAX, float(np.sqrt(np.linalg.norm(grad) / start_norm)))
+        direction, inner = newton_direction(hessian, grad, factor, eta, INNER_MAX)
+        tracker.linear_iterations += inner
+        refactor = inner > REFACTOR_INNER
+        ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
+        if not ls.ok and factor.n_builds and not refactor:  # retry on a fresh factor
+            factor.build(hessian)
+            direction = -factor.solve(grad)
+            ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
+        if not ls.ok:
+            return tracker.finish(
+                x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
+            )
+        x = x + ls.step * direction
+        energy, grad = problem(x)
+        if tracker.record(energy, grad):
+            return tracker.finish(x, Status.CONVERGED, "converged")
+    return tracker.finish(x, Status.ITERATION_LIMIT, f"iteration limit {maxiter} reached")
