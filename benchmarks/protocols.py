@@ -11,6 +11,7 @@ experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summar
     python benchmarks/protocols.py phic --dim 3 --n 1024 --seeds 3        # ... 3D
     python benchmarks/protocols.py scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
     python benchmarks/protocols.py iterations --n 1024 --seeds 10         # seed's iteration figure
+    python benchmarks/protocols.py iterations --n 4096 --seeds 2 --steps 3  # ... larger, shorter
     python benchmarks/protocols.py timing --n 4096                        # per minimizer
 
 Seeding, the library's one rule: realization ``k`` of a run with ``--root-seed S`` (default 0)
@@ -298,7 +299,9 @@ def run_scaling(args: argparse.Namespace) -> None:
 
 def run_iterations(args: argparse.Namespace) -> None:
     jam_spec = JamSpec(args.n, 2, 2.0, dphi=GROWTH, epsilon=EPSILON)
-    spec = IterationSpec()
+    base = IterationSpec()
+    methods = tuple(m for m in base.methods if args.methods is None or m.label in args.methods)
+    spec = IterationSpec(methods=methods, strains=base.strains[: args.steps])
     names = [m.name for m in spec.methods]
     deltas = spec.delta_phis
     # per method name, per Delta phi of the spec: one value per realization
@@ -341,7 +344,7 @@ def run_iterations(args: argparse.Namespace) -> None:
         f"Each entry: mean ± sd over realizations of the mean over the {len(spec.strains)} "
         f"simple-shear steps {min(spec.strains):g} ... {max(spec.strains):g} (the seed's "
         "protocol, `athermal.experiments.iteration_counts`), tolerance 1e-9 of the mean contact "
-        "force.",
+        "force (floored at round-off).",
         "",
         "Iterations per step:",
         "",
@@ -350,6 +353,8 @@ def run_iterations(args: argparse.Namespace) -> None:
         "Wall milliseconds per step (one core):",
         "",
         *table(seconds, 1e3, 1),
+        "",
+        *fits(deltas, iterations, seconds),
     ]
     data = {
         "seeds": seeds,
@@ -365,6 +370,32 @@ def run_iterations(args: argparse.Namespace) -> None:
         },
     }
     write(args, f"iterations_n{args.n}", data, "\n".join(lines) + "\n")
+
+
+def fits(
+    deltas: tuple[float, ...],
+    iterations: dict[str, list[list[float]]],
+    seconds: dict[str, list[list[float]]],
+) -> list[str]:
+    """Per method: the power law of the mean iterations against Delta phi (every point of the
+    spec), and the wall time per step at 1e-6 over that at 1e-1 (issue 12's flatness test)."""
+    out = [
+        "Fitted `iterations ~ Delta phi^b` (least squares in log-log through the mean of every "
+        f"Delta phi, {min(deltas):.0e} ... {max(deltas):.0e}), and wall time per step at "
+        "1e-6 over that at 1e-1:",
+        "",
+        "| method | b | prefactor | time(1e-6) / time(1e-1) |",
+        "|---|---:|---:|---:|",
+    ]
+    keys = [f"{d:.0e}" for d in deltas]
+    for name, per in iterations.items():
+        means = [statistics.fmean(v) for v in per]
+        fit = fit_power_law(deltas, means)
+        times = dict(zip(keys, (statistics.fmean(v) for v in seconds[name]), strict=True))
+        ratio = times["1e-06"] / times["1e-01"] if {"1e-06", "1e-01"} <= times.keys() else None
+        shown = f"{ratio:.1f}" if ratio is not None else "-"
+        out.append(f"| {name} | {fit.exponent:.3f} | {fit.prefactor:.3g} | {shown} |")
+    return out
 
 
 def run_timing(args: argparse.Namespace) -> None:
@@ -463,6 +494,16 @@ def main(argv: list[str] | None = None) -> int:
     iters = sub.add_parser("iterations")
     iters.add_argument("--n", type=int, default=1024)
     iters.add_argument("--seeds", type=int, default=10, help="realizations")
+    iters.add_argument(
+        "--steps", type=int, default=None, help="only the first STEPS shear steps (default all)"
+    )
+    iters.add_argument(
+        "--methods",
+        nargs="*",
+        default=None,
+        choices=[m.label for m in IterationSpec().methods],
+        help="a subset of the minimizers (labels; default all)",
+    )
     timing = sub.add_parser("timing")
     timing.add_argument("--n", type=int, default=4096)
     timing.add_argument("--seed", type=int, default=0, help="the realization to time")

@@ -464,7 +464,6 @@ def count_overlaps(x, radii, first, second, code, shift):  # type: ignore[no-unt
     return count
 
 
-
 @_jit_fast
 def hessian_terms(x, radii, first, second, code, shift, typeid, kmat, alpha, pairs, sep, coef):  # type: ignore[no-untyped-def]
     """The overlapping pairs' Hessian blocks ``K = a b b^T - c I`` (``b`` the separation

@@ -265,3 +265,46 @@ def strain_derivative(contacts: Contacts) -> NDArray[np.float64]:
 def packing_energy(packing: Packing, model: ContactModel) -> float:
     """Energy of ``packing`` (convenience; builds a neighbour list)."""
     return total_energy(find_contacts(packing, model))
+
+
+@dataclass(frozen=True, eq=False)
+class HessianOperator:
+    """The Hessian ``H`` ``(N d, N d)`` at one configuration as a linear operator: matrix-free
+    products for iterative solves, and the sparse matrix for factorizations.
+
+    A contact's block (:func:`contact_blocks`) is written ``K = a b b^T - c I`` with ``b`` the
+    branch vector ``x_i - x_j`` (``l = |b|``), ``a = kappa (alpha - 1 + delta/l) / l^2``,
+    ``c = kappa delta/l`` and ``kappa = k delta^(alpha-2)``; ``pairs (M, 2)``, ``sep (M, d)``
+    (= ``b``) and ``coef (M, 2)`` = ``(a, c)`` hold the ``M`` contacts of ``n`` particles
+    (:meth:`athermal.objective.Objective.hessian` fills them by a compiled pass).
+    """
+
+    n: int
+    pairs: NDArray[np.int64]
+    sep: NDArray[np.float64]
+    coef: NDArray[np.float64]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        size = self.n * self.sep.shape[1]
+        return size, size
+
+    def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``H v`` for a flat ``v`` ``(N d,)``, by one compiled pass over the contacts."""
+        d = self.sep.shape[1]
+        out = np.empty(self.n * d)
+        _kernels.hessian_product(
+            self.pairs,
+            self.sep,
+            self.coef,
+            np.ascontiguousarray(v, dtype=np.float64).reshape(self.n, d),
+            out.reshape(self.n, d),
+        )
+        return out
+
+    def matrix(self) -> sp.csr_matrix:
+        """``H`` as a symmetric sparse matrix (for a factorization)."""
+        d = self.sep.shape[1]
+        outer = self.sep[:, :, None] * self.sep[:, None, :]
+        blocks = self.coef[:, 0, None, None] * outer - self.coef[:, 1, None, None] * np.eye(d)
+        return assemble_blocks(self.pairs[:, 0], self.pairs[:, 1], blocks, self.n)

@@ -43,8 +43,15 @@ from .protocols import (
 from .protocols.compress import FIT_LOWER
 from .protocols.finite_strain import DEFAULT_STRAINS
 
-ITERATION_METHODS = (Minimizer("lbfgs"), Minimizer("lbfgs", "exp"), Minimizer("lbfgs", "contact"))
-"""The minimizers of the seed's iteration experiment (plus the contact-stiffness one)."""
+ITERATION_METHODS = (
+    Minimizer("lbfgs"),
+    Minimizer("lbfgs", "exp"),
+    Minimizer("lbfgs", "contact"),
+    Minimizer("fire"),
+    Minimizer("newton"),
+)
+"""The minimizers of the seed's iteration experiment (plus the contact-stiffness one, FIRE and
+the truncated Newton method)."""
 CONVERGENCE_METHODS = (
     Minimizer("lbfgs"),
     Minimizer("lbfgs", "exp"),
@@ -218,7 +225,7 @@ class IterationSpec:
     """The seed's iteration experiment: at each ``delta_phis`` above jamming, the mean number
     of iterations of the quasi-static simple-shear steps ``strains`` by each of ``methods``."""
 
-    delta_phis: tuple[float, ...] = tuple(float(d) for d in log_spaced(1e-6, 1e-1, 1))
+    delta_phis: tuple[float, ...] = tuple(float(d) for d in log_spaced(1e-7, 1e-1, 1))
     methods: tuple[Minimizer, ...] = ITERATION_METHODS
     strains: tuple[float, ...] = tuple(float(s) for s in DEFAULT_STRAINS)
 

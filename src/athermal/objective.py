@@ -13,8 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _kernels
-from .contact import ContactModel, energy_gradient_contacts, find_contacts
-from .hessian import HessianOperator
+from .contact import ContactModel, HessianOperator, energy_gradient_contacts, find_contacts
 from .errors import InputError
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing

@@ -37,9 +37,16 @@ def model_from(args: argparse.Namespace, fallback: ContactModel | None) -> Conta
     )
 
 
+def precon_from(args: argparse.Namespace) -> str:
+    """``--precon``, or when it is not given the command's default (``none`` for newton)."""
+    if args.precon is not None:
+        return str(args.precon)
+    return "none" if args.method == "newton" else str(args.default_precon)
+
+
 def minimizer_from(args: argparse.Namespace) -> Minimizer:
     """The minimizer of ``--method``, ``--precon``, ``--A``, ``--solver``, ``--maxiter``."""
-    return Minimizer(args.method, args.precon, args.A, args.solver, args.maxiter)
+    return Minimizer(args.method, precon_from(args), args.A, args.solver, args.maxiter)  # type: ignore[arg-type]
 
 
 def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:

@@ -96,7 +96,13 @@ def _minimizer(
         choices=METHODS,
         help=f"minimizer {what} (plbfgs / pcg: lbfgs / cg with --precon exp)".replace("  ", " "),
     )
-    parser.add_argument("--precon", default=precon, choices=PRECONDITIONERS, help="preconditioner")
+    parser.add_argument(
+        "--precon",
+        default=None,
+        choices=PRECONDITIONERS,
+        help=f"preconditioner (default: {precon}; none with --method newton)",
+    )
+    parser.set_defaults(default_precon=precon)
     parser.add_argument("--A", type=float, default=0.0, help="Exp preconditioner parameter A")
     parser.add_argument(
         "--solver",
@@ -336,8 +342,12 @@ def build() -> argparse.ArgumentParser:
         "--method", default="lbfgs", choices=METHODS, help="jamming: minimizer of every step"
     )
     ens.add_argument(
-        "--precon", default="exp", choices=PRECONDITIONERS, help="jamming: preconditioner"
+        "--precon",
+        default=None,
+        choices=PRECONDITIONERS,
+        help="jamming: preconditioner (default: exp; none with --method newton)",
     )
+    ens.set_defaults(default_precon="exp")
     _compression_range(ens)
     _shear_options(ens)
     ens.add_argument(

@@ -31,7 +31,7 @@ from ..protocols import (
     shear_steps,
 )
 from ..tables import Row, write_table
-from .common import Progress, file_observables, minimizer_from, model_from
+from .common import Progress, file_observables, minimizer_from, model_from, precon_from
 from .printer import emit
 
 S = TypeVar("S")
@@ -105,7 +105,7 @@ def _trajectory(
         {
             "alpha": model.alpha,
             "stiffness": model.kmat.tolist(),
-            "minimizer": [args.method, args.precon, args.A, args.solver, args.maxiter],
+            "minimizer": [args.method, precon_from(args), args.A, args.solver, args.maxiter],
             **parameters,
         },
     )

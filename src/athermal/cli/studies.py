@@ -6,7 +6,7 @@ import argparse
 
 from ..experiments import CompressSpec, JamSpec, ShearSpec
 from ..minimize import Minimizer
-from .common import Progress
+from .common import Progress, precon_from
 from .printer import emit
 
 
@@ -43,7 +43,7 @@ def ensemble(args: argparse.Namespace) -> None:
             size_ratio=args.size_ratio,
             dphi=args.dphi,
             epsilon=args.epsilon,
-            minimizer=Minimizer(args.method, args.precon),
+            minimizer=Minimizer(args.method, precon_from(args)),  # type: ignore[arg-type]
         ),
         compress=CompressSpec(
             delta_min=args.dphi_min, delta_max=args.dphi_max, per_decade=args.per_decade

@@ -1,11 +1,11 @@
 """Energy minimizers on an :class:`~athermal.objective.Objective`: one entry, a registry.
 
 Methods: ``"lbfgs"`` (seed Algorithm 2), ``"cg"`` (Fletcher-Reeves, seed Algorithms 3-4, or
-Polak-Ribiere+), ``"fire"`` (FIRE 2.0, the community's baseline), ``"newton"`` (truncated Newton with a lagged
-Cholesky factor of the Hessian, beyond the seed: robust near jamming); ``"plbfgs"`` and ``"pcg"`` are
-the seed's names for ``lbfgs`` and ``cg`` with the Exp preconditioner. Preconditioners:
-``"none"``, ``"exp"`` (the seed's universal preconditioner, parameter ``A``) and ``"contact"``
-(contact stiffness + Exp stabilization).
+Polak-Ribiere+), ``"fire"`` (FIRE 2.0, the community's baseline), ``"newton"`` (truncated Newton
+with a lagged Cholesky factor of the Hessian, beyond the seed: for quasi-static steps near
+jamming); ``"plbfgs"`` and ``"pcg"`` are the seed's names for ``lbfgs`` and ``cg`` with the Exp
+preconditioner. Preconditioners: ``"none"``, ``"exp"`` (the seed's universal preconditioner,
+parameter ``A``) and ``"contact"`` (contact stiffness + Exp stabilization).
 """
 
 from __future__ import annotations

@@ -27,8 +27,7 @@ def resolve_method(method: str, precon: PreconName = "none") -> tuple[str, Preco
     choice(precon, "precon", PRECONDITIONERS)
     if method == "newton" and precon != "none":
         raise InputError(
-            f"precon: newton preconditions with its own Hessian factor; got {precon!r}, "
-            "give 'none'"
+            f"precon: newton preconditions with its own Hessian factor; got {precon!r}, give 'none'"
         )
     base, implied = _ALIASES.get(method, (method, "none"))
     return base, implied if precon == "none" else precon
