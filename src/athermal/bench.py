@@ -39,6 +39,7 @@ METHODS = (
     Minimizer("cg", "exp"),
     Minimizer("fire"),
     Minimizer("lbfgs", "contact"),
+    Minimizer("newton"),
 )
 """The Table's methods (their :attr:`~athermal.minimize.Minimizer.name` labels its rows)."""
 LABELS = (*(m.name for m in METHODS), SCIPY)

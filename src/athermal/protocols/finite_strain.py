@@ -28,6 +28,12 @@ from ._relax import Minimizer, Relaxer, force_tolerance
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
 """The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
 DEFAULT_STRAINS.setflags(write=False)
+FINITE_STRAIN_MINIMIZER = Minimizer("newton")
+"""Default minimizer of the finite-strain steps: truncated Newton. Measured (2D, alpha = 2, one
+core, shear steps of 1e-6 at ``Delta phi = 1e-6``): 20-40 iterations and 0.2 s per step at
+N = 1024, where the L-BFGS family needs 2500-6800 iterations and about 1 s; at N = 4096,
+0.2-0.5k iterations and 2.5-5 s per step against 12-54k iterations and 11-17 s
+(``benchmarks/results/protocols/iterations_n*.md``)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -80,8 +86,8 @@ def finite_strain_shear(
     model : contact law.
     strains : ``(k,)`` total shear strains, ``k >= 2``, of one sign, strictly increasing in
         magnitude (default: the seed's 1e-6 to 1e-5 in 10 steps).
-    minimizer : how each step is relaxed (default L-BFGS); its iteration limit is fatal
-        (:class:`~athermal.errors.ConvergenceError`).
+    minimizer : how each step is relaxed (default :data:`FINITE_STRAIN_MINIMIZER`, truncated
+        Newton); its iteration limit is fatal (:class:`~athermal.errors.ConvergenceError`).
     rtol : tolerance relative to the mean contact force at the start of each relaxation,
         floored at round-off (:func:`~athermal.protocols._relax.round_off_floor`).
     """
@@ -94,7 +100,7 @@ def finite_strain_shear(
         lambda old, new: simple_shear(new - old, dim),
         lambda contacts, p: shear_stress(stress(contacts, p.cell)),
         1.0,
-        minimizer or Minimizer(),
+        minimizer or FINITE_STRAIN_MINIMIZER,
         rtol,
     )
 
@@ -131,7 +137,7 @@ def finite_strain_bulk(
         lambda old, new: isotropic((1.0 + new) / (1.0 + old), dim),
         lambda contacts, p: pressure(stress(contacts, p.cell)),
         -1.0 / dim,
-        minimizer or Minimizer(),
+        minimizer or FINITE_STRAIN_MINIMIZER,
         rtol,
     )
 
