@@ -41,7 +41,7 @@ from .protocols import (
     shear_steps,
 )
 from .protocols.compress import FIT_LOWER
-from .protocols.finite_strain import DEFAULT_STRAINS
+from .protocols.finite_strain import DEFAULT_STRAINS, StepStart
 
 ITERATION_METHODS = (
     Minimizer("lbfgs"),
@@ -223,11 +223,14 @@ def shear(compression: Compression, model: ContactModel, spec: ShearSpec) -> She
 @dataclass(frozen=True)
 class IterationSpec:
     """The seed's iteration experiment: at each ``delta_phis`` above jamming, the mean number
-    of iterations of the quasi-static simple-shear steps ``strains`` by each of ``methods``."""
+    of iterations of the quasi-static simple-shear steps ``strains`` by each of ``methods``,
+    each relaxation starting from the affinely sheared state (``start``, the seed's; or
+    ``"linear"``, see :func:`~athermal.protocols.finite_strain_shear`)."""
 
     delta_phis: tuple[float, ...] = tuple(float(d) for d in log_spaced(1e-7, 1e-1, 1))
     methods: tuple[Minimizer, ...] = ITERATION_METHODS
     strains: tuple[float, ...] = tuple(float(s) for s in DEFAULT_STRAINS)
+    start: StepStart = "affine"
 
 
 @dataclass(frozen=True)
@@ -253,7 +256,9 @@ def iteration_counts(
         reached.append(state.delta_phi)
         for name, method in zip(names, spec.methods, strict=True):
             t0 = time.perf_counter()
-            fs = finite_strain_shear(state.packing, model, spec.strains, minimizer=method)
+            fs = finite_strain_shear(
+                state.packing, model, spec.strains, minimizer=method, start=spec.start
+            )
             iterations[name].append(float(np.mean(fs.iterations)))
             seconds[name].append((time.perf_counter() - t0) / len(spec.strains))
     return IterationCounts(

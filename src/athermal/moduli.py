@@ -171,6 +171,24 @@ def relaxed_strain_curvature(
     return affine, affine - float(correction[0])
 
 
+def nonaffine_displacement(
+    packing: Packing, model: ContactModel, d1: ArrayLike
+) -> NDArray[np.float64]:
+    """The linear-response displacement ``u = -H^+ Xi`` ``(N, d)`` that relaxes the affine
+    deformation ``x -> (I + d1) x`` of a packing at an energy minimum, to first order in ``d1``.
+
+    ``Xi`` is :func:`strain_terms`' mixed derivative along the deformation, ``H`` the Hessian of
+    the non-rattlers (translations pinned); rattlers get ``u = 0``. ``packing.deform(I + d1)``
+    moved by ``u`` is the start a quasi-static step predicts for its relaxation.
+    """
+    dim = packing.dim
+    d1_arr = float_array(d1, "d1", (dim, dim))
+    contacts, rattler = _live_contacts(packing, model)
+    _, xi = strain_terms(contacts, packing.n, d1_arr)
+    y, _, _ = _pinned_solve(contacts, rattler, xi[:, :, None])
+    return -y[:, 0].reshape(packing.n, dim)
+
+
 def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
     """Bulk and shear moduli of ``packing`` (at an energy minimum) from its sparse Hessian.
 
@@ -286,20 +304,31 @@ def _nonaffine_correction(
     contacts: Contacts, rattler: NDArray[np.bool_], xi: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``Xi^T H^+ Xi`` for each of the ``m`` columns of ``xi`` ``(N, d, m)``, the largest
-    relative residual of the solves and the solver used.
+    relative residual of the solves and the solver used (:func:`_pinned_solve`)."""
+    y, residual, solver = _pinned_solve(contacts, rattler, xi)
+    n, dim, m = xi.shape
+    return np.einsum("km,km->m", xi.reshape(n * dim, m), y), residual, solver
+
+
+def _pinned_solve(
+    contacts: Contacts, rattler: NDArray[np.bool_], xi: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], float, SolverUsed]:
+    """``y = H^+ Xi`` ``(N d, m)`` for the ``m`` columns of ``xi`` ``(N, d, m)``, zero on the
+    rattlers, with the largest relative residual and the solver used.
 
     H is restricted to the non-rattlers with the first of them pinned (its ``d`` coordinates
     removed), which takes out the translations, and factored once for all columns (:func:`_solve`).
     """
     n, dim, m = xi.shape
+    y = np.zeros((n * dim, m))
     live = np.flatnonzero(~rattler)
     if live.size <= 1:
-        return np.zeros(m), 0.0, "none"
+        return y, 0.0, "none"
     dofs = (live[1:, None] * dim + np.arange(dim)).ravel()
     b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
     h = hessian(contacts, n)[dofs][:, dofs].tocsr()
-    y, residual, solver = _solve(h, b)
-    return np.einsum("km,km->m", b, y), residual, solver
+    y[dofs], residual, solver = _solve(h, b)
+    return y, residual, solver
 
 
 def _solve(

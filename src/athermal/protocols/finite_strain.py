@@ -11,15 +11,17 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .._validate import float_array
+from .._validate import choice, float_array
 from ..cell import isotropic, simple_shear
-from ..contact import ContactModel, Contacts, find_contacts
+from ..contact import ContactModel, Contacts, find_contacts, packing_energy
 from ..errors import InputError
 from ..minimize import RTOL
+from ..moduli import nonaffine_displacement
 from ..objective import Objective
 from ..observables import pressure, shear_stress, stress
 from ..packing import Packing
@@ -28,6 +30,8 @@ from ._relax import Minimizer, Relaxer, force_tolerance
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
 """The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
 DEFAULT_STRAINS.setflags(write=False)
+StepStart = Literal["linear", "affine"]
+STEP_STARTS: tuple[str, ...] = ("linear", "affine")
 FINITE_STRAIN_MINIMIZER = Minimizer("newton")
 """Default minimizer of the finite-strain steps: truncated Newton. Measured (2D, alpha = 2, one
 core, shear steps of 1e-6 at ``Delta phi = 1e-6``): 20-40 iterations and 0.2 s per step at
@@ -73,6 +77,7 @@ def finite_strain_shear(
     *,
     minimizer: Minimizer | None = None,
     rtol: float = RTOL,
+    start: StepStart = "linear",
 ) -> FiniteStrain:
     """Shear modulus ``G = d(-sigma_01)/d gamma`` from quasi-static simple shear ``x += gamma y``.
 
@@ -90,6 +95,14 @@ def finite_strain_shear(
         Newton); its iteration limit is fatal (:class:`~athermal.errors.ConvergenceError`).
     rtol : tolerance relative to the mean contact force at the start of each relaxation,
         floored at round-off (:func:`~athermal.protocols._relax.round_off_floor`).
+    start : where each relaxation starts: ``"affine"``, the deformed previous configuration
+        (the seed's), or ``"linear"``, that moved by the linear-response displacement
+        (:func:`~athermal.moduli.nonaffine_displacement`, one sparse solve with the previous
+        minimum's Hessian) when this lowers its energy. Near jamming the seed's step of 1e-6 opens
+        a quarter of the contacts of a packing at ``Delta phi = 1e-7`` and the relaxation has to
+        close them again; the linear start keeps them (measured with Newton-CG at N = 1024:
+        1 iteration per step from ``Delta phi = 1e-7`` to 1e-1, against 2-53 from the affine
+        start; ``benchmarks/results/protocols/newton_diagnostics_n*.md``).
     """
     gammas = _check_strains(strains, lower=-np.inf)
     dim = packing.dim
@@ -102,6 +115,7 @@ def finite_strain_shear(
         1.0,
         minimizer or FINITE_STRAIN_MINIMIZER,
         rtol,
+        start,
     )
 
 
@@ -112,6 +126,7 @@ def finite_strain_bulk(
     *,
     minimizer: Minimizer | None = None,
     rtol: float = RTOL,
+    start: StepStart = "linear",
 ) -> FiniteStrain:
     """Bulk modulus ``B = -(1/d) dp/de`` from quasi-static isotropic strain at fixed radii.
 
@@ -126,7 +141,7 @@ def finite_strain_bulk(
     model : contact law.
     strains : ``(k,)`` total strains, ``k >= 2``, each > -1, of one sign, strictly increasing in
         magnitude (default: compression by 1e-6 to 1e-5 in 10 steps).
-    minimizer, rtol : as in :func:`finite_strain_shear`.
+    minimizer, rtol, start : as in :func:`finite_strain_shear`.
     """
     strain = _check_strains(strains, lower=-1.0)
     dim = packing.dim
@@ -139,6 +154,7 @@ def finite_strain_bulk(
         -1.0 / dim,
         minimizer or FINITE_STRAIN_MINIMIZER,
         rtol,
+        start,
     )
 
 
@@ -165,8 +181,10 @@ def _quasi_static(
     scale: float,
     minimizer: Minimizer,
     rtol: float,
+    start: StepStart,
 ) -> FiniteStrain:
     """Step through ``strains``: deform by ``increment(old, new)``, relax, ``observe``; fit."""
+    choice(start, "start", STEP_STARTS)
     contacts = find_contacts(packing, model)
     first = observe(contacts, packing)
     first_contacts = int(contacts.i.size)
@@ -175,7 +193,10 @@ def _quasi_static(
     counts = np.empty(strains.size, dtype=np.int64)
     current, old = packing, 0.0
     for step, new in enumerate(strains):
-        deformed = current.deform(increment(old, float(new)))
+        deformation = increment(old, float(new))
+        deformed = current.deform(deformation)
+        if start == "linear":
+            deformed = _linear_start(current, deformed, deformation, model)
         objective = Objective(deformed, model)
         gtol = force_tolerance(deformed, model, rtol)
         result = Relaxer(objective, minimizer).relax(
@@ -200,6 +221,16 @@ def _quasi_static(
         contacts_initial=first_contacts,
         packing=current,
     )
+
+
+def _linear_start(
+    relaxed: Packing, deformed: Packing, deformation: NDArray[np.float64], model: ContactModel
+) -> Packing:
+    """``deformed`` (= ``relaxed`` deformed affinely) moved by the linear-response displacement of
+    ``deformation``, or ``deformed`` itself when the move does not lower its energy."""
+    d1 = deformation - np.eye(relaxed.dim)
+    moved = deformed.with_positions(deformed.positions + nonaffine_displacement(relaxed, model, d1))
+    return moved if packing_energy(moved, model) < packing_energy(deformed, model) else deformed
 
 
 def _fit_slope(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
