@@ -37,6 +37,7 @@ from typing import Any
 
 import numpy as np
 
+from athermal import plot
 from athermal.experiments import (
     CompressSpec,
     IterationSpec,
@@ -370,6 +371,19 @@ def run_iterations(args: argparse.Namespace) -> None:
         },
     }
     write(args, f"iterations_n{args.n}", data, "\n".join(lines) + "\n")
+    iterations_png(
+        args.output_dir / f"iterations_n{args.n}.json",
+        f"N = {args.n}, 2D, alpha = 2, {args.seeds} realizations, {len(spec.strains)} steps each",
+    )
+
+
+def iterations_png(results: Path, title: str) -> Path:
+    """The seed-style figure of an iterations result file: ``<same name>.png`` beside it."""
+    data = json.loads(results.read_text())
+    deltas = data["delta_phi"]
+    counts = {name: [per[f"{d:.0e}"] for d in deltas] for name, per in data["iterations"].items()}
+    figure = plot.iterations_figure(deltas, counts, title=title, error="sd")
+    return plot.save(figure, results.with_suffix(".png"))
 
 
 def fits(

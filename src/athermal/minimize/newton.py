@@ -180,7 +180,7 @@ def newton(
         tracker.linear_iterations += inner
         refactor = inner > REFACTOR_INNER
         ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
-        if not ls.ok and factor.n_builds and not refactor:  # retry on a fresh factor
+        if not ls.ok and not refactor:  # retry along -M^-1 g on a fresh factor
             factor.build(hessian)
             direction = -factor.solve(grad)
             ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
