@@ -65,6 +65,7 @@ TIMING_METHODS = (
     Minimizer("lbfgs", "contact"),
     Minimizer("cg"),
     Minimizer("fire"),
+    Minimizer("newton"),
 )
 EPSILON = 1e-6
 GROWTH = 1e-3
