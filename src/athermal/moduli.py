@@ -179,13 +179,21 @@ def nonaffine_displacement(
 
     ``Xi`` is :func:`strain_terms`' mixed derivative along the deformation, ``H`` the Hessian of
     the non-rattlers (translations pinned); rattlers get ``u = 0``. ``packing.deform(I + d1)``
-    moved by ``u`` is the start a quasi-static step predicts for its relaxation.
+    moved by ``u`` is the start a quasi-static step predicts for its relaxation. A
+    ``RuntimeWarning`` reports a solve whose relative residual exceeds ``RESIDUAL_WARN``.
     """
     dim = packing.dim
     d1_arr = float_array(d1, "d1", (dim, dim))
     contacts, rattler = _live_contacts(packing, model)
     _, xi = strain_terms(contacts, packing.n, d1_arr)
-    y, _, _ = _pinned_solve(contacts, rattler, xi[:, :, None])
+    y, residual, _ = _pinned_solve(contacts, rattler, xi[:, :, None])
+    if residual > RESIDUAL_WARN:
+        warnings.warn(
+            f"nonaffine_displacement: linear solve residual {residual:.2e}; the packing may not "
+            "be at a stable minimum",
+            RuntimeWarning,
+            stacklevel=2,
+        )
     return -y[:, 0].reshape(packing.n, dim)
 
 

@@ -9,6 +9,7 @@ measured the same way under isotropic strain of the cell at fixed radii. Both ag
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
@@ -18,11 +19,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._validate import choice, float_array
 from ..cell import isotropic, simple_shear
-from ..contact import ContactModel, Contacts, find_contacts, packing_energy
+from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import InputError
 from ..minimize import RTOL
 from ..moduli import nonaffine_displacement
-from ..objective import Objective
+from ..objective import MAX_STEP_FACTOR, Objective
 from ..observables import pressure, shear_stress, stress
 from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
@@ -98,11 +99,10 @@ def finite_strain_shear(
     start : where each relaxation starts: ``"affine"``, the deformed previous configuration
         (the seed's), or ``"linear"``, that moved by the linear-response displacement
         (:func:`~athermal.moduli.nonaffine_displacement`, one sparse solve with the previous
-        minimum's Hessian) when this lowers its energy. Near jamming the seed's step of 1e-6 opens
-        a quarter of the contacts of a packing at ``Delta phi = 1e-7`` and the relaxation has to
-        close them again; the linear start keeps them (measured with Newton-CG at N = 1024:
-        1 iteration per step from ``Delta phi = 1e-7`` to 1e-1, against 2-53 from the affine
-        start; ``benchmarks/results/protocols/newton_diagnostics_n*.md``).
+        minimum's Hessian) unless it moves a particle more than the minimizers' step cap. Near
+        jamming the seed's step of 1e-6 opens a quarter of the contacts of a packing at
+        ``Delta phi = 1e-7`` and the relaxation has to close them again; the linear start keeps
+        them (``benchmarks/results/protocols/newton_diagnostics_n*.md``).
     """
     gammas = _check_strains(strains, lower=-np.inf)
     dim = packing.dim
@@ -227,10 +227,17 @@ def _linear_start(
     relaxed: Packing, deformed: Packing, deformation: NDArray[np.float64], model: ContactModel
 ) -> Packing:
     """``deformed`` (= ``relaxed`` deformed affinely) moved by the linear-response displacement of
-    ``deformation``, or ``deformed`` itself when the move does not lower its energy."""
+    ``deformation``; ``deformed`` itself when that displacement is not finite or moves a particle
+    more than the minimizers' step cap (``MAX_STEP_FACTOR`` mean radii: the linear response is
+    then no guide, as at an instability)."""
     d1 = deformation - np.eye(relaxed.dim)
-    moved = deformed.with_positions(deformed.positions + nonaffine_displacement(relaxed, model, d1))
-    return moved if packing_energy(moved, model) < packing_energy(deformed, model) else deformed
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a poor solve is caught below
+        u = nonaffine_displacement(relaxed, model, d1)
+    longest = float(np.sqrt(np.max(np.einsum("ij,ij->i", u, u)))) if u.size else 0.0
+    if not np.isfinite(longest) or longest > MAX_STEP_FACTOR * float(np.mean(relaxed.radii)):
+        return deformed
+    return deformed.with_positions(deformed.positions + u)
 
 
 def _fit_slope(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
