@@ -21,10 +21,13 @@ last one itself if that build had to raise it) and is raised tenfold until CHOLM
 :data:`REFACTOR_INNER` CG iterations: while the contact network holds, ``H`` barely changes
 and CG converges in a few iterations on the lagged factor.
 
-Measured (2D, alpha = 2, one core; ``benchmarks/results/protocols/iterations_*.md``): per
-quasi-static shear step of 1e-6 at ``Delta phi = 1e-6`` it needs 20-40 iterations at N = 1024
-where the L-BFGS family needs thousands; where contacts keep breaking and forming over a long
-rearrangement (the jamming protocol's trials near ``phi_c``) it is slower than P-L-BFGS.
+Measured (2D, alpha = 2, one core; ``benchmarks/results/protocols/iterations_n*.md``): per
+quasi-static shear step of 1e-6 at ``Delta phi = 1e-6``, 64 +- 82 iterations at N = 1024 and
+126 +- 102 at N = 4096 where the L-BFGS family needs 3-40 thousand, 3-4x less wall time than
+the fastest of them; 1-3 iterations per step when the step starts from its linear-response
+prediction (:func:`~athermal.protocols.finite_strain_shear`). Where contacts keep breaking and
+forming over a long rearrangement (the jamming protocol's trials near ``phi_c``) it is slower
+than P-L-BFGS.
 """
 
 from __future__ import annotations
