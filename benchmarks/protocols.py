@@ -304,7 +304,7 @@ def run_iterations(args: argparse.Namespace) -> None:
     base = IterationSpec()
     methods = tuple(m for m in base.methods if args.methods is None or m.label in args.methods)
     spec = IterationSpec(methods=methods, strains=base.strains[: args.steps], start=args.start)
-    name = f"iterations_n{args.n}" + ("" if args.start == "affine" else f"_{args.start}")
+    result = f"iterations_n{args.n}" + ("" if args.start == "affine" else f"_{args.start}")
     names = [m.name for m in spec.methods]
     deltas = spec.delta_phis
     # per method name, per Delta phi of the spec: one value per realization
@@ -374,9 +374,9 @@ def run_iterations(args: argparse.Namespace) -> None:
             for n, per in seconds.items()
         },
     }
-    write(args, name, data, "\n".join(lines) + "\n")
+    write(args, result, data, "\n".join(lines) + "\n")
     iterations_png(
-        args.output_dir / f"{name}.json",
+        args.output_dir / f"{result}.json",
         f"N = {args.n}, 2D, alpha = 2, {args.seeds} realizations, {len(spec.strains)} steps each",
     )
 
