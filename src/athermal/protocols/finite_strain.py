@@ -19,11 +19,11 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._validate import choice, float_array
 from ..cell import isotropic, simple_shear
-from ..contact import ContactModel, Contacts, find_contacts, gradient
+from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import InputError
 from ..minimize import RTOL
 from ..moduli import nonaffine_displacement
-from ..objective import Objective
+from ..objective import MAX_STEP_FACTOR, Objective
 from ..observables import pressure, shear_stress, stress
 from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
@@ -35,10 +35,10 @@ StepStart = Literal["linear", "affine"]
 STEP_STARTS: tuple[str, ...] = ("linear", "affine")
 FINITE_STRAIN_MINIMIZER = Minimizer("newton")
 """Default minimizer of the finite-strain steps: truncated Newton. Measured (2D, alpha = 2, one
-core, the seed's shear steps of 1e-6 at ``Delta phi = 1e-6``, affine start;
-``benchmarks/results/protocols/iterations_n*.md``): 64 +- 82 iterations and 0.27 s per step at
-N = 1024 (10 realizations) where the L-BFGS family and FIRE need 3.2-12.5k and 0.84-1.19 s;
-126 +- 102 and 2.4 s at N = 4096 (2 realizations) against 10.7-40k and 8.0-15.3 s."""
+core, shear steps of 1e-6 at ``Delta phi = 1e-6``): 20-40 iterations and 0.2 s per step at
+N = 1024, where the L-BFGS family needs 2500-6800 iterations and about 1 s; at N = 4096,
+0.2-0.5k iterations and 2.5-5 s per step against 12-54k iterations and 11-17 s
+(``benchmarks/results/protocols/iterations_n*.md``)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -99,7 +99,7 @@ def finite_strain_shear(
     start : where each relaxation starts: ``"affine"``, the deformed previous configuration
         (the seed's), or ``"linear"``, that moved by the linear-response displacement
         (:func:`~athermal.moduli.nonaffine_displacement`, one sparse solve with the previous
-        minimum's Hessian) when that lowers the largest force (within linear response). Near
+        minimum's Hessian) unless it moves a particle more than the minimizers' step cap. Near
         jamming the seed's step of 1e-6 opens a quarter of the contacts of a packing at
         ``Delta phi = 1e-7`` and the relaxation has to close them again; the linear start keeps
         them (``benchmarks/results/protocols/newton_diagnostics_n*.md``).
@@ -227,24 +227,25 @@ def _linear_start(
     relaxed: Packing, deformed: Packing, deformation: NDArray[np.float64], model: ContactModel
 ) -> Packing:
     """``deformed`` (= ``relaxed`` deformed affinely) moved by the linear-response displacement of
-    ``deformation`` when that lowers the largest force, i.e. the step is within linear response;
-    else ``deformed`` itself. Measured at N = 4096 near an instability (``Delta phi = 1e-6``):
-    the predicted displacement reached 200-800 times the strain (in mean radii) and raised the
-    largest force 50-150 times; every minimizer then took longer than from the affine start."""
+    ``deformation``; ``deformed`` itself when that displacement is not finite or moves a particle
+    more than the minimizers' step cap (``MAX_STEP_FACTOR`` mean radii: the linear response is
+    then no guide, as at an instability).
+
+    Neither the energy nor the largest force tells a good prediction from a bad one: the affine
+    step opens contacts and lowers both. Measured (``Delta phi`` = 1e-7 ... 1e-5, steps of 1e-6):
+    the prediction keeps all but 0-60 contacts where the affine step changes 30-2800, yet has
+    higher forces; from it Newton needed 1-4 iterations in 7 of 9 steps at N = 1024 (14 and
+    150 in the others) against 18-157 from the affine start, and at N = 4096 sometimes more
+    than from the affine start (both starts end in long rearrangements there).
+    """
     d1 = deformation - np.eye(relaxed.dim)
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # a poor solve fails the test below
+        warnings.simplefilter("ignore", RuntimeWarning)  # a poor solve is caught below
         u = nonaffine_displacement(relaxed, model, d1)
-    if not np.all(np.isfinite(u)):
+    longest = float(np.sqrt(np.max(np.einsum("ij,ij->i", u, u)))) if u.size else 0.0
+    if not np.isfinite(longest) or longest > MAX_STEP_FACTOR * float(np.mean(relaxed.radii)):
         return deformed
-    moved = deformed.with_positions(deformed.positions + u)
-    return moved if _largest_force(moved, model) < _largest_force(deformed, model) else deformed
-
-
-def _largest_force(packing: Packing, model: ContactModel) -> float:
-    """``max_i |grad_i|`` of ``packing`` (0 without contacts)."""
-    grad = gradient(find_contacts(packing, model), packing.n)
-    return float(np.sqrt(np.max(np.einsum("ij,ij->i", grad, grad)))) if packing.n else 0.0
+    return deformed.with_positions(deformed.positions + u)
 
 
 def _fit_slope(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
