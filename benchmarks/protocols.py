@@ -377,7 +377,7 @@ def run_iterations(args: argparse.Namespace) -> None:
     write(args, result, data, "\n".join(lines) + "\n")
     iterations_png(
         args.output_dir / f"{result}.json",
-        f"N = {args.n}, 2D, alpha = 2, {args.seeds} realizations, {len(spec.strains)} steps each",
+        f"N = {args.n}: {args.seeds} realizations x {len(spec.strains)} steps, {spec.start} start",
     )
 
 

@@ -367,7 +367,7 @@ def iterations_figure(
         raise InputError(f"error: expected 'sd' or 'stderr', got {error!r}")
     from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
 
-    fig = _figure(5.5, 4.0)
+    fig = _figure(7.5, 4.0)
     ax = fig.add_subplot()
     every: list[float] = []
     for label, per_point in counts.items():
@@ -389,7 +389,13 @@ def iterations_figure(
     ax.set_xlabel(r"$\phi - \phi_c$")
     ax.set_ylabel(f"iterations per step (mean ± {error})")
     ax.set_title(title)
-    ax.legend(fontsize="small", title=f"mean ± {error} over realizations", title_fontsize="small")
+    ax.legend(  # beside the axes: with five methods no corner inside is free
+        fontsize="small",
+        title=f"mean ± {error} over realizations",
+        title_fontsize="small",
+        loc="upper left",
+        bbox_to_anchor=(1.02, 1.0),
+    )
     return fig
 
 
