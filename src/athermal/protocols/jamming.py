@@ -73,7 +73,10 @@ JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
 N = 1024, seeds 0-3, 9.3 / 16.7 / 9.1 / 9.0 s against L-BFGS's 4.4 / 10.0 / 19.8 / 9.1 s and
 FIRE's 11.9 / 11.8 / 13.2 / 6.8 s (a tie over the four); N = 4096, seed 0, 104-148 s (two runs)
 against FIRE's > 15 minutes (stopped), and with the earlier engine 109 s against L-BFGS's
-712 s. The trials near phi_c dominate: 8-18k iterations each, whatever the minimizer."""
+712 s. The trials near phi_c dominate: 8-18k iterations each, whatever the minimizer. Newton-CG
+(N = 1024, realization 0, ``benchmarks/results/protocols/timing_n1024_s0.md``) took 28.3 s
+against P-L-BFGS's 10.9 s: 7316 iterations instead of 54301, but each costs a CG solve on a
+lagged factor, and the long rearrangements near phi_c keep it far from its quadratic regime."""
 JAMMING_SCHEME = 2
 """Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused)."""
 PHI_INIT = {2: 0.8, 3: 0.6}
