@@ -161,13 +161,7 @@ def relaxed_strain_curvature(
     contacts, rattler = _live_contacts(packing, model)
     affine, xi = strain_terms(contacts, packing.n, d1_arr, d2_arr)
     correction, residual, _ = _nonaffine_correction(contacts, rattler, xi[:, :, None])
-    if residual > RESIDUAL_WARN:
-        warnings.warn(
-            f"relaxed_strain_curvature: linear solve residual {residual:.2e}; the packing may not "
-            "be at a stable minimum",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+    _warn_if_poor(residual, "relaxed_strain_curvature")
     return affine, affine - float(correction[0])
 
 
@@ -187,13 +181,7 @@ def nonaffine_displacement(
     contacts, rattler = _live_contacts(packing, model)
     _, xi = strain_terms(contacts, packing.n, d1_arr)
     y, residual, _ = _pinned_solve(contacts, rattler, xi[:, :, None])
-    if residual > RESIDUAL_WARN:
-        warnings.warn(
-            f"nonaffine_displacement: linear solve residual {residual:.2e}; the packing may not "
-            "be at a stable minimum",
-            RuntimeWarning,
-            stacklevel=2,
-        )
+    _warn_if_poor(residual, "nonaffine_displacement")
     return -y[:, 0].reshape(packing.n, dim)
 
 
@@ -299,6 +287,18 @@ def stability(packing: Packing, model: ContactModel) -> Stability:
     mode = np.zeros((packing.n, dim))
     mode.reshape(-1)[dofs] = vectors[:, 0]
     return Stability(False, value, mode / np.linalg.norm(mode), shift)
+
+
+def _warn_if_poor(residual: float, what: str) -> None:
+    """A ``RuntimeWarning`` for the caller of ``what`` when a solve's relative residual exceeds
+    ``RESIDUAL_WARN``."""
+    if residual > RESIDUAL_WARN:
+        warnings.warn(
+            f"{what}: linear solve residual {residual:.2e}; the packing may not be at a stable "
+            "minimum",
+            RuntimeWarning,
+            stacklevel=3,
+        )
 
 
 def _live_contacts(packing: Packing, model: ContactModel) -> tuple[Contacts, NDArray[np.bool_]]:
