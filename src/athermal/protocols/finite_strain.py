@@ -35,10 +35,12 @@ StepStart = Literal["linear", "affine"]
 STEP_STARTS: tuple[str, ...] = ("linear", "affine")
 FINITE_STRAIN_MINIMIZER = Minimizer("newton")
 """Default minimizer of the finite-strain steps: truncated Newton. Measured (2D, alpha = 2, one
-core, shear steps of 1e-6 at ``Delta phi = 1e-6``): 20-40 iterations and 0.2 s per step at
-N = 1024, where the L-BFGS family needs 2500-6800 iterations and about 1 s; at N = 4096,
-0.2-0.5k iterations and 2.5-5 s per step against 12-54k iterations and 11-17 s
-(``benchmarks/results/protocols/iterations_n*.md``)."""
+core, the seed's shear steps of 1e-6 at ``Delta phi = 1e-6``, affine start;
+``benchmarks/results/protocols/iterations_n*.md``): 64 +- 82 iterations and 0.27 s per step at
+N = 1024 (10 realizations) where the L-BFGS family and FIRE need 3.2-12.5k and 0.84-1.19 s;
+126 +- 102 and 2.4 s at N = 4096 (2 realizations) against 10.7-40k and 8.0-15.3 s. Its worst
+step seen (N = 4096, ``Delta phi = 1e-5``, a long rearrangement): 9590 iterations and 106 s,
+where P-L-BFGS took 65517 and 41 s, and 200 Newton iterations handed to P-L-BFGS 32 s."""
 
 
 @dataclass(frozen=True, eq=False)
