@@ -25,8 +25,8 @@ Measured (2D, alpha = 2, one core; ``benchmarks/results/protocols/iterations_n*.
 quasi-static shear step of 1e-6 at ``Delta phi = 1e-6``, 64 +- 82 iterations at N = 1024 and
 126 +- 102 at N = 4096 where the L-BFGS family needs 3-40 thousand, 3-4x less wall time than
 the fastest of them; from the step's linear-response prediction
-(:func:`~athermal.protocols.finite_strain_shear`) 9-12 at N = 1024 and 1-2 from
-``Delta phi = 1e-3`` on. Where contacts keep breaking and
+(:func:`~athermal.protocols.finite_strain_shear`) 9-53 at N = 1024 below
+``Delta phi = 1e-4`` and 1-5 from there on. Where contacts keep breaking and
 forming over a long rearrangement (the jamming protocol's trials near ``phi_c``) it is slower
 than P-L-BFGS.
 """
