@@ -23,7 +23,7 @@ from .fire import fire
 from .lbfgs import lbfgs
 from .newton import newton
 from .result import MinimizeResult, Preconditioner, Problem, Status
-from .spec import METHODS, RTOL, Method, Minimizer, resolve_method
+from .spec import METHODS, NEWTON_TAKES_NO_PRECON, RTOL, Method, Minimizer, resolve_method
 
 
 def minimize(
@@ -68,7 +68,7 @@ def minimize(
         raise InputError(f"x0: expected shape ({objective.n_dof},), got {start.shape}")
     base, name = resolve_method(method, precon if isinstance(precon, str) else "none")
     if base == "newton" and not isinstance(precon, str):
-        raise InputError("precon: newton preconditions with its own Hessian factor; give 'none'")
+        raise InputError(NEWTON_TAKES_NO_PRECON)
     tol = objective.tolerance(gtol, rtol, start)
     if base == "newton":
         return newton(objective, start, gtol=tol, maxiter=maxiter, etol=etol)

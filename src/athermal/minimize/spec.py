@@ -14,6 +14,7 @@ Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
 _NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE", "newton": "Newton-CG"}
+NEWTON_TAKES_NO_PRECON = "precon: newton preconditions with its own Hessian factor; give 'none'"
 RTOL = 1e-9
 """The seed's tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at the start of a
 relaxation (the Table, every quasi-static step)."""
@@ -26,9 +27,7 @@ def resolve_method(method: str, precon: PreconName = "none") -> tuple[str, Preco
     choice(method, "method", METHODS)
     choice(precon, "precon", PRECONDITIONERS)
     if method == "newton" and precon != "none":
-        raise InputError(
-            f"precon: newton preconditions with its own Hessian factor; got {precon!r}, give 'none'"
-        )
+        raise InputError(f"{NEWTON_TAKES_NO_PRECON}; got {precon!r}")
     base, implied = _ALIASES.get(method, (method, "none"))
     return base, implied if precon == "none" else precon
 
