@@ -53,6 +53,7 @@ from athermal.minimize import Minimizer
 from athermal.moduli import linear_response
 from athermal.packing import Packing
 from athermal.protocols import EVENTS, JAMMING_SCHEME, PHI_INIT, finite_strain_shear, isostatic_z
+from athermal.protocols.jamming import ISOSTATIC_SLACK
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import pin, save
@@ -128,6 +129,22 @@ def realizations(args: argparse.Namespace) -> list[int]:
     return child_seeds(args.root_seed, args.seeds)
 
 
+def checks_passed(infos: list[dict[str, Any]]) -> str:
+    """One sentence: how many packings (infos of :func:`jammed`) pass the jamming checks, and
+    the isostaticity excess of each."""
+    passed = sum(
+        int(i["unjams"] and i["stable"] and 0 <= i["excess_contacts"] <= ISOSTATIC_SLACK)
+        for i in infos
+    )
+    excess = ", ".join(f"{i['excess_contacts']:.0f}" for i in infos)
+    return (
+        f"Every check passed: {passed} of {len(infos)} (unjams when decompressed: "
+        f"{sum(int(i['unjams']) for i in infos)}, local minimum: "
+        f"{sum(int(i['stable']) for i in infos)}, N_c - N_iso in [0, {ISOSTATIC_SLACK}]: "
+        f"excess {excess})."
+    )
+
+
 def mean_sd(values: list[float], digits: int = 5) -> str:
     sd = statistics.stdev(values) if len(values) > 1 else 0.0
     return f"{statistics.fmean(values):.{digits}f} ± {sd:.{digits}f}"
@@ -150,9 +167,7 @@ def run_phic(args: argparse.Namespace) -> None:
         f"phi_c = {mean_sd(phis)} (mean ± sd), standard error "
         f"{statistics.stdev(phis) / np.sqrt(len(phis)) if len(phis) > 1 else 0:.5f}; "
         f"range [{min(phis):.5f}, {max(phis):.5f}]. On the growth grid phi_init + k x {GROWTH:g}: "
-        f"{sum(int(r['on_grid']) for r in rows)} of {len(rows)}. Every check passed: "
-        f"{sum(int(r['unjams'] and r['stable'] and 0 <= r['excess_contacts'] <= 4) for r in rows)}"
-        f" of {len(rows)}.",
+        f"{sum(int(r['on_grid']) for r in rows)} of {len(rows)}. {checks_passed(rows)}",
         "",
         f"p / epsilon^(alpha-1) = {mean_sd(p_eps, 3)} (range {min(p_eps):.3f} ... "
         f"{max(p_eps):.3f}); mean overlap as a packing-fraction distance / epsilon: "
@@ -311,9 +326,11 @@ def run_iterations(args: argparse.Namespace) -> None:
     iterations: dict[str, list[list[float]]] = {name: [[] for _ in deltas] for name in names}
     seconds: dict[str, list[list[float]]] = {name: [[] for _ in deltas] for name in names}
     reached: list[list[float]] = []
+    infos: list[dict[str, Any]] = []
     seeds = realizations(args)
     for k, seed in enumerate(seeds):
-        packing, phi_c, _ = jammed(args.cache, jam_spec, seed)
+        packing, phi_c, info = jammed(args.cache, jam_spec, seed)
+        infos.append(info)
         counts = iteration_counts(packing, jam_spec.model, phi_c, spec)
         reached.append(list(counts.delta_phi))
         for name in names:
@@ -348,6 +365,9 @@ def run_iterations(args: argparse.Namespace) -> None:
         f"simple-shear steps {min(spec.strains):g} ... {max(spec.strains):g} (the seed's "
         "protocol, `athermal.experiments.iteration_counts`), tolerance 1e-9 of the mean contact "
         f"force (floored at round-off); each relaxation starts {START_TEXT[spec.start]}.",
+        "",
+        f"Packings: jammed by the protocol's defaults (epsilon {EPSILON:g}), phi_c "
+        f"{mean_sd([i['phi_c'] for i in infos])}. {checks_passed(infos)}",
         "",
         "Iterations per step:",
         "",
