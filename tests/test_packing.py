@@ -3,7 +3,7 @@ import pytest
 
 from athermal.cell import Cell
 from athermal.errors import InputError
-from athermal.packing import Packing, bidisperse_radii, random_packing
+from athermal.packing import Packing, bidisperse_radii, polydisperse_radii, random_packing
 
 
 @pytest.mark.parametrize("dim", [2, 3])
@@ -101,3 +101,49 @@ def test_bad_mixture_arguments():
         bidisperse_radii(10, size_ratio=-1.0)
     with pytest.raises(InputError, match="dim"):
         random_packing(10, 0.5, dim=4)
+
+
+@pytest.mark.parametrize("kind", ["uniform", "lognormal"])
+@pytest.mark.parametrize("width", [0.1, 0.3])
+def test_polydisperse_radii_have_mean_one_and_the_asked_width(kind, width):
+    r = polydisperse_radii(400_000, kind, width, np.random.default_rng(3))
+    assert r.mean() == pytest.approx(1.0, abs=3e-3)
+    assert r.std() / r.mean() == pytest.approx(width, rel=1e-2)
+    if kind == "uniform":  # flat between 1 -+ sqrt(3) w
+        assert r.min() >= 1.0 - np.sqrt(3.0) * width
+        assert r.max() <= 1.0 + np.sqrt(3.0) * width
+        counts, _ = np.histogram(r, bins=10)
+        assert counts.min() > 0.97 * counts.mean()
+    else:  # log r is normal with variance ln(1 + w^2)
+        assert np.log(r).std() == pytest.approx(np.sqrt(np.log1p(width**2)), rel=1e-2)
+        assert np.mean(np.log(r)) == pytest.approx(-np.log1p(width**2) / 2.0, abs=3e-3)
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_polydisperse_packing_is_seeded_and_places_particles_as_the_bidisperse_one(dim):
+    kw = {"dim": dim, "seed": 11, "sizes": "lognormal", "polydispersity": 0.25}
+    p, q = random_packing(500, 0.7, **kw), random_packing(500, 0.7, **kw)
+    np.testing.assert_array_equal(p.positions, q.positions)
+    np.testing.assert_array_equal(p.radii, q.radii)
+    assert p.phi == pytest.approx(0.7, rel=1e-13)
+    assert np.unique(p.radii).size == 500
+    assert len(p.types()[1]) == 16  # binned types for OVITO
+    other = random_packing(500, 0.7, **{**kw, "seed": 12})
+    assert not np.array_equal(other.radii, p.radii)
+    bi = random_packing(500, 0.7, dim=dim, seed=11)
+    np.testing.assert_array_equal(bi.positions, p.positions)  # the same draws place them
+
+
+@pytest.mark.parametrize(
+    ("kind", "width", "message"),
+    [
+        ("uniform", 0.6, "uniform width must be > 0 and < 1/sqrt"),
+        ("uniform", 0.0, "uniform width"),
+        ("lognormal", 1.2, "lognormal width must be > 0 and <= 1"),
+        ("lognormal", float("nan"), "lognormal width"),
+        ("gamma", 0.2, "sizes: 'gamma' is not one of"),
+    ],
+)
+def test_bad_size_distributions_are_refused(kind, width, message):
+    with pytest.raises(InputError, match=message):
+        random_packing(10, 0.5, sizes=kind, polydispersity=width)

@@ -10,7 +10,7 @@ from .moduli import LinearResponse, Stability, linear_response, stability
 from .neighbors import NeighborList, build_neighbor_list
 from .objective import Objective
 from .observables import Observables, measure
-from .packing import Packing, bidisperse_radii, random_packing
+from .packing import Packing, bidisperse_radii, polydisperse_radii, random_packing
 from .protocols import (
     JammingCheck,
     Minimizer,
@@ -61,6 +61,7 @@ __all__ = [
     "log_spaced",
     "measure",
     "minimize",
+    "polydisperse_radii",
     "pure_shear",
     "random_packing",
     "read_gsd",

@@ -46,6 +46,7 @@ from .experiments import (
 )
 from .fitting import fit_power_law
 from .io import claim
+from .packing import POLYDISPERSITY
 from .protocols import isostatic_z
 from .tables import Row
 
@@ -75,7 +76,23 @@ class EnsembleSpec:
 
     def identity(self) -> float:
         """Digest of the spec: a directory holds the realizations of one spec only."""
-        return run_id("ensemble", asdict(self))
+        return run_id("ensemble", self.parameters())
+
+    def parameters(self) -> dict[str, Any]:
+        """The spec as a dictionary, without the fields added later (:data:`LATER_FIELDS`)
+        while they hold their defaults: a directory made before they existed still matches."""
+        out = asdict(self)
+        for (section, name), default in LATER_FIELDS.items():
+            if out[section].get(name) == default:
+                del out[section][name]
+        return out
+
+
+LATER_FIELDS: dict[tuple[str, str], Any] = {
+    ("jam", "sizes"): "bidisperse",
+    ("jam", "polydispersity"): POLYDISPERSITY,
+}
+"""Spec fields (section, name) that joined after the first ensembles, with their defaults."""
 
 
 @dataclass(frozen=True)
@@ -179,7 +196,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
     model = spec.jam.model
     trajectory = Trajectory(
         f"{stem}.gsd",
-        run_id("realization", {**asdict(spec), "index": index, "seed": seed}),
+        run_id("realization", {**spec.parameters(), "index": index, "seed": seed}),
         model=model,
         seed=seed,
         resume=True,

@@ -23,7 +23,7 @@ from .contact import ContactModel
 from .errors import InputError
 from .minimize import RTOL, Minimizer, relax
 from .objective import Objective
-from .packing import Packing, random_packing
+from .packing import POLYDISPERSITY, Packing, SizeDistribution, check_width, random_packing
 from .protocols import (
     JAMMING_MINIMIZER,
     PHI_INIT,
@@ -77,8 +77,10 @@ def child_seeds(root: int, count: int) -> list[int]:
 class JamSpec:
     """A random packing and its jamming (:func:`~athermal.protocols.jam`).
 
-    ``n`` particles in ``dim`` dimensions, bidisperse 1:1 with radius ratio ``size_ratio``,
-    contact exponent ``alpha`` and stiffness ``stiffness``, placed at ``phi_init`` (default
+    ``n`` particles in ``dim`` dimensions, bidisperse 1:1 with radius ratio ``size_ratio``
+    (or radii from the continuous distribution ``sizes`` of width ``polydispersity``, see
+    :func:`~athermal.packing.random_packing`), contact exponent ``alpha`` and stiffness
+    ``stiffness``, placed at ``phi_init`` (default
     :data:`PHI_INIT`), grown by ``dphi`` and bisected to ``epsilon`` (packing fraction),
     relaxed by ``minimizer``.
     """
@@ -88,6 +90,8 @@ class JamSpec:
     alpha: float = 2.0
     stiffness: float = 1.0
     size_ratio: float = 1.4
+    sizes: SizeDistribution = "bidisperse"
+    polydispersity: float = POLYDISPERSITY
     phi_init: float | None = None
     dphi: float = 1e-3
     epsilon: float = 1e-6
@@ -98,6 +102,8 @@ class JamSpec:
             raise InputError(f"n: need an integer >= 2 particles, got {self.n!r}")
         if self.dim not in (2, 3):
             raise InputError(f"dim: must be 2 or 3, got {self.dim!r}")
+        if self.sizes != "bidisperse":
+            check_width(self.sizes, self.polydispersity)
         self.model  # noqa: B018  # validates alpha and stiffness
 
     @property
@@ -108,7 +114,15 @@ class JamSpec:
     def start(self, seed: int) -> Packing:
         """The random start packing of ``seed``."""
         phi = PHI_INIT[self.dim] if self.phi_init is None else self.phi_init
-        return random_packing(self.n, phi, dim=self.dim, seed=seed, size_ratio=self.size_ratio)
+        return random_packing(
+            self.n,
+            phi,
+            dim=self.dim,
+            seed=seed,
+            size_ratio=self.size_ratio,
+            sizes=self.sizes,
+            polydispersity=self.polydispersity,
+        )
 
 
 def jam_packing(

@@ -3,15 +3,24 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, get_args
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validate import float_array, positive_scalar
+from ._validate import choice, float_array, positive_scalar
 from .cell import Cell, particle_volumes
 from .errors import InputError
 
 _MAX_RADIUS_TYPES = 16
+
+SizeDistribution = Literal["bidisperse", "uniform", "lognormal"]
+"""The particle size distributions of :func:`random_packing`."""
+SIZE_DISTRIBUTIONS: tuple[str, ...] = get_args(SizeDistribution)
+POLYDISPERSITY = 0.2
+"""Default width of the continuous distributions: standard deviation / mean of the radii."""
+MAX_WIDTH = {"uniform": 1.0 / np.sqrt(3.0), "lognormal": 1.0}
+"""Largest width of each continuous distribution (uniform: the smallest radius reaches 0)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -144,6 +153,36 @@ def bidisperse_radii(
     return np.concatenate([np.ones(n - n_large), np.full(n_large, ratio)])
 
 
+def polydisperse_radii(
+    n: int, distribution: SizeDistribution, width: float, rng: np.random.Generator
+) -> NDArray[np.float64]:
+    """``n`` radii ``(N,)`` drawn from a continuous distribution of mean 1 and standard deviation
+    ``width`` (the polydispersity: sd / mean of the radii).
+
+    ``"uniform"``: flat on ``[1 - sqrt(3) w, 1 + sqrt(3) w]`` (``0 < w < 1/sqrt(3)``);
+    ``"lognormal"``: ``exp(s Z - s^2 / 2)`` with ``Z`` standard normal and
+    ``s^2 = ln(1 + w^2)`` (``0 < w <= 1``).
+    """
+    check_width(distribution, width)
+    if distribution == "uniform":
+        return 1.0 + np.sqrt(3.0) * width * (2.0 * rng.random(n) - 1.0)
+    s = np.sqrt(np.log1p(width**2))
+    return np.exp(s * rng.standard_normal(n) - s**2 / 2.0)
+
+
+def check_width(distribution: str, width: float) -> float:
+    """``width`` if it is a valid polydispersity for the continuous ``distribution``."""
+    choice(distribution, "sizes", SIZE_DISTRIBUTIONS[1:])
+    w = float(width)
+    top = MAX_WIDTH[distribution]
+    if not (np.isfinite(w) and 0.0 < w and (w <= top if distribution == "lognormal" else w < top)):
+        bound = "<= 1" if distribution == "lognormal" else f"< 1/sqrt(3) = {top:.4f}"
+        raise InputError(
+            f"polydispersity: a {distribution} width must be > 0 and {bound}, got {width!r}"
+        )
+    return w
+
+
 def random_packing(
     n: int = 1024,
     phi: float = 0.8,
@@ -152,6 +191,8 @@ def random_packing(
     seed: int | np.random.SeedSequence = 0,
     size_ratio: float = 1.4,
     large_fraction: float = 0.5,
+    sizes: SizeDistribution = "bidisperse",
+    polydispersity: float = POLYDISPERSITY,
     radii: ArrayLike | None = None,
     cell: Cell | None = None,
 ) -> Packing:
@@ -164,7 +205,12 @@ def random_packing(
     dim : 2 (disks) or 3 (spheres); ignored when ``cell`` is given.
     seed : seed of the ``numpy.random.Generator`` that draws the positions.
     size_ratio, large_fraction : bidisperse mixture (default 1:1 by number, 1.4:1 in size).
-    radii : relative radii ``(N,)`` of a polydisperse packing; only their ratios matter.
+    sizes : ``"bidisperse"`` (default), or a continuous distribution of the radii,
+        ``"uniform"`` or ``"lognormal"`` (:func:`polydisperse_radii`), drawn by the same
+        generator after the positions (so a seed places the particles alike in every case).
+    polydispersity : standard deviation / mean of the radii of a continuous distribution.
+    radii : relative radii ``(N,)`` of a polydisperse packing; only their ratios matter
+        (overrides ``sizes``).
     cell : periodic cell; default the unit square (cube).
 
     Returns
@@ -182,14 +228,22 @@ def random_packing(
         if dim not in (2, 3):
             raise InputError(f"dim: must be 2 or 3, got {dim}")
         cell = Cell.box(np.ones(dim))
-    if radii is None:
-        base = bidisperse_radii(n, size_ratio=size_ratio, large_fraction=large_fraction)
-    else:
+    choice(sizes, "sizes", SIZE_DISTRIBUTIONS)
+    if radii is not None:
         base = np.array(float_array(radii, "radii", (None,)))
         if base.size == 0 or np.any(base <= 0.0):
             raise InputError("radii: need at least one radius, all > 0")
+    elif sizes == "bidisperse":
+        base = bidisperse_radii(n, size_ratio=size_ratio, large_fraction=large_fraction)
+    else:
+        if int(n) < 1:
+            raise InputError(f"n: need at least one particle, got {n}")
+        check_width(sizes, polydispersity)
+        base = np.ones(int(n))
     rng = np.random.default_rng(seed)
     s = rng.random((base.size, cell.dim)) - 0.5
+    if radii is None and sizes != "bidisperse":
+        base = polydisperse_radii(base.size, sizes, polydispersity, rng)
     scale = (target * cell.volume / particle_volumes(base, cell.dim).sum()) ** (1.0 / cell.dim)
     packing = Packing(cell.cartesian(s), base * scale, cell)
     return packing.permuted(packing.spatial_order())

@@ -117,7 +117,8 @@ def _draw_packing(
             segments = np.concatenate([pairs + shift for shift in shifts])
             widths = np.tile(width[visible], len(images))
     tiled = np.tile(rattler, len(images))
-    shade = np.where(radii > np.median(packing.radii), 0.55, 0.8)
+    r_min, r_max = packing.radii.min(), packing.radii.max()
+    shade = 0.8 - 0.25 * (radii - r_min) / (r_max - r_min if r_max > r_min else 1.0)
     face = np.column_stack([shade, shade, np.full_like(shade, 0.9)])
     for chosen, faces, edge, style, lw in (
         (keep & ~tiled, face[keep & ~tiled], "0.3", "solid", 0.3),
@@ -183,7 +184,7 @@ def packing_figure(
     ax: Axes | None = None,
 ) -> Figure:
     """The disks of a 2D ``packing`` drawn to scale in its unit cell, periodic images included;
-    small disks light, large dark. With ``model``: every contact force ``f`` as a line between
+    shaded by radius, the smallest light, the largest dark. With ``model``: every contact force ``f`` as a line between
     the centres of width ``w = max_force_width(N, size) x min(1, f / force_scale)`` points
     (lines with ``w <`` :data:`MIN_FORCE_WIDTH` omitted), rattlers (the rule of
     :func:`athermal.observables.rattlers`) white with a dashed grey edge, and a key.

@@ -15,7 +15,7 @@ from ..minimize import relax as minimize_with
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import random_packing
-from .common import file_observables, minimizer_from, model_from
+from .common import file_observables, minimizer_from, model_from, sizes_from
 from .printer import emit
 
 
@@ -54,9 +54,7 @@ def random(args: argparse.Namespace) -> None:
     """``athermal random``: a random packing and its observables."""
     model = model_from(args, None)
     start = time.perf_counter()
-    packing = random_packing(
-        args.n, args.phi, dim=args.dim, seed=args.seed, size_ratio=args.size_ratio
-    )
+    packing = random_packing(args.n, args.phi, dim=args.dim, seed=args.seed, **sizes_from(args))
     obs = measure(packing, model)
     write_gsd(args.output, packing, model=model, seed=args.seed, observables=file_observables(obs))
     extra = {

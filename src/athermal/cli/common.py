@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 import numpy as np
 
@@ -47,6 +48,17 @@ def precon_from(args: argparse.Namespace) -> str:
 def minimizer_from(args: argparse.Namespace) -> Minimizer:
     """The minimizer of ``--method``, ``--precon``, ``--A``, ``--solver``, ``--maxiter``."""
     return Minimizer(args.method, precon_from(args), args.A, args.solver, args.maxiter)  # type: ignore[arg-type]
+
+
+def sizes_from(args: argparse.Namespace) -> dict[str, Any]:
+    """The size options (``--sizes``, ``--size-ratio``, ``--polydispersity``) as keyword
+    arguments of :func:`~athermal.packing.random_packing` and
+    :class:`~athermal.experiments.JamSpec`."""
+    return {
+        "sizes": args.sizes,
+        "size_ratio": args.size_ratio,
+        "polydispersity": args.polydispersity,
+    }
 
 
 def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:

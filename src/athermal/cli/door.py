@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..errors import InputError
+from ..packing import check_width
 from ..protocols import PHI_INIT
 
 BYTES_PER_PARTICLE = 2000
@@ -72,6 +73,11 @@ def _options(args: argparse.Namespace) -> None:
     }
     for name, (ok, rule) in rules.items():
         _number(name, getattr(args, name, None), ok, rule)
+    if getattr(args, "sizes", "bidisperse") != "bidisperse":
+        try:
+            check_width(args.sizes, args.polydispersity)
+        except InputError as exc:
+            raise InputError(f"--{exc}") from None
 
 
 def _work(args: argparse.Namespace) -> None:
@@ -86,7 +92,7 @@ def _work(args: argparse.Namespace) -> None:
                 f"{total / 2**30:.3g} GiB"
             )
     if args.command in ("jam", "ensemble") and n is not None:
-        r_max = _largest_radius(n, args.dim, args.size_ratio, JAMMED_PHI[args.dim])
+        r_max = _largest_radius(args, JAMMED_PHI[args.dim])
         if CUTOFF * r_max >= 0.5:
             raise InputError(
                 f"--n: {n} particles are too large for the unit cell near jamming (largest "
@@ -115,11 +121,23 @@ def _work(args: argparse.Namespace) -> None:
             )
 
 
-def _largest_radius(n: int, dim: int, ratio: float, phi: float) -> float:
-    """The large radius of a 1:1 bidisperse mixture of ``n`` at ``phi`` in the unit cell."""
-    small, large = n - n // 2, n // 2
-    unit = math.pi if dim == 2 else 4.0 * math.pi / 3.0
-    return ratio * (phi / (unit * (small + large * ratio**dim))) ** (1.0 / dim)
+def _largest_radius(args: argparse.Namespace, phi: float) -> float:
+    """The largest radius of ``args.n`` particles of the size options at ``phi`` in the unit
+    cell: exact for the 1:1 bidisperse mixture and the uniform distribution's bound; for the
+    log-normal one the typical largest of N draws, ``exp(s sqrt(2 ln N) - s^2 / 2)``."""
+    n, dim, unit = args.n, args.dim, (math.pi if args.dim == 2 else 4.0 * math.pi / 3.0)
+    if args.sizes == "bidisperse":
+        ratio = args.size_ratio
+        small, large = n - n // 2, n // 2
+        return float(ratio * (phi / (unit * (small + large * ratio**dim))) ** (1.0 / dim))
+    w2 = args.polydispersity**2
+    if args.sizes == "uniform":
+        largest, moment = 1.0 + math.sqrt(3.0 * w2), (1.0 + w2 if dim == 2 else 1.0 + 3.0 * w2)
+    else:
+        s = math.sqrt(math.log1p(w2))
+        largest = math.exp(s * math.sqrt(2.0 * math.log(n)) - s * s / 2.0)
+        moment = (1.0 + w2) ** (dim * (dim - 1) // 2)  # E[r^d] at mean 1
+    return float(largest * (phi / (unit * n * moment)) ** (1.0 / dim))
 
 
 def _memory() -> int:

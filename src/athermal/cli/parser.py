@@ -11,6 +11,7 @@ from typing import Any, NoReturn
 
 from .. import bench
 from ..minimize import METHODS, PRECONDITIONERS
+from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..protocols import SHEAR_MODES
 
 
@@ -145,7 +146,23 @@ def _packing(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--n", type=int, default=1024, help="number of particles")
     parser.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions")
     parser.add_argument(
-        "--size-ratio", type=float, default=1.4, help="large / small radius (number ratio 1:1)"
+        "--sizes",
+        default="bidisperse",
+        choices=SIZE_DISTRIBUTIONS,
+        help="size distribution: a 1:1 bidisperse mixture, or radii drawn (seeded) from a "
+        "uniform or log-normal distribution of width --polydispersity",
+    )
+    parser.add_argument(
+        "--size-ratio",
+        type=float,
+        default=1.4,
+        help="large / small radius of the bidisperse mixture (number ratio 1:1)",
+    )
+    parser.add_argument(
+        "--polydispersity",
+        type=float,
+        default=POLYDISPERSITY,
+        help="standard deviation / mean of the radii (uniform: < 0.577, log-normal: <= 1)",
     )
 
 
@@ -197,10 +214,10 @@ def build() -> argparse.ArgumentParser:
 
     rnd = sub.add_parser(
         "random",
-        help="random bidisperse packing and its observables",
-        description="Place N particles at random (number ratio 1:1, size ratio --size-ratio) "
-        "in the unit cell at packing fraction --phi, write them to a GSD file and print their "
-        "observables.",
+        help="random packing and its observables",
+        description="Place N particles at random (bidisperse 1:1 with size ratio "
+        "--size-ratio, or polydisperse: --sizes) in the unit cell at packing fraction --phi, "
+        "write them to a GSD file and print their observables.",
     )
     _packing(rnd)
     rnd.add_argument("--phi", type=float, default=0.84, help="packing fraction")

@@ -31,7 +31,14 @@ from ..protocols import (
     shear_steps,
 )
 from ..tables import Row, write_table
-from .common import Progress, file_observables, minimizer_from, model_from, precon_from
+from .common import (
+    Progress,
+    file_observables,
+    minimizer_from,
+    model_from,
+    precon_from,
+    sizes_from,
+)
 from .printer import emit
 
 S = TypeVar("S")
@@ -124,7 +131,7 @@ def jam(args: argparse.Namespace) -> None:
         dim=args.dim,
         alpha=model.alpha,
         stiffness=float(model.stiffness),
-        size_ratio=args.size_ratio,
+        **sizes_from(args),
         phi_init=phi_init,
         dphi=args.dphi,
         epsilon=args.epsilon,
@@ -145,6 +152,8 @@ def jam(args: argparse.Namespace) -> None:
         dphi=args.dphi,
         epsilon=args.epsilon,
         scheme=JAMMING_SCHEME,
+        # continuous sizes only: the identity of a bidisperse run is the one it always had
+        **({} if args.sizes == "bidisperse" else {"sizes": [args.sizes, args.polydispersity]}),
     )
     done = [jamming_step(f) for f in trajectory.frames]
     record = _Recorder(

@@ -6,7 +6,7 @@ import argparse
 
 from ..experiments import CompressSpec, JamSpec, ShearSpec
 from ..minimize import Minimizer
-from .common import Progress, precon_from
+from .common import Progress, precon_from, sizes_from
 from .printer import emit
 
 
@@ -40,7 +40,7 @@ def ensemble(args: argparse.Namespace) -> None:
             n=args.n,
             dim=args.dim,
             alpha=args.alpha,
-            size_ratio=args.size_ratio,
+            **sizes_from(args),
             dphi=args.dphi,
             epsilon=args.epsilon,
             minimizer=Minimizer(args.method, precon_from(args)),  # type: ignore[arg-type]
