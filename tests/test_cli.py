@@ -436,3 +436,20 @@ def test_every_default_is_in_the_help(command, capsys):
         if action.option_strings and action.default not in (None, False, "==SUPPRESS=="):
             help_text = " ".join(parser._get_formatter()._expand_help(action).split())
             assert "default" in help_text and help_text in " ".join(text.split()), action.dest
+
+
+@pytest.mark.parametrize(("dim", "n"), [(2, 128), (3, 512)])
+def test_jam_a_polydisperse_packing_and_resume_only_the_same_sizes(tmp_path, capsys, dim, n):
+    out = tmp_path / "j.gsd"
+    argv = ["jam", "--n", str(n), "--dim", str(dim), "--seed", "4", "--epsilon", "1e-5"]
+    argv += ["--picture", "none", "--quiet", "-o", str(out), "--sizes", "lognormal"]
+    code, text, _ = run(capsys, *argv, "--polydispersity", "0.3", "--json")
+    assert code == 0
+    made = json.loads(text)
+    assert made["checks_passed"] and made["excess_contacts"] >= 0
+    radii = read_gsd(out).packing.radii
+    assert np.unique(radii).size == n
+    assert 0.15 < radii.std() / radii.mean() < 0.45  # N draws of width 0.3
+    # the trajectory belongs to this size distribution: another width is another run
+    code, _, err = run(capsys, *argv, "--polydispersity", "0.2", "--resume")
+    assert code == 2 and "another run" in err
