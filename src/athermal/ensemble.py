@@ -26,6 +26,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ._validate import choice
 from .atomic import write_text
@@ -45,6 +46,7 @@ from .experiments import (
     shear,
 )
 from .fitting import fit_power_law
+from .forces import EDGES, ForceStatistics, exponential_tail, force_statistics, histogram_density
 from .io import claim
 from .packing import POLYDISPERSITY
 from .protocols import isostatic_z
@@ -128,6 +130,32 @@ class ShearRecord:
 
 
 @dataclass(frozen=True)
+class ForceRecord:
+    """A jammed packing's force network (:class:`~athermal.forces.ForceStatistics`): its
+    histogram of ``f / <f>`` on :data:`~athermal.forces.EDGES`, the fitted tail decay (None: no
+    fit) and the anisotropies."""
+
+    counts: tuple[int, ...]
+    overflow: int
+    mean_force: float
+    tail_decay: float | None
+    contact_anisotropy: float
+    force_anisotropy: float
+
+    @classmethod
+    def of(cls, stats: ForceStatistics) -> ForceRecord:
+        """The record of :func:`~athermal.forces.force_statistics`' result."""
+        return cls(
+            tuple(int(c) for c in stats.counts),
+            stats.overflow,
+            stats.mean_force,
+            None if stats.tail is None else stats.tail.decay,
+            stats.contact_anisotropy,
+            stats.force_anisotropy,
+        )
+
+
+@dataclass(frozen=True)
 class Realization:
     """One realization's result: its jammed packing's numbers and checks, and the sections of
     its protocol (None where the protocol has none)."""
@@ -151,6 +179,7 @@ class Realization:
     compression: CompressionRecord | None = None
     shear: ShearRecord | None = None
     iteration_counts: IterationCounts | None = None
+    forces: ForceRecord | None = None
 
     def to_json(self) -> dict[str, Any]:
         """A JSON object (``realization-KKKK.json``, the ``--json`` output)."""
@@ -175,11 +204,15 @@ class Realization:
                 {k: tuple(v) for k, v in i["iterations"].items()},
                 {k: tuple(v) for k, v in i["seconds"].items()},
             )
+        if data.get("forces") is not None:  # absent from realizations run before it existed
+            f = data["forces"]
+            sections["forces"] = ForceRecord(**{**f, "counts": tuple(f["counts"])})
         plain = {k: v for k, v in data.items() if k not in sections and k in _FIELDS}
         return cls(**plain, **sections)
 
 
-_FIELDS = set(Realization.__dataclass_fields__) - {"compression", "shear", "iteration_counts"}
+_SECTIONS = {"compression", "shear", "iteration_counts", "forces"}
+_FIELDS = set(Realization.__dataclass_fields__) - _SECTIONS
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
@@ -217,6 +250,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         sections["iteration_counts"] = iteration_counts(
             jammed.packing, model, jammed.phi_c, spec.iterations
         )
+    sections["forces"] = ForceRecord.of(force_statistics(jammed.packing, model))
     result = Realization(
         index=index,
         seed=seed,
@@ -294,6 +328,19 @@ def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, 
                 "points": pooled.points,
                 "delta_phi_range": [pooled.x_min, pooled.x_max],
             }
+    networks = [r.forces for r in realizations if r.forces is not None]
+    if networks:
+        counts, overflow = pooled_forces(networks)
+        tail = exponential_tail(counts, overflow)
+        summary["forces"] = {
+            "realizations": len(networks),
+            "pooled_tail": None if tail is None else asdict(tail),
+            "tail_decay": _stats([f.tail_decay for f in networks if f.tail_decay is not None]),
+            "contact_anisotropy": _stats([f.contact_anisotropy for f in networks]),
+            "force_anisotropy": _stats([f.force_anisotropy for f in networks]),
+            "edges": EDGES.tolist(),
+            "pooled_density": histogram_density(counts, overflow).tolist(),
+        }
     sheared = [r.shear for r in realizations if r.shear is not None]
     if sheared:
         summary["plastic_events"] = _stats([float(h.plastic_events) for h in sheared])
@@ -308,6 +355,12 @@ def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, 
             for name in counted[0].iterations
         }
     return summary
+
+
+def pooled_forces(networks: list[ForceRecord]) -> tuple[NDArray[np.int64], int]:
+    """The force histograms of several jammed packings added up: counts ``(B,)``, overflow."""
+    counts = np.sum([np.asarray(f.counts, dtype=np.int64) for f in networks], axis=0)
+    return counts, sum(f.overflow for f in networks)
 
 
 def run_ensemble(
@@ -402,7 +455,21 @@ def _summary_files(
     from .tables import write_table
 
     rows = [
-        {k: v for k, v in r.to_json().items() if isinstance(v, int | float)} for r in realizations
+        {
+            **{k: v for k, v in r.to_json().items() if isinstance(v, int | float)},
+            **(
+                {}
+                if r.forces is None
+                else {
+                    "force_tail_decay": (
+                        float("nan") if r.forces.tail_decay is None else r.forces.tail_decay
+                    ),
+                    "contact_anisotropy": r.forces.contact_anisotropy,
+                    "force_anisotropy": r.forces.force_anisotropy,
+                }
+            ),
+        }
+        for r in realizations
     ]
     table = out / "realizations.csv"
     write_table(table, rows)
@@ -434,7 +501,14 @@ def _summary_files(
                 panels[f"exponent of {key}"] = values
         figure = plot.summary_figure(panels, title=title)
     picture = plot.save(figure, out / "summary.png")
-    return {"table": str(table), "figure": str(picture)}
+    files = {"table": str(table), "figure": str(picture)}
+    networks = [r.forces for r in realizations if r.forces is not None]
+    if networks:
+        pooled = {f"pooled over {len(networks)} jammed packings": pooled_forces(networks)}
+        files["forces_figure"] = str(
+            plot.save(plot.force_distribution_figure(pooled, title=title), out / "forces.png")
+        )
+    return files
 
 
 def _read_realization(path: Path) -> Realization | None:

@@ -183,10 +183,11 @@ def packing_figure(
     force_scale: float | None = None,
     ax: Axes | None = None,
 ) -> Figure:
-    """The disks of a 2D ``packing`` drawn to scale in its unit cell, periodic images included;
-    shaded by radius, the smallest light, the largest dark. With ``model``: every contact force ``f`` as a line between
-    the centres of width ``w = max_force_width(N, size) x min(1, f / force_scale)`` points
-    (lines with ``w <`` :data:`MIN_FORCE_WIDTH` omitted), rattlers (the rule of
+    """The disks of a 2D ``packing`` drawn to scale in its unit cell, periodic images included,
+    shaded by radius (the smallest light, the largest dark). With ``model``: every contact force
+    ``f`` as a line between the centres of width
+    ``w = max_force_width(N, size) x min(1, f / force_scale)`` points (lines with
+    ``w <`` :data:`MIN_FORCE_WIDTH` omitted), rattlers (the rule of
     :func:`athermal.observables.rattlers`) white with a dashed grey edge, and a key.
 
     ``force_scale`` (``k l^(alpha-1)``) defaults to this packing's largest force; pass one
@@ -485,6 +486,41 @@ def summary_figure(panels: Mapping[str, Sequence[float]], *, title: str = "") ->
         _histogram(ax, values, label)
     for ax in list(axes.flat)[len(panels) :]:
         ax.set_visible(False)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def force_distribution_figure(
+    histograms: Mapping[str, tuple[NDArray[np.int64], int]], *, title: str = ""
+) -> Figure:
+    """The contact-force distribution ``P(f / <f>)``: one curve per histogram (label ->
+    ``(counts, overflow)`` on :data:`athermal.forces.EDGES`), on a logarithmic axis (left, with
+    each fitted exponential tail dashed and its decay in the legend) and a linear one (right,
+    the small forces)."""
+    from .forces import EDGES, exponential_tail, histogram_density
+
+    centres = (EDGES[:-1] + EDGES[1:]) / 2.0
+    fig = _figure(9.0, 3.8)
+    log_ax, lin_ax = fig.subplots(1, 2)
+    for label, (counts, overflow) in histograms.items():
+        density = histogram_density(counts, overflow)
+        seen = counts > 0
+        tail = exponential_tail(counts, overflow)
+        text = label if tail is None else f"{label}: decay {tail.decay:.2f} ± {tail.stderr:.2f}"
+        (line,) = log_ax.semilogy(centres[seen], density[seen], "o", markersize=3, label=text)
+        lin_ax.plot(centres, density, "-", color=line.get_color(), linewidth=1.0)
+        if tail is not None:
+            x = np.array([tail.x_min, tail.x_max])
+            fitted = np.exp(tail.log_prefactor - tail.decay * x)
+            log_ax.semilogy(x, fitted, "--", color=line.get_color())
+    log_ax.set_xlabel(r"$f / \langle f \rangle$")
+    log_ax.set_ylabel(r"$P(f / \langle f \rangle)$")
+    log_ax.legend(fontsize="small")
+    lin_ax.set_xlim(0.0, 4.0)
+    lin_ax.set_ylim(bottom=0.0)
+    lin_ax.set_xlabel(r"$f / \langle f \rangle$")
+    lin_ax.set_ylabel(r"$P(f / \langle f \rangle)$ (linear)")
     if title:
         fig.suptitle(title)
     return fig

@@ -6,15 +6,18 @@ import argparse
 import dataclasses
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from .. import bench as table1
+from ..forces import ForceStatistics, force_statistics
 from ..io import read_gsd, write_gsd
 from ..minimize import RTOL
 from ..minimize import relax as minimize_with
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import random_packing
+from ..plot import force_distribution_figure, save
 from .common import file_observables, minimizer_from, model_from, sizes_from
 from .printer import emit
 
@@ -70,6 +73,13 @@ def measure_file(args: argparse.Namespace) -> None:
     frame = read_gsd(args.input, frame=args.frame)
     model = model_from(args, frame.model)
     obs = measure(frame.packing, model)
+    forces = force_statistics(frame.packing, model)
+    if args.forces_figure is not None:
+        figure = force_distribution_figure(
+            {f"{forces.contacts} contacts": (forces.counts, forces.overflow)},
+            title=f"{Path(args.input).name}, frame {args.frame}: N = {obs.n}, phi = {obs.phi:.6f}",
+        )
+        save(figure, args.forces_figure)
     logged = {
         key: value.item() if value.ndim == 0 else value.tolist()
         for key, value in frame.log.items()
@@ -78,9 +88,29 @@ def measure_file(args: argparse.Namespace) -> None:
     if not args.json:  # every digit; counts as integers
         logged = {k: _exact(v) for k, v in logged.items()}
     emit(
-        {**_observables(obs, args.json), "alpha": model.alpha, "frame": args.frame, "log": logged},
+        {
+            **_observables(obs, args.json),
+            **_forces(forces, args.json),
+            "alpha": model.alpha,
+            "frame": args.frame,
+            "log": logged,
+        },
         args.json,
     )
+
+
+def _forces(forces: ForceStatistics, as_json: bool) -> dict[str, Any]:
+    """The force statistics as printed: ``--json`` has them all under ``forces``."""
+    if as_json:
+        return {"forces": forces.to_dict()}
+    tail = forces.tail
+    return {
+        "force tail decay (f/<f> >= 1)": "-"
+        if tail is None
+        else f"{tail.decay:.3f} ± {tail.stderr:.3f} over {tail.x_min:.2f} ... {tail.x_max:.2f}",
+        "anisotropy contacts / forces": f"{forces.contact_anisotropy:.4g} / "
+        f"{forces.force_anisotropy:.4g}",
+    }
 
 
 def relax(args: argparse.Namespace) -> None:

@@ -160,6 +160,8 @@ def output_files(args: argparse.Namespace) -> dict[str, Path]:
             out["--picture"] = Path(args.picture or Path(args.output).with_suffix(".png"))
     if command in ("jam", "compress", "shear"):
         out["--table"] = Path(args.table or Path(args.output).with_suffix(".csv"))
+    if command == "measure" and args.forces_figure is not None:
+        out["--forces-figure"] = Path(args.forces_figure)
     return out
 
 

@@ -229,12 +229,19 @@ def build() -> argparse.ArgumentParser:
     mea = sub.add_parser(
         "measure",
         help="observables of a configuration",
-        description="Print the observables of one frame of a GSD file and the numbers its "
-        "writer logged with it (phi_c, strain, Delta phi, ...). Units and signs: "
-        "docs/quantities.md.",
+        description="Print the observables of one frame of a GSD file, the statistics of its "
+        "contact forces (P(f/<f>) and its exponential tail, contact and force anisotropy; "
+        "--json: the histogram) and the numbers its writer logged with it (phi_c, strain, "
+        "Delta phi, ...). Units and signs: docs/quantities.md.",
     )
     mea.add_argument("input", help="GSD file (athermal's, or any HOOMD-schema file)")
     mea.add_argument("--frame", type=int, default=-1, help="frame index (-1: the last)")
+    mea.add_argument(
+        "--forces-figure",
+        default=None,
+        help="also draw the contact-force distribution P(f/<f>) to this image file",
+    )
+    mea.add_argument("--overwrite", action="store_true", help="replace an existing figure")
     _model(mea, from_file=True)
 
     rel = sub.add_parser(
