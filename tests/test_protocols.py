@@ -25,7 +25,7 @@ from athermal.protocols import (
     shear_steps,
 )
 from athermal.protocols._relax import energy_scale
-from athermal.protocols.jamming import _next_trial
+from athermal.protocols.jamming import JammingCheck, _next_trial, isostatic_allowance
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_jam_checks_its_packing_as_a_referee_would(jammed_256):
     check = jammed_256.check
     assert check.passed, check.problems()
     assert check.unjams and check.decompressed_energy <= (1e-6 / 20) ** 2
-    assert 0 <= check.excess_contacts <= 4 and check.stable
+    assert 0 <= check.excess_contacts <= check.allowed_excess < 6 and check.stable
     assert 0.0 < check.overlap_dphi < 1e-6
     assert 0.0 < jammed_256.observables.pressure < 1e-6
     assert jammed_256.phi_c - jammed_256.phi_low <= 1e-6
@@ -382,3 +382,16 @@ def test_jam_warns_when_its_packing_fails_a_check(monkeypatch):
     with pytest.warns(UserWarning, match="still jammed when decompressed"):
         result = jam(random_packing(48, 0.8, seed=4), ContactModel(2.0), epsilon=1e-4)
     assert not result.check.passed
+
+
+def test_the_isostatic_allowance_grows_with_the_contacts_an_overlap_implies():
+    """N' (z - z_iso) / 2 ~ N' 3.5 sqrt(Delta phi) / 2 in 2D: ~5 extra contacts at N = 4096 and
+    5e-7 above jamming, 1 at N = 1024; a packing with more is hyperstatic."""
+    assert isostatic_allowance(1000, 2, 0.0) == 4
+    assert isostatic_allowance(1000, 2, 5e-7) == pytest.approx(4 + 1000 * 3.5 * 5e-7**0.5 / 2)
+    assert isostatic_allowance(4000, 2, 5e-7) > isostatic_allowance(1000, 2, 5e-7) + 3.5
+    assert isostatic_allowance(1000, 3, 5e-7) > isostatic_allowance(1000, 2, 5e-7)
+    check = JammingCheck(1e-6, 0.0, True, 6, isostatic_allowance(4000, 2, 5e-7), 5e-7, 1e-6, True)
+    assert check.passed
+    crowded = JammingCheck(1e-6, 0.0, True, 6, isostatic_allowance(1000, 2, 5e-7), 5e-7, 1e-6, True)
+    assert crowded.problems() == ["N_c - N_iso = 6 (isostatic at this overlap: 0 ... 5.2)"]

@@ -204,6 +204,7 @@ def jam(args: argparse.Namespace) -> None:
             "n_rattlers": obs.n_rattlers,
             "contacts": obs.contacts,
             "excess_contacts": check.excess_contacts,
+            "allowed_excess": round(check.allowed_excess, 2),
             "unjams_when_decompressed": check.unjams,
             "decompression": check.decompression,
             "stable": check.stable,
