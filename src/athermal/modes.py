@@ -15,13 +15,17 @@ Liu and Nagel, PRL 95, 098301 (2005)); :func:`plateau_frequency` locates its low
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
+from .atomic import replacing
 from .contact import ContactModel, find_contacts, hessian
 from .errors import InputError
 from .moduli import STABILITY_TOL
@@ -43,7 +47,9 @@ class Modes:
     Attributes
     ----------
     eigenvalues : ``(M,)`` ascending, energy / length^2 (the lowest ``M`` of ``N' d``, or all).
-    vectors : ``(M, N, d)`` unit eigenvectors, zero on rattlers (None when not asked for).
+    vectors : ``(V, N, d)`` unit eigenvectors, zero on rattlers, of the eigenvalues
+        ``eigenvalues[vector_index]``.
+    vector_index : ``(V,)`` which eigenvalues ``vectors`` belong to (ascending).
     participation : ``(M,)`` ``(sum_i |u_i|^2)^2 / (N' sum_i |u_i|^4)``: 1 for a mode spread
         evenly over the ``N'`` particles, ``1/N'`` for one particle.
     n_rattlers : particles removed.
@@ -53,7 +59,8 @@ class Modes:
     """
 
     eigenvalues: NDArray[np.float64]
-    vectors: NDArray[np.float64] | None
+    vectors: NDArray[np.float64]
+    vector_index: NDArray[np.intp]
     participation: NDArray[np.float64]
     n_rattlers: int
     dofs: int
@@ -91,14 +98,15 @@ def stiffness_matrix(
 
 
 def vibrational_modes(
-    packing: Packing, model: ContactModel, k: int | None = None, *, vectors: bool = True
+    packing: Packing, model: ContactModel, k: int | None = None, *, vectors: int | None = None
 ) -> Modes:
     """The lowest ``k`` eigenpairs of the stiffness matrix of ``packing``, or all of them
     (``k`` None: dense, up to :data:`DENSE_MODES_DOFS` rows).
 
     The lowest ``k`` come from ARPACK in shift-invert mode about ``-tolerance`` (so the matrix
-    it factors is positive definite at a minimum); ``vectors=False`` skips the eigenvectors of
-    a full spectrum (participation ratios still computed).
+    it factors is positive definite at a minimum). ``vectors`` keeps the eigenvectors of that
+    many of the lowest modes that are not zero modes (None: of every mode computed);
+    participation ratios are computed for all.
     """
     h, dofs, rattler = stiffness_matrix(packing, model)
     size = h.shape[0]
@@ -121,14 +129,16 @@ def vibrational_modes(
         values, vecs = values[order], vecs[:, order]
     per_particle = (vecs**2).reshape(n_live, packing.dim, -1).sum(axis=1)  # (N', M)
     participation = per_particle.sum(axis=0) ** 2 / (n_live * (per_particle**2).sum(axis=0))
-    full: NDArray[np.float64] | None = None
-    if vectors:
-        flat = np.zeros((values.size, packing.n * packing.dim))
-        flat[:, dofs] = vecs.T
-        full = flat.reshape(values.size, packing.n, packing.dim)
+    if vectors is None:
+        index = np.arange(values.size)
+    else:
+        index = np.flatnonzero(np.abs(values) > tolerance)[:vectors]
+    flat = np.zeros((index.size, packing.n * packing.dim))
+    flat[:, dofs] = vecs[:, index].T
     return Modes(
         eigenvalues=values,
-        vectors=full,
+        vectors=flat.reshape(index.size, packing.n, packing.dim),
+        vector_index=index,
         participation=participation,
         n_rattlers=int(rattler.sum()),
         dofs=size,
@@ -172,3 +182,27 @@ def plateau_frequency(frequencies: NDArray[np.float64], bins: int = 40) -> float
             t = (np.log(threshold) - np.log(lo)) / (np.log(hi) - np.log(lo))
             return float(np.exp(np.log(centres[b - 1]) + t * np.log(centres[b] / centres[b - 1])))
     return float(np.min(frequencies))
+
+
+def save_modes(path: str | os.PathLike[str], modes: Modes, bins: int = 40) -> Path:
+    """Write ``modes`` to the NPZ file ``path`` atomically: ``eigenvalues``, ``participation``,
+    ``vectors`` and ``vector_index``, ``frequencies``, ``zero_modes``, ``negative_modes``,
+    ``n_rattlers``, ``tolerance`` and, for a full spectrum, ``dos_edges``, ``dos`` and
+    ``omega_star``."""
+    data: dict[str, Any] = {
+        "eigenvalues": modes.eigenvalues,
+        "participation": modes.participation,
+        "vectors": modes.vectors,
+        "vector_index": modes.vector_index,
+        "frequencies": modes.frequencies,
+        "zero_modes": modes.zero_modes,
+        "negative_modes": modes.negative_modes,
+        "n_rattlers": modes.n_rattlers,
+        "tolerance": modes.tolerance,
+    }
+    if modes.complete:
+        edges, dos = density_of_states(modes.frequencies, bins)
+        data.update(dos_edges=edges, dos=dos, omega_star=plateau_frequency(modes.frequencies, bins))
+    with replacing(path) as temporary, open(temporary, "wb") as handle:
+        np.savez(handle, **data)
+    return Path(path)

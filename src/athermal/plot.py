@@ -28,6 +28,8 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from .modes import Modes
+
 MAX_FORCE_WIDTH = 2.0
 """Width (points) of the line of the largest force in a packing of up to 1024 disks drawn
 ``size = 6`` inches wide; larger packings get ``sqrt(1024 / N)`` of it."""
@@ -521,6 +523,45 @@ def force_distribution_figure(
     lin_ax.set_ylim(bottom=0.0)
     lin_ax.set_xlabel(r"$f / \langle f \rangle$")
     lin_ax.set_ylabel(r"$P(f / \langle f \rangle)$ (linear)")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def modes_figure(spectra: Mapping[str, Modes], *, title: str = "") -> Figure:
+    """Vibrational spectra, one curve per packing (label -> :class:`~athermal.modes.Modes` of a
+    full spectrum): the density of states ``D(omega)`` on log-log axes with each ``omega*``
+    (:func:`~athermal.modes.plateau_frequency`) marked (left), and the participation ratio of
+    every mode against its frequency (right). Frequencies in ``sqrt(k l^(alpha-2) / m)``."""
+    from .modes import density_of_states, plateau_frequency
+
+    fig = _figure(9.0, 3.8)
+    dos_ax, pr_ax = fig.subplots(1, 2)
+    for label, modes in spectra.items():
+        omega = modes.frequencies
+        edges, density = density_of_states(omega)
+        centres = np.sqrt(edges[:-1] * edges[1:])
+        seen = density > 0
+        star = plateau_frequency(omega)
+        (line,) = dos_ax.loglog(
+            centres[seen],
+            density[seen],
+            "o-",
+            markersize=3,
+            linewidth=1.0,
+            label=rf"{label}: $\omega^*$ = {star:.3g}",
+        )
+        dos_ax.axvline(star, color=line.get_color(), linestyle=":", linewidth=1.0)
+        vibrating = modes.eigenvalues > modes.tolerance
+        pr_ax.semilogx(
+            omega, modes.participation[vibrating], ".", markersize=2, color=line.get_color()
+        )
+    dos_ax.set_xlabel(r"$\omega$")
+    dos_ax.set_ylabel(r"$D(\omega)$")
+    dos_ax.legend(fontsize="small")
+    pr_ax.set_xlabel(r"$\omega$")
+    pr_ax.set_ylabel("participation ratio")
+    pr_ax.set_ylim(0.0, 1.0)
     if title:
         fig.suptitle(title)
     return fig

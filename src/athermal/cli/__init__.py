@@ -1,6 +1,6 @@
 """The ``athermal`` command (docs/contract.md): the parser (:mod:`.parser`), the checks of a
-request before any work (:mod:`.door`), the subcommands (:mod:`.basic`, :mod:`.protocols`,
-:mod:`.studies`) and their one printer (:mod:`.printer`)."""
+request before any work (:mod:`.door`), the subcommands (:mod:`.basic`, :mod:`.analysis`,
+:mod:`.protocols`, :mod:`.studies`) and their one printer (:mod:`.printer`)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import warnings
 from collections.abc import Callable, Sequence
 
 from ..errors import ConvergenceError, InputError
-from . import basic, protocols, studies
+from . import analysis, basic, protocols, studies
 from .door import check_request
 from .parser import build, subparser
 
@@ -19,6 +19,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], None]] = {
     "random": basic.random,
     "measure": basic.measure_file,
     "relax": basic.relax,
+    "modes": analysis.modes,
     "bench": basic.bench,
     "jam": protocols.jam,
     "compress": protocols.compress,

@@ -70,6 +70,8 @@ def _options(args: argparse.Namespace) -> None:
         "realizations": (lambda v: v >= 1, "an integer >= 1"),
         "workers": (lambda v: v >= 1, "an integer >= 1"),
         "repeats": (lambda v: v >= 1, "an integer >= 1"),
+        "lowest": (lambda v: v >= 1, "an integer >= 1"),
+        "vectors": (lambda v: v >= 0, "an integer >= 0"),
     }
     for name, (ok, rule) in rules.items():
         _number(name, getattr(args, name, None), ok, rule)
@@ -112,6 +114,13 @@ def _work(args: argparse.Namespace) -> None:
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
+    if args.command == "modes":
+        if Path(args.output).suffix != ".npz":
+            raise InputError(f"--output: {args.output}: the modes go to an .npz file")
+        if args.lowest is not None and args.figure not in (None, "none"):
+            raise InputError("--figure: D(omega) needs the full spectrum; drop --lowest")
+        if args.lowest is not None and args.vectors > args.lowest:
+            raise InputError(f"--vectors {args.vectors} exceeds --lowest {args.lowest}")
     if args.command in ("shear", "ensemble"):
         if args.step > args.strain:
             raise InputError(f"--step {args.step:g} exceeds --strain {args.strain:g}")
@@ -162,6 +171,10 @@ def output_files(args: argparse.Namespace) -> dict[str, Path]:
         out["--table"] = Path(args.table or Path(args.output).with_suffix(".csv"))
     if command == "measure" and args.forces_figure is not None:
         out["--forces-figure"] = Path(args.forces_figure)
+    if command == "modes":
+        out["--output"] = Path(args.output)
+        if args.figure != "none" and (args.figure is not None or args.lowest is None):
+            out["--figure"] = Path(args.figure or Path(args.output).with_suffix(".png"))
     return out
 
 

@@ -244,6 +244,40 @@ def build() -> argparse.ArgumentParser:
     mea.add_argument("--overwrite", action="store_true", help="replace an existing figure")
     _model(mea, from_file=True)
 
+    mod = sub.add_parser(
+        "modes",
+        help="vibrational modes and density of states of a configuration",
+        description="Eigenpairs of the stiffness matrix (Hessian, unit masses) of one frame, "
+        "rattlers removed: the full spectrum (dense, up to N = 4096 in 2D) or the lowest "
+        "--lowest K (shift-invert), participation ratios, D(omega) and its plateau frequency "
+        "omega*. Writes an NPZ file (eigenvalues, frequencies, participation, the lowest "
+        "--vectors eigenvectors (V, N, d), D(omega)) and a D(omega) figure. Checks: d zero "
+        "modes (translations) and no negative eigenvalue at a stable minimum.",
+    )
+    mod.add_argument("input", help="GSD file (a relaxed packing)")
+    mod.add_argument("-o", "--output", required=True, help="NPZ file to write (.npz)")
+    mod.add_argument("--frame", type=int, default=-1, help="frame index (-1: the last)")
+    mod.add_argument(
+        "--lowest",
+        type=int,
+        default=None,
+        help="only the lowest K eigenpairs (default: the full spectrum, with D(omega))",
+    )
+    mod.add_argument(
+        "--vectors",
+        type=int,
+        default=10,
+        help="eigenvectors written for this many of the lowest vibrational modes",
+    )
+    mod.add_argument(
+        "--figure",
+        default=None,
+        help="D(omega) and participation figure (default: OUT with .png; 'none' for none; "
+        "needs the full spectrum)",
+    )
+    mod.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    _model(mod, from_file=True)
+
     rel = sub.add_parser(
         "relax",
         help="one energy minimization",
