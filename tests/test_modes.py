@@ -1,0 +1,157 @@
+"""Vibrational modes: the analytic spectrum of a triangular crystal, d zero modes and no negative
+one at a minimum, a saddle's negative mode, dense against shift-invert, D(omega) and omega*,
+and `athermal modes`."""
+
+import json
+
+import numpy as np
+import pytest
+
+from athermal.cell import Cell
+from athermal.cli import main
+from athermal.contact import ContactModel
+from athermal.errors import InputError
+from athermal.io import write_gsd
+from athermal.minimize import minimize
+from athermal.modes import (
+    density_of_states,
+    plateau_frequency,
+    stiffness_matrix,
+    vibrational_modes,
+)
+from athermal.objective import Objective
+from athermal.packing import Packing, random_packing
+
+
+def relaxed(n, phi, dim, seed):
+    model = ContactModel()
+    packing = random_packing(n, phi, dim=dim, seed=seed)
+    return minimize(Objective(packing, model), "lbfgs", precon="exp", rtol=1e-12).packing, model
+
+
+@pytest.fixture(scope="module")
+def packing_2d():
+    return relaxed(256, 0.88, 2, 1)
+
+
+def triangular(nx, ny, radius):
+    """A triangular crystal of spacing 1 in its periodic rectangular cell (ny even)."""
+    rows = [[(i + 0.5 * (j % 2), j * np.sqrt(3) / 2) for i in range(nx)] for j in range(ny)]
+    cell = Cell.box([float(nx), ny * np.sqrt(3) / 2])
+    return Packing(np.array(rows).reshape(-1, 2), np.full(nx * ny, radius), cell)
+
+
+def test_a_compressed_triangular_crystal_has_its_lattice_dynamics_spectrum():
+    """Unit masses, six contacts a at spacing 1 with overlap delta: the dynamical matrix
+    D(q) = sum_a K_a (1 - cos q.a), K = k n n^T - k delta (I - n n^T), over the N wave vectors
+    of the cell."""
+    nx, ny, radius, k = 6, 4, 0.52, 1.0
+    modes = vibrational_modes(triangular(nx, ny, radius), ContactModel(2.0, k))
+    delta = 2 * radius - 1.0
+    bonds = [np.array([np.cos(t), np.sin(t)]) for t in np.arange(6) * np.pi / 3]
+    lx, ly = nx, ny * np.sqrt(3) / 2
+    expected = []
+    for i in range(nx):
+        for j in range(ny):
+            q = 2 * np.pi * np.array([i / lx, j / ly])
+            dyn = sum(
+                (k * np.outer(a, a) - k * delta * (np.eye(2) - np.outer(a, a)))
+                * (1 - np.cos(q @ a))
+                for a in bonds
+            )
+            expected.extend(np.linalg.eigvalsh(dyn))
+    np.testing.assert_allclose(modes.eigenvalues, np.sort(expected), atol=1e-12)
+    assert modes.zero_modes == 2 and modes.negative_modes == 0 and modes.n_rattlers == 0
+
+
+@pytest.mark.parametrize(("dim", "n"), [(2, 256), (3, 512)])
+def test_a_minimum_has_d_zero_modes_the_translations_and_no_negative_one(dim, n):
+    packing, model = relaxed(n, 0.88 if dim == 2 else 0.68, dim, 2)
+    modes = vibrational_modes(packing, model)
+    assert modes.zero_modes == dim and modes.negative_modes == 0 and modes.complete
+    assert modes.frequencies.size == modes.dofs - dim
+    h, dofs, rattler = stiffness_matrix(packing, model)
+    assert modes.dofs == h.shape[0] == dim * int((~rattler).sum())
+    # eigenpairs of the stiffness matrix, unit vectors, nothing on the rattlers
+    u = modes.vectors.reshape(modes.vectors.shape[0], -1)
+    assert np.all(u[:, ~np.isin(np.arange(u.shape[1]), dofs)] == 0)
+    residual = h @ u[:, dofs].T - u[:, dofs].T * modes.eigenvalues
+    assert np.abs(residual).max() < 1e-12 * np.abs(h.diagonal()).max()
+    np.testing.assert_allclose(u @ u.T, np.eye(u.shape[0]), atol=1e-10)
+    # the zero modes span the translations, which move every particle alike: ratio 1
+    zero = u[:dim, dofs]
+    for axis in range(dim):
+        shift = np.zeros((dofs.size // dim, dim))
+        shift[:, axis] = 1.0
+        t = shift.ravel() / np.linalg.norm(shift)
+        assert np.linalg.norm(zero @ t) == pytest.approx(1.0, abs=1e-9)
+    np.testing.assert_allclose(modes.participation[:dim], 1.0, atol=1e-9)
+    assert np.all((modes.participation > 0) & (modes.participation <= 1 + 1e-12))
+
+
+def test_shift_invert_gives_the_lowest_of_the_dense_spectrum(packing_2d):
+    packing, model = packing_2d
+    dense = vibrational_modes(packing, model)
+    lowest = vibrational_modes(packing, model, 12, vectors=4)
+    np.testing.assert_allclose(lowest.eigenvalues[2:], dense.eigenvalues[2:12], rtol=1e-8)
+    assert not lowest.complete and lowest.zero_modes == 2
+    np.testing.assert_array_equal(lowest.vector_index, [2, 3, 4, 5])
+    for a, b in zip(lowest.vectors, dense.vectors[2:6], strict=True):
+        assert abs(np.sum(a * b)) == pytest.approx(1.0, abs=1e-6)  # the same modes, up to sign
+
+
+def test_a_saddle_has_a_negative_mode():
+    g = (np.arange(4) + 0.5) / 4
+    square = Packing(
+        np.stack(np.meshgrid(g, g), -1).reshape(-1, 2), np.full(16, 0.13), Cell.box([1.0, 1.0])
+    )  # compressed square lattice: f = 0.01, l = 0.25
+    modes = vibrational_modes(square, ContactModel(2.0))
+    assert modes.negative_modes > 0 and modes.eigenvalues[0] == pytest.approx(-0.16)
+
+
+def test_the_density_of_states_is_normalised_and_omega_star_marks_the_plateau_edge():
+    rng = np.random.default_rng(4)
+    omega = np.concatenate([rng.uniform(0.05, 2.0, 20_000), rng.uniform(0.001, 0.05, 20)])
+    edges, density = density_of_states(omega)
+    assert np.sum(density * np.diff(edges)) == pytest.approx(1.0)
+    assert plateau_frequency(omega) == pytest.approx(0.05, rel=0.3)
+    with pytest.raises(InputError, match="at least two frequencies"):
+        density_of_states(np.array([1.0]))
+
+
+def test_omega_star_rises_with_compression():
+    low = vibrational_modes(*relaxed(512, 0.85, 2, 3))
+    high = vibrational_modes(*relaxed(512, 0.95, 2, 3))
+    assert plateau_frequency(high.frequencies) > 3 * plateau_frequency(low.frequencies)
+
+
+def test_the_full_spectrum_is_refused_beyond_the_dense_limit(packing_2d, monkeypatch):
+    import athermal.modes
+
+    monkeypatch.setattr(athermal.modes, "DENSE_MODES_DOFS", 100)
+    with pytest.raises(InputError, match="ask for the lowest k"):
+        vibrational_modes(*packing_2d)
+    with pytest.raises(InputError, match="k: need an integer"):
+        vibrational_modes(*packing_2d, 0)
+
+
+def test_the_modes_command_writes_the_modes_and_the_figure(packing_2d, tmp_path, capsys):
+    packing, model = packing_2d
+    write_gsd(tmp_path / "p.gsd", packing, model=model)
+    out = tmp_path / "m.npz"
+    assert main(["modes", str(tmp_path / "p.gsd"), "-o", str(out), "--vectors", "3", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["zero_modes"] == 2 and report["negative_modes"] == 0
+    assert report["omega_star"] > 0 and (tmp_path / "m.png").stat().st_size > 10_000
+    data = np.load(out)
+    assert data["vectors"].shape == (3, packing.n, 2) and data["eigenvalues"].size == report["dofs"]
+    assert np.sum(data["dos"] * np.diff(data["dos_edges"])) == pytest.approx(1.0)
+    for argv, message in (
+        ([], "exists; replace it with --overwrite"),
+        (["--lowest", "5", "--figure", "x.png"], "needs the full spectrum"),
+        (["--lowest", "5", "--vectors", "6"], "exceeds --lowest"),
+    ):
+        assert main(["modes", str(tmp_path / "p.gsd"), "-o", str(out), *argv]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["modes", str(tmp_path / "p.gsd"), "-o", str(tmp_path / "m.txt")]) == 2
+    assert ".npz" in capsys.readouterr().err
