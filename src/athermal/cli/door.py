@@ -71,6 +71,8 @@ def _options(args: argparse.Namespace) -> None:
         "workers": (lambda v: v >= 1, "an integer >= 1"),
         "repeats": (lambda v: v >= 1, "an integer >= 1"),
         "lowest": (lambda v: v >= 1, "an integer >= 1"),
+        "pressure": (lambda v: v > 0, "> 0"),
+        "pressure_rtol": (lambda v: 0 < v < 1, "in (0, 1)"),
         "vectors": (lambda v: v >= 0, "an integer >= 0"),
     }
     for name, (ok, rule) in rules.items():

@@ -317,6 +317,16 @@ def build() -> argparse.ArgumentParser:
     )
     jam.add_argument("--dphi", type=float, default=1e-3, help="growth increment of phi")
     jam.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy of phi_c")
+    jam.add_argument(
+        "--pressure",
+        type=float,
+        default=None,
+        help="then compress (or decompress) the jammed packing to this pressure, within "
+        "--pressure-rtol, and write that packing (phi_c still the jamming run's)",
+    )
+    jam.add_argument(
+        "--pressure-rtol", type=float, default=1e-3, help="relative accuracy of --pressure"
+    )
     jam.add_argument("-o", "--output", required=True, help="GSD file for the jammed packing")
     jam.add_argument(
         "--trajectory",

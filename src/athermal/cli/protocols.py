@@ -30,6 +30,7 @@ from ..protocols import (
     scaling_exponents,
     shear_steps,
 )
+from ..protocols.pressure import pressure_search, warn_if_near_jamming
 from ..tables import Row, write_table
 from .common import (
     Progress,
@@ -167,10 +168,30 @@ def jam(args: argparse.Namespace) -> None:
     )
     result = jam_packing(spec, args.seed, resume=done, on_step=record)
     record.close()
-    obs, check = result.observables, result.check
+    obs, check, final = result.observables, result.check, result.packing
+    at_pressure: dict[str, Any] = {}
+    if args.pressure is not None:
+        found = pressure_search(
+            result.packing,
+            model,
+            args.pressure,
+            phi_low=result.phi_low,
+            phi_c=result.phi_c,
+            rtol=args.pressure_rtol,
+            minimizer=spec.minimizer,
+        )
+        warn_if_near_jamming(found, args.epsilon)
+        obs, final = found.observables, found.packing
+        at_pressure = {
+            "target_pressure": found.target,
+            "phi": found.phi,
+            "delta_phi": found.delta_phi,
+            "pressure_trials": len(found.trials),
+            "pressure_iterations": found.iterations,
+        }
     write_gsd(
         args.output,
-        result.packing,
+        final,
         model=model,
         seed=args.seed,
         observables={
@@ -178,6 +199,7 @@ def jam(args: argparse.Namespace) -> None:
             "phi_c": result.phi_c,
             "phi_low": result.phi_low,
             "phi_high": result.phi_c,
+            **{k: v for k, v in at_pressure.items() if k in ("target_pressure", "delta_phi")},
         },
     )
     bracket = result.phi_c - result.phi_low
@@ -187,11 +209,12 @@ def jam(args: argparse.Namespace) -> None:
         from ..plot import packing_figure, save
 
         picture = args.picture or str(Path(args.output).with_suffix(".png"))
+        state = "jammed" if args.pressure is None else f"at p = {obs.pressure:.4g}"
         title = (
-            f"jammed: N = {args.n}, alpha = {model.alpha:g}\n"
+            f"{state}: N = {args.n}, alpha = {model.alpha:g}\n"
             f"phi_c = {phi_text}, z = {obs.z:.3f} (rattlers removed)"
         )
-        save(packing_figure(result.packing, model, title=title), picture)
+        save(packing_figure(final, model, title=title), picture)
     bound = (lambda phi: phi) if args.json else (lambda phi: f"{phi:.{_digits(bracket) + 2}f}")
     emit(
         {
@@ -209,6 +232,7 @@ def jam(args: argparse.Namespace) -> None:
             "decompression": check.decompression,
             "stable": check.stable,
             "checks_passed": check.passed,
+            **at_pressure,
             "steps": result.steps,
             "resumed_steps": len(done),
             "iterations": result.iterations,

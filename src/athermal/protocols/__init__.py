@@ -22,6 +22,7 @@ from .jamming import (
     jam,
     jamming_steps,
 )
+from .pressure import PressureResult, PressureTrial, jam_to_pressure, pressure_search
 from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
 
 __all__ = [
@@ -36,6 +37,8 @@ __all__ = [
     "JammingResult",
     "JammingStep",
     "Minimizer",
+    "PressureResult",
+    "PressureTrial",
     "ScalingExponents",
     "ShearMode",
     "ShearStep",
@@ -45,8 +48,10 @@ __all__ = [
     "finite_strain_shear",
     "isostatic_z",
     "jam",
+    "jam_to_pressure",
     "jamming_steps",
     "log_spaced",
+    "pressure_search",
     "scaling_exponents",
     "shear_steps",
 ]

@@ -1,0 +1,272 @@
+"""Packings at a target pressure: jam a packing, then find the packing fraction at which its
+relaxed pressure is ``P`` (:func:`jam_to_pressure`, :func:`pressure_search`).
+
+Near jamming ``p ~ (phi - phi_c)^(alpha - 1)``, so ``y = p^(1/(alpha-1))`` is nearly linear in
+``phi``: the search runs on ``y``. It starts from the jammed packing and the unjammed state
+below it (``y = 0`` at ``phi_low``), extrapolates linearly (each step at most ``GROWTH`` times
+further from the jammed packing than the last, and at most halfway to ``phi = 1``) until a
+trial's pressure exceeds ``P``, then
+closes the bracket by the Illinois variant of regula falsi until ``|p / P - 1| <= rtol``. Each
+trial scales the radii of the last relaxed state and relaxes it to a local minimum
+(:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`), as the compression protocol
+does, so the packings of several pressures from one start follow one branch of states.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._validate import positive_scalar
+from ..contact import ContactModel
+from ..errors import ConvergenceError, InputError
+from ..minimize import RTOL
+from ..objective import Objective
+from ..observables import Observables, measure
+from ..packing import Packing
+from ._relax import Minimizer, Relaxer, force_tolerance
+from .jamming import JAMMING_MINIMIZER, JammingResult, JammingStep, jam
+
+PRESSURE_RTOL = 1e-3
+"""Default relative accuracy of the pressure reached."""
+MAX_TRIALS = 80
+"""Most relaxations a search may take."""
+GROWTH = 10.0
+"""Largest factor by which an extrapolation may move the next trial further from the jammed
+packing than the last."""
+MAX_PHI = 0.9999
+"""The search does not go beyond this packing fraction (in 2D, harmonic disks with ``k = 1`` in
+the unit cell reach only ``p = 0.097`` at ``phi = 0.999``, measured at N = 256)."""
+NEAR_JAMMING = 10.0
+"""A ``UserWarning`` says when ``phi - phi_c`` is below this many ``epsilon`` of the jamming
+run: ``phi_c`` is then too coarse to measure the distance from jamming."""
+
+
+@dataclass(frozen=True)
+class PressureTrial:
+    """One relaxation of the search: its packing fraction, relaxed pressure and iterations."""
+
+    phi: float
+    pressure: float
+    iterations: int
+
+
+@dataclass(frozen=True, eq=False)
+class PressureResult:
+    """The relaxed packing at the target pressure.
+
+    Attributes
+    ----------
+    packing : the relaxed packing, a local minimum at ``phi``.
+    target, pressure : the pressure asked for and reached (``k l^(alpha-d)``).
+    phi, phi_c : its packing fraction and the jamming point of its start.
+    observables : :func:`~athermal.observables.measure` of ``packing``.
+    trials : every relaxation of the search, in order.
+    jamming : the jamming run it started from (None for :func:`pressure_search` alone).
+    iterations, seconds : summed over the trials (and the jamming run).
+    """
+
+    packing: Packing
+    target: float
+    pressure: float
+    phi: float
+    phi_c: float
+    observables: Observables
+    trials: tuple[PressureTrial, ...]
+    jamming: JammingResult | None
+    iterations: int
+    seconds: float
+
+    @property
+    def delta_phi(self) -> float:
+        """``phi - phi_c``."""
+        return self.phi - self.phi_c
+
+
+def pressure_search(
+    jammed: Packing,
+    model: ContactModel,
+    target: float,
+    *,
+    phi_low: float,
+    phi_c: float | None = None,
+    rtol: float = PRESSURE_RTOL,
+    minimizer: Minimizer | None = None,
+    force_rtol: float = RTOL,
+) -> PressureResult:
+    """The relaxed packing at pressure ``target`` reached from ``jammed`` by scaling its radii.
+
+    Parameters
+    ----------
+    jammed : a relaxed packing at or above jamming (e.g. :func:`jam`'s, or the result of an
+        earlier search at a lower pressure).
+    model : contact law.
+    target : the pressure ``P > 0``.
+    phi_low : a packing fraction below jamming for the same configuration (``p = 0`` there),
+        e.g. :func:`jam`'s ``phi_low``; the search's lower anchor.
+    phi_c : the jamming point ``phi - phi_c`` is reported against (default ``phi_low``).
+    rtol : relative accuracy of the pressure.
+    minimizer : how each trial is relaxed (default L-BFGS).
+    force_rtol : force tolerance of each trial, relative to its mean contact force.
+    """
+    target = positive_scalar(target, "pressure")
+    rtol = positive_scalar(rtol, "rtol")
+    if not 0.0 < phi_low < jammed.phi:
+        raise InputError(f"phi_low: must lie in (0, {jammed.phi:.9g}), got {phi_low!r}")
+    t0 = time.perf_counter()
+    config = minimizer or Minimizer()
+    exponent = 1.0 / (model.alpha - 1.0)
+    base, phi0 = jammed.radii, jammed.phi
+    trials: list[PressureTrial] = []
+
+    def relax(start: Packing, phi: float) -> tuple[Packing, float]:
+        if len(trials) == MAX_TRIALS:
+            raise ConvergenceError(
+                f"pressure {target:.3e}: not reached to {rtol:.0e} in {MAX_TRIALS} relaxations "
+                f"(last p = {trials[-1].pressure:.6e} at phi {trials[-1].phi:.12f}; a "
+                "rearrangement may make p jump across the target)"
+            )
+        if phi > MAX_PHI:
+            raise ConvergenceError(
+                f"pressure {target:.3e}: out of reach below phi = {MAX_PHI} (p = "
+                f"{trials[-1].pressure:.4e} at phi {trials[-1].phi:.6f})"
+            )
+        grown = Packing(start.positions, base * (phi / phi0) ** (1.0 / jammed.dim), jammed.cell)
+        objective = Objective(grown, model)
+        result, _ = Relaxer(objective, config).relax_to_minimum(
+            objective.x0,
+            gtol=force_tolerance(grown, model, force_rtol),
+            what=f"pressure trial {len(trials)} (phi {phi:.12g})",
+        )
+        p = max(measure(result.packing, model).pressure, 0.0)
+        trials.append(PressureTrial(phi, p, result.iterations))
+        return result.packing, p
+
+    current, p = relax(jammed, phi0)
+    y_target = target**exponent
+    # bracket ends (phi, y - y_target); "previous" is the other point of an extrapolation
+    low: tuple[float, float] = (phi_low, -y_target)  # unjammed: p = 0
+    high: tuple[float, float] | None = None
+    previous = low
+    if p**exponent >= y_target:
+        high = (phi0, p**exponent - y_target)
+    else:
+        low = (phi0, p**exponent - y_target)
+    last = 0  # which end the last trial replaced: -1 low, +1 high
+    while abs(p / target - 1.0) > rtol:
+        if high is None:
+            (pa, fa), (pb, fb) = previous, low
+            slope = (fb - fa) / (pb - pa)
+            reach = GROWTH * (pb - phi_low)
+            phi = pb + (min(-fb / slope, reach) if slope > 0.0 else reach)
+            phi = min(phi, (pb + 1.0) / 2.0)  # p grows faster than linearly far above phi_c
+        else:
+            (pa, fa), (pb, fb) = low, high
+            if pb - pa <= 4.0 * np.finfo(np.float64).eps * pb:
+                raise ConvergenceError(
+                    f"pressure {target:.3e}: p jumps across it at phi {pa:.15f} (from "
+                    f"{trials[-1].pressure:.6e}); a rearrangement: try another start"
+                )
+            phi = pa - fa * (pb - pa) / (fb - fa)
+        current, p = relax(current, phi)
+        value = p**exponent - y_target
+        if value >= 0.0:
+            if high is not None and last == 1:  # Illinois: the kept end's value halves
+                low = (low[0], low[1] / 2.0)
+            high, last = (phi, value), 1
+        else:
+            if high is None:
+                previous = low
+            elif last == -1:
+                high = (high[0], high[1] / 2.0)
+            low, last = (phi, value), -1
+    reference = phi_low if phi_c is None else float(phi_c)
+    return PressureResult(
+        packing=current,
+        target=target,
+        pressure=p,
+        phi=current.phi,
+        phi_c=reference,
+        observables=measure(current, model),
+        trials=tuple(trials),
+        jamming=None,
+        iterations=sum(t.iterations for t in trials),
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def jam_to_pressure(
+    start: Packing,
+    model: ContactModel,
+    pressure: float,
+    *,
+    dphi: float = 1e-3,
+    epsilon: float = 1e-6,
+    rtol: float = PRESSURE_RTOL,
+    minimizer: Minimizer | None = None,
+    resume: Sequence[JammingStep] = (),
+    on_step: Callable[[JammingStep], None] | None = None,
+) -> PressureResult:
+    """Jam ``start`` (:func:`~athermal.protocols.jam`, ``dphi``, ``epsilon``, ``minimizer``,
+    ``resume``, ``on_step`` as there), then :func:`pressure_search` from the jammed packing to
+    ``pressure`` (within ``rtol``), relaxed by the same minimizer; ``phi_c`` is the jamming
+    run's. A ``UserWarning`` says when the packing ends within :data:`NEAR_JAMMING` x
+    ``epsilon`` of ``phi_c`` (jam with a smaller ``epsilon``).
+
+    Examples
+    --------
+    >>> from athermal import ContactModel, random_packing
+    >>> r = jam_to_pressure(random_packing(64, 0.8, seed=3), ContactModel(), 1e-3,
+    ...                     epsilon=1e-5)
+    >>> abs(r.pressure / 1e-3 - 1) <= 1e-3, r.delta_phi > 0
+    (True, True)
+    """
+    target = positive_scalar(pressure, "pressure")
+    jammed = jam(
+        start,
+        model,
+        dphi=dphi,
+        epsilon=epsilon,
+        minimizer=minimizer,
+        resume=resume,
+        on_step=on_step,
+    )
+    found = pressure_search(
+        jammed.packing,
+        model,
+        target,
+        phi_low=jammed.phi_low,
+        phi_c=jammed.phi_c,
+        rtol=rtol,
+        minimizer=minimizer or JAMMING_MINIMIZER,
+    )
+    warn_if_near_jamming(found, epsilon)
+    return PressureResult(
+        packing=found.packing,
+        target=target,
+        pressure=found.pressure,
+        phi=found.phi,
+        phi_c=found.phi_c,
+        observables=found.observables,
+        trials=found.trials,
+        jamming=jammed,
+        iterations=jammed.iterations + found.iterations,
+        seconds=jammed.seconds + found.seconds,
+    )
+
+
+def warn_if_near_jamming(found: PressureResult, epsilon: float) -> None:
+    """A ``UserWarning`` when ``found`` lies within :data:`NEAR_JAMMING` x ``epsilon`` (the
+    jamming run's accuracy) of its ``phi_c``."""
+    if found.delta_phi < NEAR_JAMMING * epsilon:
+        warnings.warn(
+            f"pressure {found.target:.3e}: phi - phi_c = {found.delta_phi:.2e} is within "
+            f"{NEAR_JAMMING:g} epsilon of the jamming point (epsilon {epsilon:.0e}): jam with a "
+            "smaller epsilon to measure it",
+            UserWarning,
+            stacklevel=3,
+        )

@@ -1,0 +1,84 @@
+"""Packings at a target pressure: reached to rtol from above and below the jammed packing, in
+2D and 3D, following p ~ (phi - phi_c)^(alpha - 1) from one start; refused when out of reach."""
+
+import json
+
+import numpy as np
+import pytest
+
+from athermal.cli import main
+from athermal.contact import ContactModel
+from athermal.errors import ConvergenceError, InputError
+from athermal.fitting import fit_power_law
+from athermal.io import read_gsd
+from athermal.moduli import stability
+from athermal.packing import random_packing
+from athermal.protocols import jam, jam_to_pressure, pressure_search
+
+
+@pytest.fixture(scope="module")
+def jammed_2d():
+    model = ContactModel(2.0)
+    return jam(random_packing(256, 0.8, seed=2), model, epsilon=1e-8), model
+
+
+@pytest.mark.parametrize(("dim", "n", "target"), [(2, 128, 1e-3), (3, 512, 1e-5)])
+def test_jam_to_pressure_reaches_it_at_a_minimum_above_phi_c(dim, n, target):
+    model = ContactModel(2.0)
+    start = random_packing(n, 0.8 if dim == 2 else 0.6, dim=dim, seed=1)
+    result = jam_to_pressure(start, model, target, epsilon=1e-7)
+    assert abs(result.pressure / target - 1.0) <= 1e-3
+    assert result.observables.pressure == pytest.approx(result.pressure, rel=1e-12)
+    assert result.phi_c == result.jamming.phi_c and result.delta_phi > 0.0
+    assert stability(result.packing, model).stable
+    assert result.iterations == result.jamming.iterations + sum(t.iterations for t in result.trials)
+
+
+@pytest.mark.parametrize("alpha", [2.0, 2.5])
+def test_pressures_from_one_start_follow_the_scaling_law(alpha):
+    model = ContactModel(alpha)
+    jammed = jam(random_packing(256, 0.8, seed=3), model, epsilon=1e-8)
+    current, delta, pressure = jammed.packing, [], []
+    # Hertzian pressures are smaller at a given overlap (k delta^1.5 with delta ~ 1e-2 radii)
+    for target in np.logspace(-6, -2, 5) * (1.0 if alpha == 2.0 else 0.1):
+        found = pressure_search(current, model, target, phi_low=jammed.phi_low, phi_c=jammed.phi_c)
+        assert abs(found.pressure / target - 1.0) <= 1e-3 and len(found.trials) <= 12
+        current = found.packing
+        delta.append(found.delta_phi)
+        pressure.append(found.pressure)
+    assert np.all(np.diff(delta) > 0)
+    fit = fit_power_law(delta, pressure)
+    assert fit.exponent == pytest.approx(alpha - 1.0, abs=0.12)
+
+
+def test_a_pressure_below_the_jammed_one_is_reached_by_decompression(jammed_2d):
+    jammed, model = jammed_2d
+    below = 0.3 * jammed.observables.pressure
+    found = pressure_search(jammed.packing, model, below, phi_low=jammed.phi_low)
+    assert abs(found.pressure / below - 1.0) <= 1e-3
+    assert jammed.phi_low < found.phi < jammed.packing.phi
+    assert found.phi_c == jammed.phi_low  # the default reference
+
+
+def test_out_of_reach_and_bad_requests_are_refused(jammed_2d):
+    jammed, model = jammed_2d
+    with pytest.raises(ConvergenceError, match="out of reach below phi"):
+        pressure_search(jammed.packing, model, 1.0, phi_low=jammed.phi_low)
+    with pytest.raises(InputError, match="pressure"):
+        pressure_search(jammed.packing, model, -1e-3, phi_low=jammed.phi_low)
+    with pytest.raises(InputError, match="phi_low"):
+        pressure_search(jammed.packing, model, 1e-3, phi_low=0.95)
+
+
+def test_jam_pressure_writes_the_packing_at_that_pressure(tmp_path, capsys):
+    out = tmp_path / "p.gsd"
+    argv = ["jam", "--n", "128", "--seed", "5", "--pressure", "2e-3", "--picture", "none"]
+    assert main([*argv, "--quiet", "-o", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert abs(report["pressure"] / 2e-3 - 1.0) <= 1e-3 and report["delta_phi"] > 0
+    frame = read_gsd(out)
+    assert float(frame.log["target_pressure"]) == 2e-3
+    assert float(frame.log["phi_c"]) == pytest.approx(report["phi_c"])
+    assert frame.packing.phi == pytest.approx(report["phi"], rel=1e-12)
+    assert main(["measure", str(out), "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["pressure"] == pytest.approx(report["pressure"])
