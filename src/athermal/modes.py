@@ -104,9 +104,9 @@ def vibrational_modes(
     (``k`` None: dense, up to :data:`DENSE_MODES_DOFS` rows).
 
     The lowest ``k`` come from ARPACK in shift-invert mode about ``-tolerance`` (so the matrix
-    it factors is positive definite at a minimum). ``vectors`` keeps the eigenvectors of that
-    many of the lowest modes that are not zero modes (None: of every mode computed);
-    participation ratios are computed for all.
+    it factors is positive definite at a minimum), from a fixed start vector (reproducible).
+    ``vectors`` keeps the eigenvectors of that many of the lowest modes that are not zero modes
+    (None: of every mode computed); participation ratios are computed for all.
     """
     h, dofs, rattler = stiffness_matrix(packing, model)
     size = h.shape[0]
@@ -124,7 +124,10 @@ def vibrational_modes(
     else:
         if int(k) != k or not 1 <= k < size - 1:
             raise InputError(f"k: need an integer in [1, {size - 2}], got {k!r}")
-        values, vecs = spla.eigsh(h.tocsc(), k=int(k), sigma=-tolerance, which="LM", tol=1e-12)
+        start = np.full(size, 1.0 / np.sqrt(size))  # ARPACK's own start is random
+        values, vecs = spla.eigsh(
+            h.tocsc(), k=int(k), sigma=-tolerance, which="LM", tol=1e-12, v0=start
+        )
         order = np.argsort(values)
         values, vecs = values[order], vecs[:, order]
     per_particle = (vecs**2).reshape(n_live, packing.dim, -1).sum(axis=1)  # (N', M)
