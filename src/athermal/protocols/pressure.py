@@ -2,14 +2,16 @@
 relaxed pressure is ``P`` (:func:`jam_to_pressure`, :func:`pressure_search`).
 
 Near jamming ``p ~ (phi - phi_c)^(alpha - 1)``, so ``y = p^(1/(alpha-1))`` is nearly linear in
-``phi``: the search runs on ``y``. It starts from the jammed packing and the unjammed state
-below it (``y = 0`` at ``phi_low``), extrapolates linearly (each step at most ``GROWTH`` times
-further from the jammed packing than the last, and at most halfway to ``phi = 1``) until a
-trial's pressure exceeds ``P``, then
-closes the bracket by the Illinois variant of regula falsi until ``|p / P - 1| <= rtol``. Each
-trial scales the radii of the last relaxed state and relaxes it to a local minimum
-(:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`), as the compression protocol
-does, so the packings of several pressures from one start follow one branch of states.
+``phi``: the search runs on ``y``. From the jammed packing (``y = 0`` at ``phi_low``, the
+unjammed state below it) it extrapolates linearly, each trial at most ``STEP`` times further
+from ``phi_low`` than the last (4 per decade, as the compression protocol), until a trial's
+pressure exceeds ``P``; then it closes the bracket by the Illinois variant of regula falsi until
+``|p / P - 1| <= rtol``. Every trial scales the radii of the relaxed state at the bracket's low
+end and relaxes it to a local minimum
+(:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`): the packing is only ever
+compressed quasi-statically from below ``P`` (never decompressed from an overshoot, which would
+move its jamming point), and the packings of several pressures from one start follow one branch
+of states. A target below the jammed packing's own pressure is reached by decompressing it.
 """
 
 from __future__ import annotations
@@ -35,9 +37,9 @@ PRESSURE_RTOL = 1e-3
 """Default relative accuracy of the pressure reached."""
 MAX_TRIALS = 80
 """Most relaxations a search may take."""
-GROWTH = 10.0
-"""Largest factor by which an extrapolation may move the next trial further from the jammed
-packing than the last."""
+STEP = 10.0**0.25
+"""Largest factor by which a trial may be further from ``phi_low`` than the state it compresses
+(4 per decade, as the compression protocol's steps)."""
 MAX_PHI = 0.9999
 """The search does not go beyond this packing fraction (in 2D, harmonic disks with ``k = 1`` in
 the unit cell reach only ``p = 0.097`` at ``phi = 0.999``, measured at N = 256)."""
@@ -130,11 +132,6 @@ def pressure_search(
                 f"(last p = {trials[-1].pressure:.6e} at phi {trials[-1].phi:.12f}; a "
                 "rearrangement may make p jump across the target)"
             )
-        if phi > MAX_PHI:
-            raise ConvergenceError(
-                f"pressure {target:.3e}: out of reach below phi = {MAX_PHI} (p = "
-                f"{trials[-1].pressure:.4e} at phi {trials[-1].phi:.6f})"
-            )
         grown = Packing(start.positions, base * (phi / phi0) ** (1.0 / jammed.dim), jammed.cell)
         objective = Objective(grown, model)
         result, _ = Relaxer(objective, config).relax_to_minimum(
@@ -148,22 +145,27 @@ def pressure_search(
 
     current, p = relax(jammed, phi0)
     y_target = target**exponent
-    # bracket ends (phi, y - y_target); "previous" is the other point of an extrapolation
+    # bracket ends (phi, y - y_target); "previous" is the other point of an extrapolation;
+    # "below" the relaxed state of the low end, from which every trial compresses
     low: tuple[float, float] = (phi_low, -y_target)  # unjammed: p = 0
     high: tuple[float, float] | None = None
-    previous = low
+    previous, below = low, None
     if p**exponent >= y_target:
         high = (phi0, p**exponent - y_target)
     else:
-        low = (phi0, p**exponent - y_target)
+        low, below = (phi0, p**exponent - y_target), current
     last = 0  # which end the last trial replaced: -1 low, +1 high
     while abs(p / target - 1.0) > rtol:
         if high is None:
             (pa, fa), (pb, fb) = previous, low
+            if pb >= MAX_PHI:
+                raise ConvergenceError(
+                    f"pressure {target:.3e}: out of reach below phi = {MAX_PHI} (p = "
+                    f"{trials[-1].pressure:.4e} there)"
+                )
             slope = (fb - fa) / (pb - pa)
-            reach = GROWTH * (pb - phi_low)
-            phi = pb + (min(-fb / slope, reach) if slope > 0.0 else reach)
-            phi = min(phi, (pb + 1.0) / 2.0)  # p grows faster than linearly far above phi_c
+            reach = (STEP - 1.0) * (pb - phi_low)
+            phi = min(pb + (min(-fb / slope, reach) if slope > 0.0 else reach), MAX_PHI)
         else:
             (pa, fa), (pb, fb) = low, high
             if pb - pa <= 4.0 * np.finfo(np.float64).eps * pb:
@@ -172,7 +174,7 @@ def pressure_search(
                     f"{trials[-1].pressure:.6e}); a rearrangement: try another start"
                 )
             phi = pa - fa * (pb - pa) / (fb - fa)
-        current, p = relax(current, phi)
+        current, p = relax(current if below is None else below, phi)
         value = p**exponent - y_target
         if value >= 0.0:
             if high is not None and last == 1:  # Illinois: the kept end's value halves
@@ -183,7 +185,7 @@ def pressure_search(
                 previous = low
             elif last == -1:
                 high = (high[0], high[1] / 2.0)
-            low, last = (phi, value), -1
+            low, last, below = (phi, value), -1, current
     reference = phi_low if phi_c is None else float(phi_c)
     return PressureResult(
         packing=current,
