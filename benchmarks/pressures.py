@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from athermal import plot
-from athermal.errors import ConvergenceError
+from athermal.errors import ConvergenceError, InputError
 from athermal.experiments import JamSpec, child_seeds, jam_packing
 from athermal.fitting import fit_jamming_point, fit_power_law
 from athermal.forces import force_statistics
@@ -188,7 +188,11 @@ def main() -> None:
     fits: dict[str, Any] = {}
     for label, x_key, y_key, expected in FITS:
         use = resolved if y_key == "omega_star" else done
-        law = fit_power_law([r[x_key] for r in use], [r[y_key] for r in use])
+        try:
+            law = fit_power_law([r[x_key] for r in use], [r[y_key] for r in use])
+        except InputError as exc:
+            lines.append(f"| {label} | {x_key} | {expected} | - ({exc}) | - | - |")
+            continue
         fits[f"{y_key}_vs_{x_key}"] = law.__dict__
         lines.append(
             f"| {label} | {x_key} | {expected} | {law.exponent:.3f} ± {law.stderr:.3f} | "
