@@ -1,0 +1,72 @@
+"""Minimization of H = U + P V over positions and cell: finite differences of H in every
+variable (the cell ones above all), sigma = P I at the minimum, shear stability with the shape
+free."""
+
+import numpy as np
+import pytest
+
+from athermal.contact import ContactModel, find_contacts, total_energy
+from athermal.enthalpy import Enthalpy, relax_at_pressure
+from athermal.errors import InputError
+from athermal.moduli import linear_response, stability
+from athermal.objective import Objective
+from athermal.packing import random_packing
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+@pytest.mark.parametrize("cell", ["volume", "shape"])
+def test_the_enthalpy_gradient_matches_finite_differences(dim, cell):
+    model = ContactModel(2.5)
+    packing = random_packing(64, 0.86 if dim == 2 else 0.66, dim=dim, seed=3)
+    problem = Enthalpy(packing, model, 2e-3, cell)
+    rng = np.random.default_rng(1)
+    x = problem.x0.copy()
+    x[: 64 * dim] += rng.normal(0.0, 1e-3, 64 * dim)
+    x[64 * dim :] += np.triu(rng.normal(0.0, 3e-3, (dim, dim))).ravel() * problem.scale
+    energy, grad = problem(x)
+    deformed = problem.packing(x)
+    assert energy == pytest.approx(
+        total_energy(find_contacts(deformed, model)) + 2e-3 * deformed.cell.volume, rel=1e-14
+    )
+    cell_only = np.zeros(x.size)
+    cell_only[64 * dim :] = rng.normal(size=dim * dim)
+    for v in (rng.normal(size=x.size), cell_only):
+        h = 1e-6 * problem.scale
+        numeric = (problem(x + h * v)[0] - problem(x - h * v)[0]) / (2 * h)
+        assert grad @ v == pytest.approx(numeric, rel=1e-6)
+    fixed = grad[64 * dim :].reshape(dim, dim)
+    assert np.all(fixed[np.tril_indices(dim, -1)] == 0)  # the lower triangle never moves
+    if cell == "volume":
+        assert np.count_nonzero(fixed) == 1
+
+
+@pytest.mark.parametrize("cell", ["volume", "shape"])
+def test_an_unjammed_start_shrinks_to_a_minimum_at_the_pressure(cell):
+    model = ContactModel(2.0)
+    start = random_packing(128, 0.8, seed=4)
+    found = relax_at_pressure(start, model, 1e-3, cell=cell)
+    assert found.result.converged
+    assert found.pressure == pytest.approx(1e-3, rel=1e-6)
+    assert found.packing.phi > 0.83 and found.packing.cell.volume < start.cell.volume
+    # the forces balance in the relaxed cell
+    objective = Objective(found.packing, model)
+    force = objective.max_gradient(objective(objective.x0)[1])
+    assert force < 1e-7 * find_contacts(found.packing, model).force_magnitude.mean()
+    assert stability(found.packing, model).stable
+    if cell == "shape":  # sigma = P I: no shear stress, and stable to shear
+        np.testing.assert_allclose(found.stress, 1e-3 * np.eye(2), atol=1e-8 * 1e-3)
+        assert linear_response(found.packing, model).shear >= -1e-9
+        assert found.deformation[1, 0] == 0.0 and found.deformation[0, 1] != 0.0
+    else:  # isotropic: F = lambda I
+        assert found.deformation[0, 1] == 0.0
+        assert found.deformation[0, 0] == pytest.approx(found.deformation[1, 1], rel=1e-15)
+
+
+def test_bad_requests_are_refused():
+    packing, model = random_packing(16, 0.8, seed=1), ContactModel()
+    with pytest.raises(InputError, match="pressure"):
+        relax_at_pressure(packing, model, 0.0)
+    with pytest.raises(InputError, match="cell"):
+        relax_at_pressure(packing, model, 1e-3, cell="strain")
+    with pytest.raises(InputError, match="method"):
+        relax_at_pressure(packing, model, 1e-3, method="newton")
