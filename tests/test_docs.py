@@ -1,7 +1,12 @@
+import doctest
+import importlib
 import inspect
+import pkgutil
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 import athermal
 
@@ -20,3 +25,16 @@ def test_api_page_is_current():
         text=True,
     )
     assert done.returncode == 0, done.stderr
+
+
+MODULES = sorted(
+    m.name
+    for m in pkgutil.walk_packages(athermal.__path__, "athermal.")
+    if "__main__" not in m.name
+)
+
+
+@pytest.mark.parametrize("name", MODULES)
+def test_the_examples_in_the_docstrings_run(name):
+    failed, _ = doctest.testmod(importlib.import_module(name), optionflags=doctest.ELLIPSIS)
+    assert failed == 0

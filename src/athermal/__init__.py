@@ -2,10 +2,13 @@
 
 from .cell import Cell, isotropic, pure_shear, simple_shear
 from .contact import ContactModel, Contacts, find_contacts, hessian, strain_derivative
+from .enthalpy import EnthalpyResult, relax_at_pressure
 from .errors import ConvergenceError, FileFormatError, InputError
 from .fitting import PowerLaw, fit_power_law
+from .forces import ForceStatistics, force_statistics
 from .io import Frame, append_gsd, count_frames, read_gsd, write_gsd
 from .minimize import MinimizeResult, minimize
+from .modes import Modes, vibrational_modes
 from .moduli import LinearResponse, Stability, linear_response, stability
 from .neighbors import NeighborList, build_neighbor_list
 from .objective import Objective
@@ -31,13 +34,16 @@ __all__ = [
     "ContactModel",
     "Contacts",
     "ConvergenceError",
+    "EnthalpyResult",
     "FileFormatError",
+    "ForceStatistics",
     "Frame",
     "InputError",
     "JammingCheck",
     "LinearResponse",
     "MinimizeResult",
     "Minimizer",
+    "Modes",
     "NeighborList",
     "Objective",
     "Observables",
@@ -54,6 +60,7 @@ __all__ = [
     "finite_strain_bulk",
     "finite_strain_shear",
     "fit_power_law",
+    "force_statistics",
     "hessian",
     "isotropic",
     "jam",
@@ -67,10 +74,12 @@ __all__ = [
     "pure_shear",
     "random_packing",
     "read_gsd",
+    "relax_at_pressure",
     "scaling_exponents",
     "shear_steps",
     "simple_shear",
     "stability",
     "strain_derivative",
+    "vibrational_modes",
     "write_gsd",
 ]

@@ -195,6 +195,7 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
     Examples
     --------
     >>> from athermal.contact import ContactModel
+    >>> from athermal.minimize import minimize
     >>> from athermal.objective import Objective
     >>> from athermal.packing import random_packing
     >>> p = minimize(Objective(random_packing(64, 0.88, seed=1), ContactModel()), rtol=1e-12)
