@@ -85,3 +85,19 @@ def test_jam_pressure_writes_the_packing_at_that_pressure(tmp_path, capsys):
     assert frame.packing.phi == pytest.approx(report["phi"], rel=1e-12)
     assert main(["measure", str(out), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["pressure"] == pytest.approx(report["pressure"])
+
+
+def test_a_pressure_drop_on_the_way_is_counted(jammed_2d):
+    from dataclasses import replace
+
+    from athermal.protocols import PressureTrial
+
+    jammed, model = jammed_2d
+    found = pressure_search(jammed.packing, model, 1e-4, phi_low=jammed.phi_low)
+    assert found.pressure_drops == 0
+    trials = (
+        PressureTrial(0.84, 1e-4, 1),
+        PressureTrial(0.85, 5e-5, 1),
+        PressureTrial(0.86, 2e-4, 1),
+    )
+    assert replace(found, trials=trials).pressure_drops == 1

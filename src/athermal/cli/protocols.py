@@ -187,6 +187,7 @@ def jam(args: argparse.Namespace) -> None:
             "phi": found.phi,
             "delta_phi": found.delta_phi,
             "pressure_trials": len(found.trials),
+            "pressure_drops": found.pressure_drops,
             "pressure_iterations": found.iterations,
         }
     write_gsd(

@@ -88,6 +88,14 @@ class PressureResult:
         """``phi - phi_c``."""
         return self.phi - self.phi_c
 
+    @property
+    def pressure_drops(self) -> int:
+        """Trials whose pressure fell below the last one's although ``phi`` rose: plastic
+        rearrangements on the way (measured: one seed of five at N = 1024 between p = 1e-4 and
+        1e-3, in 4 and 16 steps per decade alike, its jamming point moved up by ~2.4e-3)."""
+        pairs = zip(self.trials, self.trials[1:], strict=False)
+        return sum(1 for a, b in pairs if b.phi > a.phi and b.pressure < a.pressure)
+
 
 def pressure_search(
     jammed: Packing,
