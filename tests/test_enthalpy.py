@@ -70,3 +70,21 @@ def test_bad_requests_are_refused():
         relax_at_pressure(packing, model, 1e-3, cell="strain")
     with pytest.raises(InputError, match="method"):
         relax_at_pressure(packing, model, 1e-3, method="newton")
+
+
+def test_relax_pressure_writes_the_packing_in_its_relaxed_cell(tmp_path, capsys):
+    import json
+
+    from athermal.cli import main
+    from athermal.io import read_gsd, write_gsd
+
+    write_gsd(tmp_path / "r.gsd", random_packing(96, 0.8, seed=6), model=ContactModel())
+    argv = ["relax", str(tmp_path / "r.gsd"), "-o", str(tmp_path / "p.gsd"), "--json"]
+    assert main([*argv, "--pressure", "2e-3", "--cell", "shape"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["converged"] and report["pressure"] == pytest.approx(2e-3, rel=1e-6)
+    assert abs(report["shear_stress"]) < 1e-8 * 2e-3
+    frame = read_gsd(tmp_path / "p.gsd")
+    np.testing.assert_allclose(
+        frame.packing.cell.h, np.array(report["deformation"]) @ np.eye(2), rtol=1e-12
+    )

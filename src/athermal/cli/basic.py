@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from .. import bench as table1
+from ..enthalpy import relax_at_pressure
 from ..forces import ForceStatistics, force_statistics
 from ..io import read_gsd, write_gsd
 from ..minimize import RTOL
@@ -119,9 +120,29 @@ def relax(args: argparse.Namespace) -> None:
     model = model_from(args, frame.model)
     measure(frame.packing, model)  # refuses coincident particles before any work
     rtol = RTOL if args.gtol is None and args.rtol is None else args.rtol
-    res = minimize_with(
-        Objective(frame.packing, model), minimizer_from(args), gtol=args.gtol, rtol=rtol
-    )
+    at_pressure: dict[str, Any] = {}
+    if args.pressure is None:
+        res = minimize_with(
+            Objective(frame.packing, model), minimizer_from(args), gtol=args.gtol, rtol=rtol
+        )
+    else:
+        found = relax_at_pressure(
+            frame.packing,
+            model,
+            args.pressure,
+            cell=args.cell,
+            method=args.method,
+            gtol=args.gtol,
+            rtol=rtol,
+            maxiter=args.maxiter,
+        )
+        res = found.result
+        at_pressure = {
+            "target_pressure": found.target,
+            "cell": args.cell,
+            "deformation": found.deformation.tolist(),
+            "enthalpy": res.energy,
+        }
     obs = measure(res.packing, model)
     write_gsd(
         args.output, res.packing, model=model, seed=frame.seed, observables=file_observables(obs)
@@ -137,9 +158,12 @@ def relax(args: argparse.Namespace) -> None:
         "energy": res.energy,
         "max_gradient": res.max_gradient,
         "gtol": res.gtol,
+        **at_pressure,
         "output": args.output,
     }
-    if not args.json:  # printed with the observables already
+    if at_pressure:  # the objective's value was the enthalpy; energy is the observables'
+        del summary["energy"]
+    elif not args.json:  # printed with the observables already
         del summary["energy"], summary["max_gradient"]
     emit({**_observables(obs, args.json), **summary}, args.json)
     if not res.converged:

@@ -14,6 +14,7 @@ import stat
 from collections.abc import Callable
 from pathlib import Path
 
+from ..enthalpy import ENTHALPY_METHODS
 from ..errors import InputError
 from ..packing import check_width
 from ..protocols import PHI_INIT
@@ -116,6 +117,14 @@ def _work(args: argparse.Namespace) -> None:
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
+    if args.command == "relax" and args.pressure is not None:
+        if args.method not in ENTHALPY_METHODS:
+            raise InputError(
+                f"--method: {args.method} cannot minimize an enthalpy; use "
+                f"{' / '.join(ENTHALPY_METHODS)} with --pressure"
+            )
+        if args.precon not in (None, "none"):
+            raise InputError("--precon: --pressure runs without a preconditioner")
     if args.command == "modes":
         if Path(args.output).suffix != ".npz":
             raise InputError(f"--output: {args.output}: the modes go to an .npz file")

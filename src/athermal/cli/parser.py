@@ -289,6 +289,19 @@ def build() -> argparse.ArgumentParser:
     rel.add_argument("-o", "--output", required=True, help="GSD file to write")
     rel.add_argument("--overwrite", action="store_true", help="replace an existing output")
     _minimizer(rel, "")
+    rel.add_argument(
+        "--pressure",
+        type=float,
+        default=None,
+        help="minimize the enthalpy U + P V at this pressure, the cell free (lbfgs, cg or fire, "
+        "no preconditioner)",
+    )
+    rel.add_argument(
+        "--cell",
+        default="volume",
+        choices=("volume", "shape"),
+        help="with --pressure: what of the cell relaxes",
+    )
     tol = rel.add_mutually_exclusive_group()
     tol.add_argument("--gtol", type=float, help="absolute tolerance on max_i |grad_i|")
     tol.add_argument(
