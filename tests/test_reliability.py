@@ -96,7 +96,7 @@ BAD = [
     ["relax", "bad.gsd"],
     ["relax", "r.gsd", "--rtol", "0"],
     ["relax", "r.gsd", "--pressure", "1e-3", "--method", "newton"],
-    ["relax", "r.gsd", "--pressure", "1e-3", "--precon", "exp"],
+    ["relax", "r.gsd", "--pressure", "1e-3", "--precon", "contact"],
     ["relax", "r.gsd", "--pressure", "-1"],
     ["measure", "bad.gsd"],
     ["measure", "j.gsd", "--frame", "7"],

@@ -132,6 +132,7 @@ def relax(args: argparse.Namespace) -> None:
             args.pressure,
             cell=args.cell,
             method=args.method,
+            precon=args.precon or "none",
             gtol=args.gtol,
             rtol=rtol,
             maxiter=args.maxiter,

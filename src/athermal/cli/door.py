@@ -123,8 +123,8 @@ def _work(args: argparse.Namespace) -> None:
                 f"--method: {args.method} cannot minimize an enthalpy; use "
                 f"{' / '.join(ENTHALPY_METHODS)} with --pressure"
             )
-        if args.precon not in (None, "none"):
-            raise InputError("--precon: --pressure runs without a preconditioner")
+        if args.precon not in (None, "none", "exp"):
+            raise InputError("--precon: --pressure takes none or exp (extended to the cell)")
     if args.command == "modes":
         if Path(args.output).suffix != ".npz":
             raise InputError(f"--output: {args.output}: the modes go to an .npz file")

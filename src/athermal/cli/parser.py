@@ -293,8 +293,8 @@ def build() -> argparse.ArgumentParser:
         "--pressure",
         type=float,
         default=None,
-        help="minimize the enthalpy U + P V at this pressure, the cell free (lbfgs, cg or fire, "
-        "no preconditioner)",
+        help="minimize the enthalpy U + P V at this pressure, the cell free (lbfgs, cg or fire; "
+        "--precon none or exp, the Exp preconditioner extended to the cell)",
     )
     rel.add_argument(
         "--cell",
