@@ -56,14 +56,16 @@ def log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def one_seed(spec: JamSpec, seed: int, keep: dict[str, Any]) -> list[dict[str, Any]]:
+def one_seed(
+    spec: JamSpec, seed: int, keep: dict[str, Any], pressures: tuple[float, ...]
+) -> list[dict[str, Any]]:
     """The rows of one seed: its jamming run, then each pressure from the previous one."""
     model = spec.model
     jammed = jam_packing(spec, seed)
     log(f"seed {seed}: phi_c {jammed.phi_c:.10f}, checks {jammed.check.passed}")
     rows: list[dict[str, Any]] = []
     current = jammed.packing
-    for target in PRESSURES:
+    for target in pressures:
         try:
             found = pressure_search(
                 current,
@@ -82,7 +84,8 @@ def one_seed(spec: JamSpec, seed: int, keep: dict[str, Any]) -> list[dict[str, A
         moduli = linear_response(current, model)
         modes = vibrational_modes(current, model, vectors=0)
         forces = force_statistics(current, model)
-        if seed == keep["seed"] and any(np.isclose(target, f) for f in FIGURE_PRESSURES):
+        shown = [f for f in FIGURE_PRESSURES if f in pressures] or list(pressures)[:3]
+        if seed == keep["seed"] and any(np.isclose(target, f) for f in shown):
             keep["spectra"][f"p = {target:.0e}"] = modes
         row = {
             "seed": seed,
@@ -132,20 +135,25 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--root-seed", type=int, default=0)
     parser.add_argument("--output-dir", type=Path, default=RESULTS)
+    parser.add_argument(
+        "--pressures", type=float, nargs="+", default=PRESSURES, help="the target pressures"
+    )
+    parser.add_argument("--epsilon", type=float, default=EPSILON, help="jamming accuracy")
     args = parser.parse_args()
     pin(args.core)
-    spec = JamSpec(n=args.n, epsilon=EPSILON)
+    pressures = tuple(sorted(args.pressures))
+    spec = JamSpec(n=args.n, epsilon=args.epsilon)
     seeds = child_seeds(args.root_seed, args.seeds)
     keep: dict[str, Any] = {"seed": seeds[0], "spectra": {}}
-    rows = [row for seed in seeds for row in one_seed(spec, seed, keep)]
+    rows = [row for seed in seeds for row in one_seed(spec, seed, keep, pressures)]
     done = [r for r in rows if r["reached"]]
     name = f"states_n{args.n}"
     lines = [
         f"# Packings at fixed pressure: 2D, N = {args.n}, alpha = 2, {args.seeds} seeds of root "
         f"seed {args.root_seed}",
         "",
-        f"Each seed jammed once (epsilon {EPSILON:g}, the protocol's defaults), then brought to "
-        "each pressure from the previous one (`athermal.protocols.pressure_search`, "
+        f"Each seed jammed once (epsilon {args.epsilon:g}, the protocol's defaults), then brought "
+        "to each pressure from the previous one (`athermal.protocols.pressure_search`, "
         "|p / P - 1| <= 1e-3). Delta phi = phi - phi_c of that seed's jamming run; z - z_iso "
         "among non-rattlers; G and B by linear response; the spectrum of the stiffness matrix "
         "(rattlers removed, dense): its zero modes (2 = the translations) and negative ones, "
@@ -158,7 +166,7 @@ def main() -> None:
         "| negative modes | force tail decay | trials | pressure drops (all seeds) |",
         "|---:|---:|---:|---:|---:|---:|---:|---:|---|---|---:|---:|---:|",
     ]
-    for target in PRESSURES:
+    for target in pressures:
         at = [r for r in done if r["target"] == target]
         missed = [r for r in rows if r["target"] == target and not r["reached"]]
 
@@ -212,7 +220,11 @@ def main() -> None:
     ]
     for seed in seeds:
         mine = [r for r in done if r["seed"] == seed]
-        phi_0, law = fit_jamming_point([r["phi"] for r in mine], [r["pressure"] for r in mine])
+        try:
+            phi_0, law = fit_jamming_point([r["phi"] for r in mine], [r["pressure"] for r in mine])
+        except InputError as exc:
+            lines.append(f"| {seed} | - | - ({exc}) | - |")
+            continue
         lines.append(f"| {seed} | {mine[0]['phi_c']:.9f} | {phi_0:.9f} | {law.exponent:.3f} |")
     figure = args.output_dir / f"{name}_dos.png"
     args.output_dir.mkdir(parents=True, exist_ok=True)
