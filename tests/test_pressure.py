@@ -36,20 +36,25 @@ def test_jam_to_pressure_reaches_it_at_a_minimum_above_phi_c(dim, n, target):
 
 @pytest.mark.parametrize("alpha", [2.0, 2.5])
 def test_pressures_from_one_start_follow_the_scaling_law(alpha):
+    """On one branch, up to its first plastic rearrangement (a pressure drop moves phi_c; where
+    it falls depends on the CPU's rounding): p ~ (phi - phi_c)^(alpha - 1)."""
     model = ContactModel(alpha)
     jammed = jam(random_packing(256, 0.8, seed=3), model, epsilon=1e-8)
     current, delta, pressure = jammed.packing, [], []
     # Hertzian pressures are smaller at a given overlap (k delta^1.5 with delta ~ 1e-2 radii)
-    for target in np.logspace(-6, -2, 5) * (1.0 if alpha == 2.0 else 0.1):
+    targets = np.logspace(-6, -3, 6) if alpha == 2.0 else np.logspace(-8.5, -6, 6)
+    for target in targets:
         found = pressure_search(current, model, target, phi_low=jammed.phi_low, phi_c=jammed.phi_c)
+        assert abs(found.pressure / target - 1.0) <= 1e-3
+        if found.pressure_drops:
+            break
         # 4 trials per decade of phi - phi_low covered, and a few to close the bracket
         covered = np.log10((found.phi - jammed.phi_low) / (current.phi - jammed.phi_low))
-        assert abs(found.pressure / target - 1.0) <= 1e-3
         assert len(found.trials) <= 4 * covered + 6
         current = found.packing
         delta.append(found.delta_phi)
         pressure.append(found.pressure)
-    assert np.all(np.diff(delta) > 0)
+    assert len(delta) >= 4 and np.all(np.diff(delta) > 0)
     fit = fit_power_law(delta, pressure)
     assert fit.exponent == pytest.approx(alpha - 1.0, abs=0.12)
 

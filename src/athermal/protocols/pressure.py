@@ -11,7 +11,9 @@ end and relaxes it to a local minimum
 (:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`): the packing is only ever
 compressed quasi-statically from below ``P`` (never decompressed from an overshoot, which would
 move its jamming point), and the packings of several pressures from one start follow one branch
-of states. A target below the jammed packing's own pressure is reached by decompressing it.
+of states. A target below the jammed packing's own pressure is reached by decompressing it,
+and so is one that ``p`` jumps across at a rearrangement (no state at ``P`` on the branch from
+below): the search then decompresses the state above the jump along its own branch.
 """
 
 from __future__ import annotations
@@ -20,8 +22,6 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-
-import numpy as np
 
 from .._validate import positive_scalar
 from ..contact import ContactModel
@@ -157,7 +157,8 @@ def pressure_search(
     # "below" the relaxed state of the low end, from which every trial compresses
     low: tuple[float, float] = (phi_low, -y_target)  # unjammed: p = 0
     high: tuple[float, float] | None = None
-    previous, below = low, None
+    previous, below, above = low, None, current
+    switched = False  # decompressing from above after p jumped across the target
     if p**exponent >= y_target:
         high = (phi0, p**exponent - y_target)
     else:
@@ -176,18 +177,23 @@ def pressure_search(
             phi = min(pb + (min(-fb / slope, reach) if slope > 0.0 else reach), MAX_PHI)
         else:
             (pa, fa), (pb, fb) = low, high
-            if pb - pa <= 4.0 * np.finfo(np.float64).eps * pb:
-                raise ConvergenceError(
-                    f"pressure {target:.3e}: p jumps across it at phi {pa:.15f} (from "
-                    f"{trials[-1].pressure:.6e}); a rearrangement: try another start"
-                )
+            if pb - pa <= 1e-12 * pb:
+                if switched:
+                    raise ConvergenceError(
+                        f"pressure {target:.3e}: p jumps across it at phi {pa:.15f} on the way "
+                        "up and down; a rearrangement: try another start"
+                    )
+                # p jumps across the target at a rearrangement: no state at P on this branch;
+                # decompress the state above the jump along its own branch instead
+                switched, below, last = True, None, 0
+                low, (pa, fa) = (phi_low, -y_target), (phi_low, -y_target)
             phi = pa - fa * (pb - pa) / (fb - fa)
-        current, p = relax(current if below is None else below, phi)
+        current, p = relax(above if switched else (current if below is None else below), phi)
         value = p**exponent - y_target
         if value >= 0.0:
             if high is not None and last == 1:  # Illinois: the kept end's value halves
                 low = (low[0], low[1] / 2.0)
-            high, last = (phi, value), 1
+            high, last, above = (phi, value), 1, current
         else:
             if high is None:
                 previous = low
