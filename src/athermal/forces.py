@@ -20,8 +20,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .contact import ContactModel, find_contacts
-from .observables import rattlers
+from .contact import ContactModel
+from .moduli import nonrattler_contacts
 from .packing import Packing
 
 FORCE_BIN = 0.1
@@ -101,11 +101,8 @@ class ForceStatistics:
 
 def force_statistics(packing: Packing, model: ContactModel) -> ForceStatistics:
     """The contact-force statistics of ``packing`` (best at a force-balanced minimum)."""
-    contacts = find_contacts(packing, model)
-    rattler = rattlers(contacts, packing.n, packing.dim)
-    live = contacts.subset(
-        ~(rattler[contacts.i] | rattler[contacts.j]) & (contacts.i != contacts.j)
-    )
+    contacts, _ = nonrattler_contacts(packing, model)
+    live = contacts.subset(contacts.i != contacts.j)  # not a particle with its own image
     forces = live.force_magnitude
     dim = packing.dim
     if forces.size == 0:

@@ -21,15 +21,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
 from .atomic import replacing
-from .contact import ContactModel, find_contacts, hessian
+from .contact import ContactModel
 from .errors import InputError
-from .moduli import STABILITY_TOL
-from .observables import rattlers
+from .moduli import STABILITY_TOL, stiffness_matrix
 from .packing import Packing
 
 DENSE_MODES_DOFS = 12_288
@@ -82,19 +80,6 @@ class Modes:
         """``(M',)`` ``omega = sqrt(lambda)`` of the vibrations (the eigenvalues above the
         tolerance)."""
         return np.sqrt(self.eigenvalues[self.eigenvalues > self.tolerance])
-
-
-def stiffness_matrix(
-    packing: Packing, model: ContactModel
-) -> tuple[sp.csr_matrix, NDArray[np.intp], NDArray[np.bool_]]:
-    """The Hessian ``(N' d, N' d)`` of the non-rattlers (their contacts only), the flat
-    indices ``(N' d,)`` of its rows among the ``N d`` coordinates, and the rattler mask."""
-    contacts = find_contacts(packing, model)
-    rattler = rattlers(contacts, packing.n, packing.dim)
-    live = contacts.subset(~(rattler[contacts.i] | rattler[contacts.j]))
-    keep = np.flatnonzero(~rattler)
-    dofs = (keep[:, None] * packing.dim + np.arange(packing.dim)).ravel()
-    return hessian(live, packing.n)[dofs][:, dofs].tocsr(), dofs, rattler
 
 
 def vibrational_modes(

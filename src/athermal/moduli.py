@@ -158,7 +158,7 @@ def relaxed_strain_curvature(
     dim = packing.dim
     d1_arr = float_array(d1, "d1", (dim, dim))
     d2_arr = None if d2 is None else float_array(d2, "d2", (dim, dim))
-    contacts, rattler = _live_contacts(packing, model)
+    contacts, rattler = nonrattler_contacts(packing, model)
     affine, xi = strain_terms(contacts, packing.n, d1_arr, d2_arr)
     correction, residual, _ = _nonaffine_correction(contacts, rattler, xi[:, :, None])
     _warn_if_poor(residual, "relaxed_strain_curvature")
@@ -178,7 +178,7 @@ def nonaffine_displacement(
     """
     dim = packing.dim
     d1_arr = float_array(d1, "d1", (dim, dim))
-    contacts, rattler = _live_contacts(packing, model)
+    contacts, rattler = nonrattler_contacts(packing, model)
     _, xi = strain_terms(contacts, packing.n, d1_arr)
     y, residual, _ = _pinned_solve(contacts, rattler, xi[:, :, None])
     _warn_if_poor(residual, "nonaffine_displacement")
@@ -204,7 +204,7 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
     True
     """
     dim, volume = packing.dim, packing.cell.volume
-    contacts, rattler = _live_contacts(packing, model)
+    contacts, rattler = nonrattler_contacts(packing, model)
     p = pressure(stress(contacts, packing.cell))
     shear_aff, xi_shear = strain_terms(contacts, packing.n, simple_shear(1.0, dim) - np.eye(dim))
     bulk_aff, xi_bulk = strain_terms(contacts, packing.n, np.eye(dim))
@@ -264,13 +264,10 @@ def stability(packing: Packing, model: ContactModel) -> Stability:
     >>> s.stable, round(s.lowest_eigenvalue, 9)      # -4 f / l with f = 0.01, l = 0.25
     (False, -0.16)
     """
-    contacts, rattler = _live_contacts(packing, model)
     dim = packing.dim
-    live = np.flatnonzero(~rattler)
-    if live.size <= 1:
+    h, dofs, _ = stiffness_matrix(packing, model)
+    if dofs.size <= dim:
         return Stability(True, None, None, 0.0)
-    dofs = (live[:, None] * dim + np.arange(dim)).ravel()
-    h = hessian(contacts, packing.n)[dofs][:, dofs].tocsr()
     pinned = h[dim:, dim:]
     shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
     test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
@@ -302,11 +299,25 @@ def _warn_if_poor(residual: float, what: str) -> None:
         )
 
 
-def _live_contacts(packing: Packing, model: ContactModel) -> tuple[Contacts, NDArray[np.bool_]]:
+def nonrattler_contacts(
+    packing: Packing, model: ContactModel
+) -> tuple[Contacts, NDArray[np.bool_]]:
     """The contacts between non-rattlers, and the rattler mask ``(N,)``."""
     contacts = find_contacts(packing, model)
     rattler = rattlers(contacts, packing.n, packing.dim)
     return contacts.subset(~(rattler[contacts.i] | rattler[contacts.j])), rattler
+
+
+def stiffness_matrix(
+    packing: Packing, model: ContactModel
+) -> tuple[sp.csr_matrix, NDArray[np.intp], NDArray[np.bool_]]:
+    """The Hessian ``(N' d, N' d)`` of the non-rattlers (their contacts only, translations
+    free), the flat indices ``(N' d,)`` of its rows among the ``N d`` coordinates, and the
+    rattler mask ``(N,)``."""
+    contacts, rattler = nonrattler_contacts(packing, model)
+    live = np.flatnonzero(~rattler)
+    dofs = (live[:, None] * packing.dim + np.arange(packing.dim)).ravel()
+    return hessian(contacts, packing.n)[dofs][:, dofs].tocsr(), dofs, rattler
 
 
 def _nonaffine_correction(
