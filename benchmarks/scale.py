@@ -8,8 +8,9 @@ coordinate displaced by U[-a, a], a = 1e-4 mean diameters, ``default_rng(2024060
 1's radii growth x (1 + 5e-5) follows (both by :func:`athermal.bench.make_case`). k = 1 uses the
 same recipe, so the growth with N is measured on one definition.
 
-L-BFGS, P-L-BFGS (Exp) with the direct and the AMG solver, and FIRE relax each start to
-``max_i |grad_i| <= 1e-9 F0`` (``RTOL``; F0: mean contact force at the start). Each (N, method)
+L-BFGS, P-L-BFGS (Exp) with the direct, the AMG and the incomplete-Cholesky (``ic0``) solver,
+and FIRE relax each start to ``max_i |grad_i| <= 1e-9 F0`` (``RTOL``; F0: mean contact force at
+the start). Each (N, method)
 runs in its own subprocess (``--one K METHOD``), so the peak RSS is that run's own; a warm-up on
 the N = 4096 start (3 iterations) compiles the kernels first. Reported: iterations,
 evaluations, seconds, ms per iteration, final max|grad| / F0, peak RSS, preconditioner builds,
@@ -57,10 +58,11 @@ METHODS = {
     "lbfgs": Minimizer("lbfgs"),
     "direct": Minimizer("lbfgs", "exp", solver="direct"),
     "amg": Minimizer("lbfgs", "exp", solver="amg"),
+    "ic0": Minimizer("lbfgs", "exp", solver="ic0"),
     "fire": Minimizer("fire"),
 }
 """``--methods`` keys and the minimizers they run."""
-PRECONDITIONED = ("direct", "amg")
+PRECONDITIONED = ("direct", "amg", "ic0")
 SIZES = (1, 4, 8, 16)
 """Tiling factors k (N = 4096 k^2)."""
 TARGET_EXPONENT, TARGET_MS, TARGET_MB, TARGET_N = 0.25, 500.0, 4096.0, 1_048_576

@@ -1,4 +1,4 @@
-"""The sparse symmetric factorizations: CHOLMOD, and SuperLU as its fallback."""
+"""The sparse symmetric factorizations: CHOLMOD, SuperLU as its fallback, and IC(0)."""
 
 import numpy as np
 import pytest
@@ -23,3 +23,51 @@ def test_cholesky_solves_spd_matrices_and_refuses_indefinite_ones(monkeypatch, c
     b = np.random.default_rng(0).normal(size=(50, 2))
     np.testing.assert_allclose(spd @ factor.solve(b), b, atol=1e-10)
     assert linalg.cholesky(laplacian_1d(50, -0.5)) is None  # lowest eigenvalue ~ -0.5
+
+
+def laplacian_2d(side, shift):
+    """The 5-point Laplacian of a periodic side x side grid plus ``shift`` I: an M-matrix."""
+    one = sp.diags([np.ones(side - 1), np.ones(side - 1)], [-1, 1], shape=(side, side)).tolil()
+    one[0, side - 1] = one[side - 1, 0] = 1.0
+    eye = sp.identity(side)
+    adjacency = sp.kron(one, eye) + sp.kron(eye, one)
+    return (sp.identity(side * side) * (4.0 + shift) - adjacency).tocsr()
+
+
+def test_incomplete_cholesky_is_exact_without_fill():
+    """A tridiagonal matrix has a Cholesky factor with no fill: IC(0) is the exact factor."""
+    spd = laplacian_1d(40, 0.05)
+    factor = linalg.factorize(spd, "ic0", 1, np.ones((40, 1)))
+    assert factor.backend == "ic0" and factor.shift == 0.0
+    b = np.random.default_rng(1).normal(size=(40, 3))
+    np.testing.assert_allclose(spd @ factor.solve(b), b, atol=1e-12)
+
+
+def test_incomplete_cholesky_matches_the_matrix_on_its_pattern_and_is_spd():
+    """The defining property of IC(0): L L^T equals A wherever A is non-zero (fill dropped),
+    and the two triangular solves are the SPD map (L L^T)^-1."""
+    a = laplacian_2d(9, 0.01)
+    factor = linalg.IncompleteCholeskyFactor(a)
+    n = a.shape[0]
+    lower = sp.csr_matrix((factor._lower, factor._indices, factor._indptr), shape=(n, n))
+    product = (lower @ lower.T).toarray()
+    pattern = a.toarray() != 0.0
+    np.testing.assert_allclose(product[pattern], a.toarray()[pattern], atol=1e-12)
+    assert np.abs(product[~pattern]).max() > 1e-3  # the fill it leaves out is real
+    u, w = np.random.default_rng(2).normal(size=(2, n, 2))
+    np.testing.assert_allclose(lower @ (lower.T @ factor.solve(u)), u, atol=1e-10)
+    assert np.sum(u * factor.solve(w)) == pytest.approx(np.sum(w * factor.solve(u)), rel=1e-12)
+    assert np.all(np.sum(u * factor.solve(u), axis=0) > 0.0)
+
+
+def test_incomplete_cholesky_shifts_a_matrix_whose_pivot_vanishes():
+    """Kershaw's SPD matrix (no M-matrix) loses a pivot in IC(0); the factor of
+    A + s diag(A) is taken instead, and an indefinite matrix is refused."""
+    kershaw = np.array([[3.0, -2, 0, 2], [-2, 3, -2, 0], [0, -2, 3, -2], [2, 0, -2, 3]])
+    assert np.linalg.eigvalsh(kershaw).min() > 0.17
+    factor = linalg.IncompleteCholeskyFactor(sp.csr_matrix(kershaw))
+    assert factor.shift > 0.0
+    u = np.random.default_rng(3).normal(size=(4, 5))
+    assert np.all(np.sum(u * factor.solve(u), axis=0) > 0.0)
+    with pytest.raises(linalg.NotPositiveDefinite):
+        linalg.IncompleteCholeskyFactor(laplacian_1d(5, -3.0))

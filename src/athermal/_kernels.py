@@ -1,5 +1,6 @@
 """Compiled (numba) kernels: the cell-list pair search, the energy+gradient loops (which also
-count the overlapping pairs) and the L-BFGS recursion's vector loops.
+count the overlapping pairs), the L-BFGS recursion's vector loops and the incomplete Cholesky
+factor with its triangular solves.
 
 Pair convention everywhere: pair ``p`` joins ``first[p] <= second[p]``
 with the image table index ``code[p]``; the separation is ``x[first] - x[second] + shift[code]``
@@ -524,3 +525,64 @@ def hessian_product(pairs, sep, coef, v, out):  # type: ignore[no-untyped-def]
             ku = a_n * sep[p, a] - c_t * (v[i, a] - v[j, a])
             out[i, a] += ku
             out[j, a] -= ku
+
+
+@_jit
+def incomplete_cholesky(indptr, indices, data, shift):  # type: ignore[no-untyped-def]
+    """IC(0) of a symmetric matrix from its lower triangle in CSR (sorted columns, the
+    diagonal last in each row, every diagonal present), diagonal scaled by ``1 + shift``: the
+    values of ``L`` on that pattern (``L L^T`` equals the matrix there), and whether every
+    pivot was positive (the factor is meaningless otherwise)."""
+    n = indptr.size - 1
+    lower = data.copy()
+    for i in range(n):
+        a, b = indptr[i], indptr[i + 1]
+        for p in range(a, b - 1):  # L_ij, j < i: the entries of rows i and j left of j
+            j = indices[p]
+            value = lower[p]
+            q, r, r_end = a, indptr[j], indptr[j + 1] - 1
+            while q < p and r < r_end:
+                if indices[q] == indices[r]:
+                    value -= lower[q] * lower[r]
+                    q += 1
+                    r += 1
+                elif indices[q] < indices[r]:
+                    q += 1
+                else:
+                    r += 1
+            lower[p] = value / lower[indptr[j + 1] - 1]
+        pivot = lower[b - 1] * (1.0 + shift)
+        for p in range(a, b - 1):
+            pivot -= lower[p] * lower[p]
+        if not pivot > 0.0:
+            return lower, False
+        lower[b - 1] = np.sqrt(pivot)
+    return lower, True
+
+
+@_jit
+def cholesky_solve(indptr, indices, lower, rhs, out):  # type: ignore[no-untyped-def]
+    """``out = (L L^T)^-1 rhs`` for ``rhs`` ``(n, k)``, ``L`` lower triangular in CSR (diagonal
+    last in each row): forward substitution by rows, then back substitution by the same rows
+    read as the columns of ``L^T``."""
+    n, k = rhs.shape
+    acc = np.empty(k)
+    for i in range(n):
+        a, b = indptr[i], indptr[i + 1]
+        for c in range(k):
+            acc[c] = rhs[i, c]
+        for p in range(a, b - 1):
+            j, value = indices[p], lower[p]
+            for c in range(k):
+                acc[c] -= value * out[j, c]
+        for c in range(k):
+            out[i, c] = acc[c] / lower[b - 1]
+    for i in range(n - 1, -1, -1):
+        a, b = indptr[i], indptr[i + 1]
+        for c in range(k):
+            acc[c] = out[i, c] / lower[b - 1]
+            out[i, c] = acc[c]
+        for p in range(a, b - 1):
+            j, value = indices[p], lower[p]
+            for c in range(k):
+                out[j, c] -= value * acc[c]

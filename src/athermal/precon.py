@@ -12,7 +12,8 @@ Two preconditioners satisfy :class:`~athermal.minimize.result.Preconditioner`:
 
 Flat vectors are ``(N d,)``, particle-major (``x.reshape(N, d)``), in the objective's internal
 order. Both factor ``P`` once per rebuild and reuse the factor for every :meth:`solve`, with
-the solvers of :mod:`athermal.linalg` (CHOLMOD, SuperLU without cholespy, or AMG V-cycles).
+the solvers of :mod:`athermal.linalg` (CHOLMOD, SuperLU without cholespy, AMG V-cycles, or the
+incomplete Cholesky factor IC(0)).
 """
 
 from __future__ import annotations
@@ -275,15 +276,17 @@ class ExpPreconditioner(_PairPreconditioner):
     mu : energy scale (energy / length^2); default re-estimated at every build by the seed's
         sine test (:meth:`_estimate_mu`).
     solver : ``"direct"`` (cholespy Cholesky, SciPy ``splu`` without cholespy), ``"amg"``
-        (pyamg, ``amg_cycles`` V-cycles) or ``"auto"`` (direct for N < 2 000 000 in 2D and
-        200 000 in 3D, else AMG; direct without pyamg).
+        (pyamg, ``amg_cycles`` V-cycles), ``"ic0"`` (zero-fill incomplete Cholesky,
+        :class:`~athermal.linalg.IncompleteCholeskyFactor`) or ``"auto"`` (direct for
+        N < 2 000 000 in 2D and 200 000 in 3D, else AMG; direct without pyamg).
     amg_cycles : V-cycles per AMG application (default 1).
 
     Attributes
     ----------
     matrix : the factored matrix, here ``L`` ``(N, N)`` CSR including ``mu``.
     mu, r_nn : energy scale and nearest-neighbour distance of the last build.
-    solver, backend : ``"direct"``/``"amg"`` and ``"cholespy"``/``"splu"``/``"pyamg"``.
+    solver, backend : ``"direct"``/``"amg"``/``"ic0"`` and
+        ``"cholespy"``/``"splu"``/``"pyamg"``/``"ic0"``.
     n_builds, n_factorizations, n_solves : counters.
     build_seconds, factorize_seconds : wall time spent in builds (factorization included) and
         in factorizations alone.

@@ -10,6 +10,7 @@ import re
 from typing import Any, NoReturn
 
 from .. import bench
+from ..linalg import SOLVERS
 from ..minimize import METHODS, PRECONDITIONERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..protocols import SHEAR_MODES
@@ -108,8 +109,8 @@ def _minimizer(
     parser.add_argument(
         "--solver",
         default="auto",
-        choices=("auto", "direct", "amg"),
-        help="linear solver of the preconditioner",
+        choices=SOLVERS,
+        help="linear solver of the preconditioner (ic0: incomplete Cholesky)",
     )
     parser.add_argument("--maxiter", type=int, default=maxiter, help="iteration limit")
 

@@ -51,7 +51,7 @@ def minimize(
     precon : preconditioner name, or a ready :class:`Preconditioner` (reused across calls,
         e.g. by the quasi-static protocols).
     A, solver : parameter of the Exp weights and the linear solver (``direct`` Cholesky,
-        ``amg``, or ``auto`` by size), used when ``precon`` is a name.
+        ``amg``, incomplete Cholesky ``ic0``, or ``auto`` by size), used when ``precon`` is a name.
     gtol, rtol : absolute tolerance on ``max_i |grad_i|``, or relative to the mean contact
         force at the start (give exactly one).
     maxiter : iteration limit (non-convergence is reported in the result).

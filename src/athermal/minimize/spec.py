@@ -8,6 +8,7 @@ from typing import Literal
 
 from .._validate import choice
 from ..errors import InputError
+from ..linalg import SOLVERS
 from ..precon import PRECONDITIONERS, PreconName, SolverName
 
 Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
@@ -42,7 +43,7 @@ class Minimizer:
     method : ``lbfgs``, ``cg``, ``fire``, ``newton`` or the seed's ``plbfgs`` / ``pcg``.
     precon : ``none``, ``exp`` (the seed's, weights parameter ``A``) or ``contact``.
     A : Exp weight decay (dimensionless, >= 0).
-    solver : ``auto``, ``direct`` or ``amg`` for the preconditioner's linear solves.
+    solver : ``auto``, ``direct``, ``amg`` or ``ic0`` for the preconditioner's linear solves.
     maxiter : iteration limit of one relaxation; a protocol that reaches it stops with a
         :class:`~athermal.errors.ConvergenceError`.
     """
@@ -55,7 +56,7 @@ class Minimizer:
 
     def __post_init__(self) -> None:
         resolve_method(self.method, self.precon)
-        choice(self.solver, "solver", ("auto", "direct", "amg"))
+        choice(self.solver, "solver", SOLVERS)
         if int(self.maxiter) != self.maxiter or self.maxiter < 1:
             raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
         if not self.A >= 0.0:
