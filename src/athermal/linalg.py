@@ -27,6 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
+from . import _kernels
 from ._validate import choice
 from .errors import InputError
 
@@ -146,18 +147,16 @@ class IncompleteCholeskyFactor:
     (2D, Exp P-L-BFGS, one core, against ``direct`` in the same session): the Table's cases 1 /
     2 / 3 (N = 4096) 1409 / 2476 / 986 against 1340 / 2102 / 873 iterations, the 2-column solve
     0.21-0.25 against 0.24-0.35 ms, the build 1.2 against 35 ms; on the tiled start of
-    ``benchmarks/scale.py``, N = 65536: 1921 against 1451
-    iterations, 34 against 40 s (solve 5.1 against 12.8 ms, build 26 ms against 1.1 s);
-    N = 262144: 2642 against 1490 iterations, 192 against 138 s, 457 against 626 MB (solve 13
-    against 48 ms, build 78 ms against 5.8 s). 3D, N = 8192: 1.1 against 4.9 s (plain L-BFGS
-    0.7 s); ``athermal jam --dim 3`` at N = 1024: 46 against 34 s.
+    ``benchmarks/scale.py`` (``benchmarks/results/ic0/scale.md``), N = 65536: 1921 against 1451
+    iterations, 24.6 against 30.6 s (solve 5.1 against 12.8 ms); N = 262144: 2642 against 1490
+    iterations, 178 against 146 s, 452 against 591 MB (solve 13 against 48 ms, build 0.4
+    against 5.8 s). 3D, N = 8192: 1.1 against 4.9 s (plain L-BFGS 0.7 s); ``athermal jam
+    --dim 3`` at N = 1024: 46 against 34 s.
     """
 
     backend = "ic0"
 
     def __init__(self, matrix: sp.spmatrix) -> None:
-        from ._kernels import incomplete_cholesky
-
         lower = sp.tril(sp.csr_matrix(matrix, dtype=np.float64)).tocsr()
         lower.sort_indices()
         self._indptr = lower.indptr.astype(np.int64)
@@ -169,7 +168,9 @@ class IncompleteCholeskyFactor:
             raise InputError("ic0: the matrix needs every diagonal entry")
         self.shift = 0.0
         while True:
-            values, ok = incomplete_cholesky(self._indptr, self._indices, lower.data, self.shift)
+            values, ok = _kernels.incomplete_cholesky(
+                self._indptr, self._indices, lower.data, self.shift
+            )
             if ok:
                 break
             self.shift = 1e-3 if self.shift == 0.0 else 10.0 * self.shift
@@ -178,12 +179,10 @@ class IncompleteCholeskyFactor:
         self._lower = values
 
     def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-        from ._kernels import cholesky_solve
-
         b = np.ascontiguousarray(rhs, dtype=np.float64)
         columns = b.reshape(b.shape[0], -1)
         out = np.empty_like(columns)
-        cholesky_solve(self._indptr, self._indices, self._lower, columns, out)
+        _kernels.cholesky_solve(self._indptr, self._indices, self._lower, columns, out)
         return out.reshape(b.shape)
 
 
