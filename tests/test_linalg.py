@@ -5,6 +5,7 @@ import pytest
 import scipy.sparse as sp
 
 from athermal import linalg
+from athermal.errors import InputError
 
 
 def laplacian_1d(n, shift):
@@ -71,3 +72,5 @@ def test_incomplete_cholesky_shifts_a_matrix_whose_pivot_vanishes():
     assert np.all(np.sum(u * factor.solve(u), axis=0) > 0.0)
     with pytest.raises(linalg.NotPositiveDefinite):
         linalg.IncompleteCholeskyFactor(laplacian_1d(5, -3.0))
+    with pytest.raises(InputError, match="diagonal"):
+        linalg.IncompleteCholeskyFactor(sp.csr_matrix(np.array([[1.0, 0.5], [0.5, 0.0]])))

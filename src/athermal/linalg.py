@@ -8,7 +8,7 @@ preconditioners (:mod:`athermal.precon`) and the moduli (:mod:`athermal.moduli`)
 * :class:`AmgFactor`: a fixed number of smoothed-aggregation V-cycles from a zero start
   (pyamg), a fixed symmetric linear operator;
 * :class:`IncompleteCholeskyFactor`: the zero-fill incomplete Cholesky factor ``L L^T ~ A``
-  (compiled), for large packings where the exact factor's fill costs time and memory.
+  (compiled): no fill, so a fraction of the exact factor's build time and memory.
 
 Each maps right-hand sides ``(n, k)`` to solutions ``(n, k)``.
 """
