@@ -8,13 +8,13 @@ coordinate displaced by U[-a, a], a = 1e-4 mean diameters, ``default_rng(2024060
 1's radii growth x (1 + 5e-5) follows (both by :func:`athermal.bench.make_case`). k = 1 uses the
 same recipe, so the growth with N is measured on one definition.
 
-L-BFGS, P-L-BFGS (Exp) with the direct, the AMG and the incomplete-Cholesky (``ic0``) solver,
-and FIRE relax each start to ``max_i |grad_i| <= 1e-9 F0`` (``RTOL``; F0: mean contact force at
-the start). Each (N, method) runs in its own subprocess (``--one K METHOD``), so the peak RSS is
-that run's own; a warm-up on the N = 4096 start (3 iterations) compiles the kernels first. Reported: iterations,
-evaluations, seconds, ms per iteration, final max|grad| / F0, peak RSS, preconditioner builds,
-the setup time (tiling + Objective), and the exponent b of iterations ~ N^b (least squares in
-log-log over the N that converged), checked against the issue's targets (P-L-BFGS: b <= 0.25
+L-BFGS, P-L-BFGS (Exp) with the direct, the AMG and the incomplete-Cholesky (``ic0``) solver, and
+FIRE relax each start to ``max_i |grad_i| <= 1e-9 F0`` (``RTOL``; F0: mean contact force at the
+start). Each (N, method) runs in its own subprocess (``--one K METHOD``), so the peak RSS is that
+run's own; a warm-up on the N = 4096 start (3 iterations) compiles the kernels first. Reported:
+iterations, evaluations, seconds, ms per iteration, final max|grad| / F0, peak RSS, preconditioner
+builds, the setup time (tiling + Objective), and the exponent b of iterations ~ N^b (least squares
+in log-log over the N that converged), checked against the issue's targets (P-L-BFGS: b <= 0.25
 from 4096 to 10^6; <= 0.5 s per iteration and <= 4 GB at 10^6 on one core).
 
     python benchmarks/scale.py              # k = 1 4 8 16, all methods (about 1 hour 50
