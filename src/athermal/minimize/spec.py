@@ -8,8 +8,8 @@ from typing import Literal
 
 from .._validate import choice
 from ..errors import InputError
-from ..linalg import SOLVERS
-from ..precon import PRECONDITIONERS, PreconName, SolverName
+from ..linalg import SOLVERS, SolverName
+from ..precon import PRECONDITIONERS, PreconName
 
 Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
