@@ -7,6 +7,7 @@ import pytest
 from athermal.cell import pure_shear
 from athermal.contact import ContactModel
 from athermal.errors import InputError
+from athermal.fitting import fit_power_law
 from athermal.minimize import Status, minimize
 from athermal.moduli import linear_response
 from athermal.objective import Objective
@@ -152,20 +153,30 @@ def test_jamming_is_reproducible():
 
 @pytest.mark.slow
 def test_compression_scaling_exponents_small(jammed_256):
-    """Small form of the seed's scaling check (N = 256, one seed): p ~ Dphi^1, z - z_iso ~
-    Dphi^0.5 over 1e-6 ... 1e-1 (G, noisier at this size, has its own looser bound)."""
-    steps = list(
-        compression_steps(
-            jammed_256.packing, ContactModel(2.0), delta_phis=log_spaced(1e-6, 1e-1, 2)
-        )
-    )
+    """Small form of the seed's scaling check (N = 256): p ~ Dphi^1 over 1e-6 ... 1e-1 for one
+    packing; z - z_iso ~ Dphi^0.5 and G ~ Dphi^0.5 over 1e-4 ... 1e-1 pooled over three
+    packings (all their points in one fit, as the seed's figures average realizations).
+
+    One packing of 256 is not enough for z and G: near 1e-4 its excess contacts number 0-7, and
+    the exponent of a single packing ranged 0.47-0.69 for z and 0.29-1.07 for G over seeds 1-6
+    on two numba builds (AMD EPYC native and generic x86-64), with a mean of 0.58 for z, above
+    0.5 by the finite-size deficit of contacts at small N Delta phi (0.53 pooled at N = 1024,
+    ``benchmarks/results/protocols/scaling_n1024_a2.md``). Pooled over three, z ranged 0.52-0.64.
+    """
+    model = ContactModel(2.0)
+    deltas = log_spaced(1e-6, 1e-1, 2)
+    steps = list(compression_steps(jammed_256.packing, model, delta_phis=deltas))
     fits = scaling_exponents(steps, lower=1e-6)
     assert fits.pressure is not None and abs(fits.pressure.exponent - 1.0) < 0.1
-    z_fit = scaling_exponents(steps, lower=1e-4).z_excess
-    assert z_fit is not None and abs(z_fit.exponent - 0.5) < 0.15
-    g_fit = scaling_exponents(steps, lower=1e-4).shear_modulus
-    assert g_fit is not None and 0.2 < g_fit.exponent < 0.9
     assert all(s.z_excess >= -1e-12 for s in steps)
+    for seed in (3, 4):
+        packing = jam(random_packing(256, 0.8, seed=seed), model, epsilon=1e-6).packing
+        steps += compression_steps(packing, model, delta_phis=deltas)
+    dphi = [s.delta_phi for s in steps]
+    z_fit = fit_power_law(dphi, [s.z_excess for s in steps], lower=1e-4)
+    assert abs(z_fit.exponent - 0.5) < 0.15, z_fit
+    g_fit = fit_power_law(dphi, [s.shear_modulus for s in steps], lower=1e-4)
+    assert 0.2 < g_fit.exponent < 0.9, g_fit
 
 
 def test_bulk_modulus_is_phi_dp_dphi_along_the_protocol():
