@@ -396,13 +396,14 @@ def test_jam_warns_when_its_packing_fails_a_check(monkeypatch):
 
 
 def test_the_isostatic_allowance_grows_with_the_contacts_an_overlap_implies():
-    """N' (z - z_iso) / 2 ~ N' 3.5 sqrt(Delta phi) / 2 in 2D: ~5 extra contacts at N = 4096 and
-    5e-7 above jamming, 1 at N = 1024; a packing with more is hyperstatic."""
+    """N' (z - z_iso) / 2 ~ N' 3.5 sqrt(Delta phi) / 2 in 2D on average: ~5 extra contacts at
+    N = 4096 and 5e-7 above jamming, 1 at N = 1024; single packings scatter by about the mean, so
+    twice it is accepted (on top of a slack of 4); a packing with more is hyperstatic."""
     assert isostatic_allowance(1000, 2, 0.0) == 4
-    assert isostatic_allowance(1000, 2, 5e-7) == pytest.approx(4 + 1000 * 3.5 * 5e-7**0.5 / 2)
+    assert isostatic_allowance(1000, 2, 5e-7) == pytest.approx(4 + 2 * 1000 * 3.5 * 5e-7**0.5 / 2)
     assert isostatic_allowance(4000, 2, 5e-7) > isostatic_allowance(1000, 2, 5e-7) + 3.5
     assert isostatic_allowance(1000, 3, 5e-7) > isostatic_allowance(1000, 2, 5e-7)
-    check = JammingCheck(1e-6, 0.0, True, 6, isostatic_allowance(4000, 2, 5e-7), 5e-7, 1e-6, True)
+    check = JammingCheck(1e-6, 0.0, True, 8, isostatic_allowance(4000, 2, 5e-7), 5e-7, 1e-6, True)
     assert check.passed
-    crowded = JammingCheck(1e-6, 0.0, True, 6, isostatic_allowance(1000, 2, 5e-7), 5e-7, 1e-6, True)
-    assert crowded.problems() == ["N_c - N_iso = 6 (isostatic at this overlap: 0 ... 5.2)"]
+    crowded = JammingCheck(1e-6, 0.0, True, 8, isostatic_allowance(1000, 2, 5e-7), 5e-7, 1e-6, True)
+    assert crowded.problems() == ["N_c - N_iso = 8 (isostatic at this overlap: 0 ... 6.5)"]
