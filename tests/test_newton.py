@@ -179,3 +179,85 @@ def test_indefinite_hessians_raise_the_shift_until_the_factor_exists():
     assert factor.n_failed >= 1 and factor.shift > newton_module.SHIFT_MIN
     r = np.random.default_rng(1).normal(size=obj.n_dof)
     assert float(r @ factor.solve(r)) > 0.0
+
+
+class Channel(Quadratic):
+    """``f = 1 + y^2 / 2 - x^2 / 2 + x^4 / 4`` on ``(x, y)``: a saddle at the origin, minima
+    at ``x = +-1, y = 0``; along ``x`` the curvature is negative for ``|x| < 1/sqrt(3)``."""
+
+    def __init__(self):
+        self.n_dof, self.dim = 2, 2
+        self.n_evaluations = self.n_rebuilds = 0
+
+    def __call__(self, v):
+        self.n_evaluations += 1
+        x, y = v
+        return 1.0 + 0.5 * y * y - 0.5 * x * x + 0.25 * x**4, np.array([x**3 - x, y])
+
+    def hessian(self, v):
+        a = sp.diags([[3.0 * v[0] ** 2 - 1.0, 1.0]], [0]).tocsr()
+
+        class H:
+            def dot(self, u):
+                return a @ u
+
+            def matrix(self):
+                return a
+
+        return H()
+
+
+def test_a_direction_of_negative_curvature_is_followed_downhill_to_its_end():
+    """From near the saddle, a first step of 1e-3 along x grows (x4 per trial) until the
+    energy rises again: the search ends near the minimum x = 1, not 1e-3 further on."""
+    problem = Channel()
+    x0 = np.array([1e-3, 0.5])
+    e0, g0 = problem(x0)
+    for curved in (np.array([1.0, 0.0]), np.array([-2.0, 0.0])):  # either sign goes downhill
+        x, energy, grad = newton_module.follow_negative_curvature(problem, x0, e0, g0, curved, 1e-3)
+        assert abs(x[0] - 1.0) < 1e-3 and x[1] == 0.5
+        assert energy == pytest.approx(e0 - 0.25, abs=1e-6)
+        np.testing.assert_allclose(grad, problem(x)[1])
+    # a direction orthogonal to the gradient, or no step, leaves the point as it was
+    at_saddle = np.array([0.0, 0.5])
+    e, g = problem(at_saddle)
+    x, energy, _ = newton_module.follow_negative_curvature(
+        problem, at_saddle, e, g, np.array([1.0, 0.0]), 1e-3
+    )
+    assert energy == e and np.array_equal(x, at_saddle)
+
+
+def test_cg_returns_the_direction_of_negative_curvature_it_meets_after_a_first_step():
+    """H = diag(2, 1, -0.01) preconditioned by the factor of a lagged diag(2, 1, 1): the first
+    CG step solves the stiff part, the second direction is (almost) e_3, where H curves down."""
+
+    class Diagonal:
+        def __init__(self, values):
+            self.a = sp.diags([values], [0]).tocsr()
+
+        def dot(self, v):
+            return self.a @ v
+
+        def matrix(self):
+            return self.a
+
+    factor = newton_module.LaggedFactor()
+    factor.build(Diagonal([2.0, 1.0, 1.0]))
+    hessian = Diagonal([2.0, 1.0, -0.01])
+    grad = np.array([-1.0, -1.0, -1e-3])
+    p, inner, curved = newton_module.newton_direction(hessian, grad, factor, 1e-10, 10)
+    assert inner == 1 and curved is not None
+    assert float(p @ grad) < 0.0
+    np.testing.assert_allclose(p[:2], [0.5, 1.0], rtol=1e-6)
+    assert float(curved @ hessian.dot(curved)) <= 0.0
+    assert abs(curved[2]) >= 0.99 * np.linalg.norm(curved)
+    # a direction met at the first iteration is the step itself, not returned twice
+    first = newton_module.newton_direction(hessian, np.array([0.0, 0.0, -1.0]), factor, 1e-10, 10)
+    assert first[1] == 0 and first[2] is None
+
+
+def test_newton_leaves_a_saddle_region_for_the_minimum():
+    res = newton_module.newton(Channel(), np.array([1e-3, 0.5]), gtol=1e-12)
+    assert res.converged, res.message
+    np.testing.assert_allclose(res.x, [1.0, 0.0], atol=1e-9)
+    assert res.iterations <= 12

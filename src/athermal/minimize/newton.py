@@ -10,7 +10,18 @@ quasi-static step is one linear solve with the stiffness matrix. Each iteration:
    ``|r| <= eta |g|`` with the forcing term ``eta = min(0.5, sqrt(|g| / |g_0|))`` (superlinear
    convergence, Eisenstat & Walker), or at a direction of non-positive curvature (Nocedal &
    Wright, Algorithm 7.1: the iterate so far, or the preconditioned gradient at the first one);
-3. the strong-Wolfe line search of :mod:`.linesearch` along ``p``, unit step first.
+3. the strong-Wolfe line search of :mod:`.linesearch` along ``p``, unit step first;
+4. when CG stopped at a direction ``d`` of non-positive curvature after its first iteration, a
+   second strong-Wolfe search from the new point along ``d``, signed downhill, from a step as
+   long as the one just taken (:func:`follow_negative_curvature`): ``p`` stops short of ``d``,
+   the direction in which the energy falls fastest, and without this search Newton creeps along
+   it. Measured (N = 4096, alpha = 2, 36 shear steps of 1e-6 at Delta phi = 1e-7, 1e-6, 1e-5,
+   four packings, the same starts): 2602 iterations in all against 5694 without it, the worst
+   step 616 against 1339, the mean at 1e-6 73 against 128; the CG work stays the same (58633
+   against 63200 CG iterations) and the wall time 45.1 against 50.9 s (AMD EPYC, one core).
+   Without it, one slow step (533 iterations) spent its last 500 on unit steps along ``p``
+   that each lowered the energy by the same 1.3e-19, CG stopping at negative curvature after 4
+   iterations every time.
 
 The preconditioner of step 2 is a CHOLMOD factor of ``H(x_b) + sigma kappa I`` at an earlier
 iterate ``x_b`` (``kappa`` the mean positive diagonal of ``H``). ``sigma`` lifts the zero modes
@@ -126,11 +137,13 @@ def newton_direction(
     factor: LaggedFactor,
     eta: float,
     maxiter: int,
-) -> tuple[NDArray[np.float64], int]:
+) -> tuple[NDArray[np.float64], int, NDArray[np.float64] | None]:
     """An approximate solution ``p`` of ``H p = -grad`` by CG preconditioned with ``factor``,
     and the iterations it took. Stops at ``|r| <= eta |grad|``, after ``maxiter`` iterations,
     or at non-positive curvature ``d.H d <= 0``: then the iterate so far, or ``-M^-1 grad`` when
-    that is the first direction. Every ``p`` returned has ``p.grad < 0`` (for ``grad != 0``)."""
+    that is the first direction. Every ``p`` returned has ``p.grad < 0`` (for ``grad != 0``).
+    The third value is the CG direction of non-positive curvature found after the first
+    iteration (None otherwise)."""
     r = -grad
     z = factor.solve(r)
     p = np.zeros_like(grad)
@@ -141,17 +154,42 @@ def newton_direction(
         hd = hessian.dot(d)
         curvature = float(d @ hd)
         if not curvature > 0.0:
-            return (z if k == 0 else p), k
+            return (z, k, None) if k == 0 else (p, k, d)
         a = rz / curvature
         p += a * d
         r -= a * hd
         if float(np.linalg.norm(r)) <= stop:
-            return p, k + 1
+            return p, k + 1, None
         z = factor.solve(r)
         rz_new = float(r @ z)
         d = z + (rz_new / rz) * d
         rz = rz_new
-    return p, maxiter
+    return p, maxiter, None
+
+
+def follow_negative_curvature(
+    problem: SecondOrderProblem,
+    x: NDArray[np.float64],
+    energy: float,
+    grad: NDArray[np.float64],
+    curved: NDArray[np.float64],
+    length: float,
+) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
+    """``(x, energy, grad)`` after a strong-Wolfe search from ``x`` along ``curved`` (a
+    direction of non-positive curvature, ``(n_dof,)``), signed so that it descends, from a
+    first step of Euclidean ``length``; unchanged when ``curved`` is orthogonal to ``grad`` or
+    the search finds no step."""
+    slope = float(grad @ curved)
+    norm = float(np.linalg.norm(curved))
+    if slope == 0.0 or norm == 0.0 or not length > 0.0:
+        return x, energy, grad
+    downhill = -np.sign(slope) * curved
+    ls = search(problem, x, energy, grad, downhill, length / norm, c2=0.9)
+    if not ls.ok:
+        return x, energy, grad
+    x = x + ls.step * downhill
+    energy, grad = problem(x)
+    return x, energy, grad
 
 
 def newton(
@@ -180,7 +218,7 @@ def newton(
         if refactor:
             factor.build(hessian)
         eta = min(ETA_MAX, float(np.sqrt(np.linalg.norm(grad) / start_norm)))
-        direction, inner = newton_direction(hessian, grad, factor, eta, INNER_MAX)
+        direction, inner, negative = newton_direction(hessian, grad, factor, eta, INNER_MAX)
         tracker.linear_iterations += inner
         refactor = inner > REFACTOR_INNER
         ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
@@ -194,6 +232,9 @@ def newton(
             )
         x = x + ls.step * direction
         energy, grad = problem(x)
+        if negative is not None:
+            length = ls.step * float(np.linalg.norm(direction))
+            x, energy, grad = follow_negative_curvature(problem, x, energy, grad, negative, length)
         if tracker.record(energy, grad):
             return tracker.finish(x, Status.CONVERGED, "converged")
     return tracker.finish(x, Status.ITERATION_LIMIT, f"iteration limit {maxiter} reached")
