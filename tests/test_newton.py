@@ -85,7 +85,9 @@ def test_a_quadratic_is_solved_in_one_newton_step():
     q = Quadratic()
     res = newton_module.newton(q, np.zeros(q.n_dof), gtol=1e-9)
     assert res.converged and res.status is Status.CONVERGED
-    assert res.iterations <= 2  # one step, a second when CG stopped at eta = 0.5
+    # one step, more when CG stopped at eta = 0.5: the factor is of A + 1e-5 <diag A> I
+    # (SHIFT_MIN), whose smallest eigenvalue is 5 % off here (condition 1e4): 3 measured
+    assert res.iterations <= 3
     np.testing.assert_allclose(res.x, 1.0, atol=1e-10)
     assert res.precon_builds == 1 and res.linear_iterations >= 1
 
@@ -248,7 +250,7 @@ def test_cg_returns_the_direction_of_negative_curvature_it_meets_after_a_first_s
     p, inner, curved = newton_module.newton_direction(hessian, grad, factor, 1e-10, 10)
     assert inner == 1 and curved is not None
     assert float(p @ grad) < 0.0
-    np.testing.assert_allclose(p[:2], [0.5, 1.0], rtol=1e-6)
+    np.testing.assert_allclose(p[:2], [0.5, 1.0], rtol=1e-4)  # M = diag(2, 1, 1) + 1.3e-5 I
     assert float(curved @ hessian.dot(curved)) <= 0.0
     assert abs(curved[2]) >= 0.99 * np.linalg.norm(curved)
     # a direction met at the first iteration is the step itself, not returned twice
