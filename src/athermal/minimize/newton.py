@@ -15,19 +15,20 @@ quasi-static step is one linear solve with the stiffness matrix. Each iteration:
    second strong-Wolfe search from the new point along ``d``, signed downhill, from a step as
    long as the one just taken (:func:`follow_negative_curvature`): ``p`` stops short of ``d``,
    the direction in which the energy falls fastest, and without this search Newton creeps along
-   it. Measured (N = 4096, alpha = 2, 36 shear steps of 1e-6 at Delta phi = 1e-7, 1e-6, 1e-5,
-   four packings, the same starts): 2602 iterations in all against 5694 without it, the worst
-   step 616 against 1339, the mean at 1e-6 73 against 128; the CG work stays the same (58633
-   against 63200 CG iterations) and the wall time 45.1 against 50.9 s (AMD EPYC, one core).
-   Without it, one slow step (533 iterations) spent its last 500 on unit steps along ``p``
-   that each lowered the energy by the same 1.3e-19, CG stopping at negative curvature after 4
-   iterations every time.
+   it. Measured (``benchmarks/results/protocols/negative_curvature/ab_n4096.md``: N = 4096,
+   alpha = 2, 36 shear steps of 1e-6 at Delta phi = 1e-7, 1e-6, 1e-5 from the same starts):
+   1948 iterations in all against 2730 without it, the worst step 183 against 635, the same CG
+   work (47543 against 48778 CG iterations) and wall time (29.6 against 30.3 s). Without it
+   (and with the shift floor at 1e-10), one slow step of 533 iterations spent its last 500 on
+   unit steps along ``p`` that each lowered the energy by the same 1.3e-19, CG stopping at
+   negative curvature after 4 iterations every time.
 
 The preconditioner of step 2 is a CHOLMOD factor of ``H(x_b) + sigma kappa I`` at an earlier
 iterate ``x_b`` (``kappa`` the mean positive diagonal of ``H``). ``sigma`` lifts the zero modes
 (translations, rattlers) and the negative curvature that the tangential terms of particles with
 one or two contacts, and saddles, give ``H``: it starts at a tenth of the last build's (the
-last one itself if that build had to raise it) and is raised tenfold until CHOLMOD succeeds.
+last one itself if that build had to raise it), never below :data:`SHIFT_MIN`, and is raised
+tenfold until CHOLMOD succeeds.
 ``M`` is factored anew at the iterate after a direction that needed more than
 :data:`REFACTOR_INNER` CG iterations: while the contact network holds, ``H`` barely changes
 and CG converges in a few iterations on the lagged factor.
@@ -59,13 +60,18 @@ SHIFT_MIN = 1e-5
 ``M^-1`` blow the soft and rattling modes up into long directions the line search cuts back,
 and each build probes it (a failed factorization where ``H`` is indefinite). Measured on 36
 shear steps near jamming (N = 4096, alpha = 2, Delta phi = 1e-7 ... 1e-5, the same starts),
-Newton iterations / CG iterations / factorizations, failed ones included: 1e-10 2602 / 58633 /
-400, 1e-7 2580 / 58207 / 281, 1e-6 1995 / 44643 / 234, 3e-6 1906 / 42306 / 219, 1e-5 1811 /
-45344 / 223, 1e-4 1828 / 57312 / 300."""
+Newton iterations / CG iterations / factorizations, failed ones included (with
+:data:`REFACTOR_INNER` at 50): 1e-10 2602 / 58633 / 400, 1e-7 2580 / 58207 / 281, 1e-6
+1995 / 44643 / 234, 3e-6 1906 / 42306 / 219, 1e-5 1811 / 45344 / 223, 1e-4 1828 / 57312 /
+300."""
 SHIFT_MAX = 1e2
 """Largest; beyond it the preconditioner is the scaled identity (``H`` tells nothing)."""
-REFACTOR_INNER = 50
-"""CG iterations of one Newton direction beyond which ``H`` is factored anew."""
+REFACTOR_INNER = 20
+"""CG iterations of one Newton direction beyond which ``H`` is factored anew. A factorization
+costs about 70 CG iterations at N = 4096 (24 ms against 0.34 ms). Measured on the 36 steps of
+:data:`SHIFT_MIN`, Newton / CG iterations / factorizations (failed ones included) / seconds:
+50: 1811 / 45344 / 223 / 27.7-30.2; 30: 1850 / 32147 / 306; 20: 1806 / 24709 / 386 /
+24.0-26.2; 10: 1865 / 18553 / 697 (AMD EPYC, one core, the two cores running one each)."""
 INNER_MAX = 200
 """Hard cap on the CG iterations of one Newton direction."""
 ETA_MAX = 0.5
