@@ -17,11 +17,12 @@ quasi-static step is one linear solve with the stiffness matrix. Each iteration:
    the direction in which the energy falls fastest, and without this search Newton creeps along
    it. Measured (``benchmarks/results/protocols/negative_curvature/ab_n4096.md``: N = 4096,
    alpha = 2, 36 shear steps of 1e-6 at Delta phi = 1e-7, 1e-6, 1e-5 from the same starts):
-   1948 iterations in all against 2730 without it, the worst step 183 against 635, the same CG
-   work (47543 against 48778 CG iterations) and wall time (29.6 against 30.3 s). Without it
-   (and with the shift floor at 1e-10), one slow step of 533 iterations spent its last 500 on
-   unit steps along ``p`` that each lowered the energy by the same 1.3e-19, CG stopping at
-   negative curvature after 4 iterations every time.
+   2319 iterations in all against 2637 without it, the worst step at 1e-6 108 against 336, the
+   same CG work (32644 against 33617 CG iterations) and wall time (35.0 against 34.9 s). Before
+   :data:`SHIFT_MIN` was raised it mattered more (2772 against 5697 iterations, the worst step
+   616 against 1339): one slow step of 533 iterations spent its last 500 on unit steps along
+   ``p`` that each lowered the energy by the same 1.3e-19, CG stopping at negative curvature
+   after 4 iterations every time.
 
 The preconditioner of step 2 is a CHOLMOD factor of ``H(x_b) + sigma kappa I`` at an earlier
 iterate ``x_b`` (``kappa`` the mean positive diagonal of ``H``). ``sigma`` lifts the zero modes
@@ -33,14 +34,17 @@ tenfold until CHOLMOD succeeds.
 :data:`REFACTOR_INNER` CG iterations: while the contact network holds, ``H`` barely changes
 and CG converges in a few iterations on the lagged factor.
 
-Measured (2D, alpha = 2, one core; ``benchmarks/results/protocols/iterations_n*.md``): per
-quasi-static shear step of 1e-6 at ``Delta phi = 1e-6``, 64 +- 82 iterations at N = 1024 and
-126 +- 102 at N = 4096 where the L-BFGS family needs 3-40 thousand, 3-4x less wall time than
-the fastest of them; from the step's linear-response prediction
-(:func:`~athermal.protocols.finite_strain_shear`) 9-53 at N = 1024 below
-``Delta phi = 1e-4`` and 1-5 from there on. Where contacts keep breaking and
-forming over a long rearrangement (the jamming protocol's trials near ``phi_c``) it is slower
-than P-L-BFGS.
+Measured (2D, alpha = 2, one core, AMD EPYC; 10 realizations each,
+``benchmarks/results/protocols/negative_curvature/iterations_n*_linear.md``): per quasi-static
+shear step of 1e-6 started from its linear-response prediction, 8 +- 7 iterations (26 ms) at
+``Delta phi = 1e-6`` and N = 1024, 51 +- 16 (0.74 s) at N = 4096, 64 +- 26 at 1e-7, where the
+L-BFGS family needs thousands to tens of thousands
+(``benchmarks/results/protocols/iterations_n*.md``); wall time per step at 1e-6 over that at
+1e-1: 1.3 at N = 1024, 5.9 at N = 4096, where the factorizations (25-30 ms each, analysis
+included: cholespy keeps none) and the CG solves with them (0.3 ms each) are two thirds of the
+time. Where contacts keep breaking and forming over a long rearrangement (``shear_steps`` to
+large strain, the jamming protocol's trials near ``phi_c``) it is slower than L-BFGS and
+P-L-BFGS (``negative_curvature/shear_n1024.md``: 2-8x).
 """
 
 from __future__ import annotations
