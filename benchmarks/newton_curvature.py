@@ -23,6 +23,7 @@ import argparse
 import statistics
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ from athermal.experiments import JamSpec, child_seeds, compression_steps
 from athermal.minimize import Minimizer
 from athermal.objective import Objective
 from athermal.packing import Packing
-from athermal.protocols import shear_steps
+from athermal.protocols import CompressionStep, shear_steps
 from athermal.protocols._relax import Relaxer, force_tolerance
 from athermal.protocols.finite_strain import _linear_start
 
@@ -72,29 +73,36 @@ def relax_step(
     }
 
 
-def run_ab(args: argparse.Namespace) -> None:
-    spec = JamSpec(args.n, 2, 2.0, dphi=GROWTH, epsilon=EPSILON)
-    rows: list[dict[str, Any]] = []
+def compressed(args: argparse.Namespace, spec: JamSpec) -> Iterator[tuple[int, CompressionStep]]:
+    """``(realization, compression step)`` for realizations 0 .. ``args.seeds``-1 (jammed from
+    the cache) at each ``args.dphi``."""
     for k, seed in enumerate(child_seeds(0, args.seeds)):
         packing, phi_c, _ = jammed(args.cache, spec, seed)
         for state in compression_steps(packing, spec.model, phi_c=phi_c, delta_phis=args.dphi):
-            current = state.packing
-            for step in range(args.steps):
-                shear = simple_shear(1e-6, 2)
-                start = _linear_start(current, current.deform(shear), shear, spec.model)
-                gtol = force_tolerance(start, spec.model, 1e-9)
-                row: dict[str, Any] = {"realization": k, "delta_phi": state.delta_phi}
-                row["step"] = step
-                for variant in ("plain", "follow"):
-                    relaxed, numbers = relax_step(start, spec.model, gtol, variant == "follow")
-                    row[variant] = numbers
-                    if variant == "plain":
-                        current = relaxed
-                rows.append(row)
-                log(
-                    f"realization {k} dphi {state.delta_phi:.0e} step {step}: "
-                    f"plain {row['plain']['iterations']} it, follow {row['follow']['iterations']}"
-                )
+            yield k, state
+
+
+def run_ab(args: argparse.Namespace) -> None:
+    spec = JamSpec(args.n, 2, 2.0, dphi=GROWTH, epsilon=EPSILON)
+    rows: list[dict[str, Any]] = []
+    for k, state in compressed(args, spec):
+        current = state.packing
+        for step in range(args.steps):
+            shear = simple_shear(1e-6, 2)
+            start = _linear_start(current, current.deform(shear), shear, spec.model)
+            gtol = force_tolerance(start, spec.model, 1e-9)
+            row: dict[str, Any] = {"realization": k, "delta_phi": state.delta_phi}
+            row["step"] = step
+            for variant in ("plain", "follow"):
+                relaxed, numbers = relax_step(start, spec.model, gtol, variant == "follow")
+                row[variant] = numbers
+                if variant == "plain":
+                    current = relaxed
+            rows.append(row)
+            log(
+                f"realization {k} dphi {state.delta_phi:.0e} step {step}: "
+                f"plain {row['plain']['iterations']} it, follow {row['follow']['iterations']}"
+            )
     lines = [
         f"# Newton-CG with and without following negative curvature: 2D, N = {args.n}, "
         f"alpha = 2, realizations 0-{args.seeds - 1} of root seed 0",
@@ -135,31 +143,29 @@ def run_ab(args: argparse.Namespace) -> None:
 def run_shear(args: argparse.Namespace) -> None:
     spec = JamSpec(args.n, 2, 2.0, dphi=GROWTH, epsilon=EPSILON)
     rows: list[dict[str, Any]] = []
-    for k, seed in enumerate(child_seeds(0, args.seeds)):
-        packing, phi_c, _ = jammed(args.cache, spec, seed)
-        for state in compression_steps(packing, spec.model, phi_c=phi_c, delta_phis=args.dphi):
-            for minimizer in SHEAR_METHODS:
-                t0 = time.perf_counter()
-                steps = list(
-                    shear_steps(
-                        state.packing,
-                        spec.model,
-                        mode="pure",
-                        strain=0.02,
-                        step=1e-3,
-                        minimizer=minimizer,
-                    )
+    for k, state in compressed(args, spec):
+        for minimizer in SHEAR_METHODS:
+            t0 = time.perf_counter()
+            steps = list(
+                shear_steps(
+                    state.packing,
+                    spec.model,
+                    mode="pure",
+                    strain=0.02,
+                    step=1e-3,
+                    minimizer=minimizer,
                 )
-                rows.append(
-                    {
-                        "realization": k,
-                        "delta_phi": state.delta_phi,
-                        "method": minimizer.name,
-                        "seconds": time.perf_counter() - t0,
-                        "iterations": sum(s.iterations for s in steps),
-                    }
-                )
-                log(str(rows[-1]))
+            )
+            rows.append(
+                {
+                    "realization": k,
+                    "delta_phi": state.delta_phi,
+                    "method": minimizer.name,
+                    "seconds": time.perf_counter() - t0,
+                    "iterations": sum(s.iterations for s in steps),
+                }
+            )
+            log(str(rows[-1]))
     names = [m.name for m in SHEAR_METHODS]
     lines = [
         f"# shear_steps by minimizer: 2D, N = {args.n}, alpha = 2, realizations 0-"
