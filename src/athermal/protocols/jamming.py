@@ -100,11 +100,11 @@ the packing's own overlap implies (:func:`isostatic_allowance`)."""
 ISOSTATIC_SPREAD = 2.0
 """:func:`isostatic_allowance` accepts this many times the mean extra contacts of the overlap.
 Single packings scatter about the mean by about the mean: measured at N = 4096 (2D, alpha = 2,
-epsilon = 1e-6, 14 packings, AMD EPYC and Intel Xeon), ``N_c - N_iso`` = 0-8 where the mean law
-gives 1.6-5.7; one packing had 8 at an overlap of 2.7e-7 (law 3.6), and decompressed step by step
-towards its own jamming point (unjammed 3-4e-7 below) its excess fell 8, 7, 7, 6, 5, 4, 4: a
-sound network with more contacts than the mean, not contacts of round-off (its weakest force is
-1e-3 of the mean)."""
+epsilon = 1e-6, 20 packings, 10 on AMD EPYC and 10 on Intel Xeon), ``N_c - N_iso`` = 0-8 where
+the mean law gives 1.6-5.8; one packing had 8 at an overlap of 2.7e-7 (law 3.6), and
+decompressed step by step towards its own jamming point (unjammed 3-4e-7 below) its excess fell
+8, 7, 7, 6, 5, 4, 4: a sound network with more contacts than the mean, not contacts of
+round-off (its weakest force is 1e-3 of the mean)."""
 Z_SLOPE = {2: 3.5, 3: 7.7}
 """``z - z_iso ~ Z_SLOPE sqrt(Delta phi)`` above jamming, by dimension. Measured: 2D 3.44 (pooled
 fit, N = 1024, 5 seeds, Delta phi 1e-6 ... 1e-1, ``benchmarks/results/protocols/scaling_n1024_a2
