@@ -42,6 +42,19 @@ def test_hessian_products_match_finite_differences_of_the_gradient(alpha, dim):
     assert abs(m - ref).max() <= 1e-12 * abs(ref).max()
 
 
+class MatrixHessian:
+    """A Hessian given as a sparse matrix ``a``."""
+
+    def __init__(self, a):
+        self.a = a
+
+    def dot(self, v):
+        return self.a @ v
+
+    def matrix(self):
+        return self.a
+
+
 class Quadratic:
     """``f = (x - 1).A (x - 1) / 2`` with a sparse SPD ``A``: one Newton step solves it."""
 
@@ -57,16 +70,7 @@ class Quadratic:
         return 0.5 * float(r @ (self.a @ r)), self.a @ r
 
     def hessian(self, x):
-        a = self.a
-
-        class H:
-            def dot(self, v):
-                return a @ v
-
-            def matrix(self):
-                return a
-
-        return H()
+        return MatrixHessian(self.a)
 
     def max_gradient(self, g):
         return float(np.sqrt((g.reshape(-1, 2) ** 2).sum(axis=1)).max())
@@ -197,16 +201,7 @@ class Channel(Quadratic):
         return 1.0 + 0.5 * y * y - 0.5 * x * x + 0.25 * x**4, np.array([x**3 - x, y])
 
     def hessian(self, v):
-        a = sp.diags([[3.0 * v[0] ** 2 - 1.0, 1.0]], [0]).tocsr()
-
-        class H:
-            def dot(self, u):
-                return a @ u
-
-            def matrix(self):
-                return a
-
-        return H()
+        return MatrixHessian(sp.diags([[3.0 * v[0] ** 2 - 1.0, 1.0]], [0]).tocsr())
 
 
 def test_a_direction_of_negative_curvature_is_followed_downhill_to_its_end():
@@ -233,19 +228,12 @@ def test_cg_returns_the_direction_of_negative_curvature_it_meets_after_a_first_s
     """H = diag(2, 1, -0.01) preconditioned by the factor of a lagged diag(2, 1, 1): the first
     CG step solves the stiff part, the second direction is (almost) e_3, where H curves down."""
 
-    class Diagonal:
-        def __init__(self, values):
-            self.a = sp.diags([values], [0]).tocsr()
-
-        def dot(self, v):
-            return self.a @ v
-
-        def matrix(self):
-            return self.a
+    def diagonal(values):
+        return MatrixHessian(sp.diags([values], [0]).tocsr())
 
     factor = newton_module.LaggedFactor()
-    factor.build(Diagonal([2.0, 1.0, 1.0]))
-    hessian = Diagonal([2.0, 1.0, -0.01])
+    factor.build(diagonal([2.0, 1.0, 1.0]))
+    hessian = diagonal([2.0, 1.0, -0.01])
     grad = np.array([-1.0, -1.0, -1e-3])
     p, inner, curved = newton_module.newton_direction(hessian, grad, factor, 1e-10, 10)
     assert inner == 1 and curved is not None
