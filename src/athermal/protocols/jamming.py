@@ -79,7 +79,19 @@ against FIRE's > 15 minutes (stopped), and with the earlier engine 109 s against
 712 s. The trials near phi_c dominate: 8-18k iterations each, whatever the minimizer. Newton-CG
 (N = 1024, realization 0, ``benchmarks/results/protocols/timing_n1024_s0.md``) took 28.3 s
 against P-L-BFGS's 10.9 s: 7316 iterations instead of 54301, but each costs a CG solve on a
-lagged factor, and the long rearrangements near phi_c keep it far from its quadratic regime."""
+lagged factor, and the long rearrangements near phi_c keep it far from its quadratic regime.
+
+Where an N = 4096 run's time goes (per-step traces, realizations 0 and 8 of root seed 0, AMD
+EPYC): unjammed trials below a jammed state take 0-100 iterations; jammed trials 2k-26k, most of
+them spent within 1-7 % of their final energy; and a trial within ~1e-5 of phi_c can crawl down
+a long, nearly flat channel for 50k-156k iterations (20-71 s), which decides the run's time.
+Tried there and dropped: stopping a trial once its energy has settled (replayed on recorded
+histories it kept every verdict and cut realization 8's bisection from 77k to 15k-26k
+iterations, but live runs moved the crawl into the final step, one of them past 300 s against 55
+s; stopping only above 1e4 x the threshold, realizations 0-3 and 8 took 383 s against the
+committed runs' 380 s); and handing a settled relaxation to Newton-CG (realization 8: 25.8
+against 36.4 s, Newton taking 100-1300 iterations of 4-7 ms per step; realization 0: its steps
+at 0.840 and 0.841 took 53 and 32 s)."""
 JAMMING_SCHEME = 2
 """Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused)."""
 PHI_INIT = {2: 0.8, 3: 0.6}
