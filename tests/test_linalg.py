@@ -61,6 +61,18 @@ def test_incomplete_cholesky_matches_the_matrix_on_its_pattern_and_is_spd():
     assert np.all(np.sum(u * factor.solve(u), axis=0) > 0.0)
 
 
+@pytest.mark.parametrize("k", [1, 2, 3, 5])
+def test_incomplete_cholesky_solves_any_number_of_columns_as_one_at_a_time(k):
+    """Columns are solved in interleaved pairs, an odd last one alone: the result is each
+    column's own solve."""
+    factor = linalg.IncompleteCholeskyFactor(laplacian_2d(7, 0.05))
+    b = np.random.default_rng(4).normal(size=(49, k))
+    together = factor.solve(b)
+    for c in range(k):
+        np.testing.assert_allclose(together[:, c], factor.solve(b[:, c : c + 1])[:, 0], rtol=1e-14)
+    np.testing.assert_allclose(factor.solve(b[:, 0]), together[:, 0], rtol=1e-14)  # a vector
+
+
 def test_incomplete_cholesky_shifts_a_matrix_whose_pivot_vanishes():
     """Kershaw's SPD matrix (no M-matrix) loses a pivot in IC(0); the factor of
     A + s diag(A) is taken instead, and an indefinite matrix is refused."""

@@ -561,28 +561,28 @@ def incomplete_cholesky(indptr, indices, data, shift):  # type: ignore[no-untype
 
 
 @_jit
-def cholesky_solve(indptr, indices, lower, rhs, out):  # type: ignore[no-untyped-def]
-    """``out = (L L^T)^-1 rhs`` for ``rhs`` ``(n, k)``, ``L`` lower triangular in CSR (diagonal
-    last in each row): forward substitution by rows, then back substitution by the same rows
-    read as the columns of ``L^T``."""
-    n, k = rhs.shape
-    acc = np.empty(k)
+def cholesky_solve_pair(  # type: ignore[no-untyped-def]
+    indptr, indices, lower, inverse_diagonal, rhs, out, c0, c1
+):
+    """Columns ``c0`` and ``c1`` of ``out = (L L^T)^-1 rhs`` (``rhs``, ``out`` ``(n, k)``), ``L``
+    lower triangular in CSR (diagonal last in each row, ``inverse_diagonal`` its reciprocal):
+    forward substitution by rows, then back substitution by the same rows read as the columns
+    of ``L^T``. Two interleaved columns keep two independent chains in flight (a substitution
+    is latency-bound: one column costs about as much as two); ``c0 == c1`` solves one."""
+    n = rhs.shape[0]
     for i in range(n):
-        a, b = indptr[i], indptr[i + 1]
-        for c in range(k):
-            acc[c] = rhs[i, c]
-        for p in range(a, b - 1):
+        s0, s1 = rhs[i, c0], rhs[i, c1]
+        for p in range(indptr[i], indptr[i + 1] - 1):
             j, value = indices[p], lower[p]
-            for c in range(k):
-                acc[c] -= value * out[j, c]
-        for c in range(k):
-            out[i, c] = acc[c] / lower[b - 1]
+            s0 -= value * out[j, c0]
+            s1 -= value * out[j, c1]
+        out[i, c0], out[i, c1] = s0 * inverse_diagonal[i], s1 * inverse_diagonal[i]
     for i in range(n - 1, -1, -1):
-        a, b = indptr[i], indptr[i + 1]
-        for c in range(k):
-            acc[c] = out[i, c] / lower[b - 1]
-            out[i, c] = acc[c]
-        for p in range(a, b - 1):
+        s0, s1 = out[i, c0] * inverse_diagonal[i], out[i, c1] * inverse_diagonal[i]
+        out[i, c0], out[i, c1] = s0, s1
+        if c1 == c0:  # one column: its updates below must not be applied twice
+            s1 = 0.0
+        for p in range(indptr[i], indptr[i + 1] - 1):
             j, value = indices[p], lower[p]
-            for c in range(k):
-                out[j, c] -= value * acc[c]
+            out[j, c0] -= value * s0
+            out[j, c1] -= value * s1
