@@ -9,6 +9,7 @@ experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summar
     python benchmarks/protocols.py phic --dim 2 --n 1024 --seeds 10       # phi_c and checks (2D)
     python benchmarks/protocols.py phic --dim 2 --alpha 2.5 --seeds 5     # ... Hertzian
     python benchmarks/protocols.py phic --dim 3 --n 1024 --seeds 3        # ... 3D
+    python benchmarks/protocols.py phic --n 4096 --solver direct          # ... exact factor
     python benchmarks/protocols.py scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
     python benchmarks/protocols.py iterations --n 1024 --seeds 10         # seed's iteration figure
     python benchmarks/protocols.py iterations --n 4096 --seeds 2 --steps 3  # ... larger, shorter
@@ -31,7 +32,7 @@ import statistics
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,10 +50,18 @@ from athermal.experiments import (
 )
 from athermal.fitting import fit_power_law
 from athermal.io import read_gsd, write_gsd
+from athermal.linalg import SOLVERS
 from athermal.minimize import Minimizer
 from athermal.moduli import linear_response
 from athermal.packing import Packing
-from athermal.protocols import EVENTS, JAMMING_SCHEME, PHI_INIT, finite_strain_shear, isostatic_z
+from athermal.protocols import (
+    EVENTS,
+    JAMMING_MINIMIZER,
+    JAMMING_SCHEME,
+    PHI_INIT,
+    finite_strain_shear,
+    isostatic_z,
+)
 from athermal.protocols.jamming import isostatic_allowance
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -87,7 +96,8 @@ def write(args: argparse.Namespace, name: str, data: dict[str, Any], markdown: s
 def jammed(cache: Path, spec: JamSpec, seed: int) -> tuple[Packing, float, dict[str, Any]]:
     """The jammed packing of ``spec`` and ``seed`` (:func:`athermal.experiments.jam_packing`)
     and its checks, from the cache or run."""
-    path = cache / f"jam{JAMMING_SCHEME}_n{spec.n}_d{spec.dim}_a{spec.alpha:g}_s{seed}.gsd"
+    solver = "" if spec.minimizer.solver == "auto" else f"_{spec.minimizer.solver}"
+    path = cache / f"jam{JAMMING_SCHEME}_n{spec.n}_d{spec.dim}_a{spec.alpha:g}_s{seed}{solver}.gsd"
     if path.exists():
         frame = read_gsd(path)
         info = {k: float(v) for k, v in frame.log.items() if np.size(v) == 1}
@@ -152,7 +162,8 @@ def mean_sd(values: list[float], digits: int = 5) -> str:
 
 
 def run_phic(args: argparse.Namespace) -> None:
-    spec = JamSpec(args.n, args.dim, args.alpha, dphi=GROWTH, epsilon=EPSILON)
+    minimizer = replace(JAMMING_MINIMIZER, solver=args.solver)
+    spec = JamSpec(args.n, args.dim, args.alpha, dphi=GROWTH, epsilon=EPSILON, minimizer=minimizer)
     rows = []
     for k, seed in enumerate(realizations(args)):
         _, _, info = jammed(args.cache, spec, seed)
@@ -163,7 +174,7 @@ def run_phic(args: argparse.Namespace) -> None:
     lines = [
         f"# Jamming: {args.dim}D, N = {args.n}, alpha = {args.alpha:g}, epsilon = {EPSILON:g}, "
         f"growth {GROWTH:g}, {args.seeds} realizations of root seed {args.root_seed}, the "
-        "protocol's defaults (P-L-BFGS)",
+        f"protocol's defaults ({minimizer.name})",
         "",
         f"phi_c = {mean_sd(phis)} (mean ± sd), standard error "
         f"{statistics.stdev(phis) / np.sqrt(len(phis)) if len(phis) > 1 else 0:.5f}; "
@@ -192,7 +203,8 @@ def run_phic(args: argparse.Namespace) -> None:
         f"{r['reopened']:.0f} | {r['steps']:.0f} | {r['iterations']:.0f} | {r['seconds']:.1f} |"
         for r in rows
     ]
-    name = f"phic_{args.dim}d_n{args.n}_a{args.alpha:g}"
+    solver = "" if args.solver == "auto" else f"_{args.solver}"
+    name = f"phic_{args.dim}d_n{args.n}_a{args.alpha:g}{solver}"
     write(args, name, {"rows": rows}, "\n".join(lines) + "\n")
 
 
@@ -537,6 +549,12 @@ def main(argv: list[str] | None = None) -> int:
     phic.add_argument("--n", type=int, default=1024)
     phic.add_argument("--alpha", type=float, default=2.0)
     phic.add_argument("--seeds", type=int, default=10, help="realizations")
+    phic.add_argument(
+        "--solver",
+        default="auto",
+        choices=SOLVERS,
+        help="the preconditioner's solver (results and cached packings get _<solver>)",
+    )
     scaling = sub.add_parser("scaling")
     scaling.add_argument("--n", type=int, default=1024)
     scaling.add_argument("--alpha", type=float, default=2.0)

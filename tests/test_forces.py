@@ -84,18 +84,40 @@ def test_a_relaxed_packing_counts_the_forces_of_its_non_rattlers(relaxed):
     assert np.sum(stats.density) * FORCE_BIN == pytest.approx(1.0, rel=1e-12)
     assert 0.8 < stats.tail.decay < 2.5  # exponential tails of 2D packings: ~1.3 ... 1.9
     assert 0.0 <= stats.contact_anisotropy < 0.1  # isotropically compressed
-    # shear makes the force network anisotropic along the compressive axis of x += gamma y,
-    # (1, -1) / sqrt(2); in 2D the stress-force-fabric relation (branch lengths alike) makes
-    # the force-weighted anisotropy twice the stress ratio sigma_dev / sigma_iso
-    sheared = packing.deform([[1.0, 0.01], [0.0, 1.0]])
-    after = force_statistics(minimize(Objective(sheared, model), rtol=1e-10).packing, model)
-    assert after.force_anisotropy > max(after.contact_anisotropy, stats.force_anisotropy)
-    assert abs(after.force_axis @ np.array([1.0, -1.0]) / np.sqrt(2)) > 0.95
-    for state, network in ((packing, stats), (sheared, after)):
-        obs = measure(minimize(Objective(state, model), rtol=1e-10).packing, model)
-        assert network.force_anisotropy / 2 == pytest.approx(
-            obs.stress_dev / obs.stress_iso, rel=0.1
-        )
+    # shear loads the force network along the compressive axis of x += gamma y, (1, -1) /
+    # sqrt(2): the change of the anisotropy (a cos 2 theta, a sin 2 theta) points at 2 theta =
+    # -90 degrees. A relaxed random packing keeps a residual anisotropy (here 0.04-0.08,
+    # measured) as large as a 1 % shear adds, and a 1e-3 shear may rearrange contacts, so the
+    # change is taken at gamma = 1e-5, in linear response.
+    sheared = minimize(Objective(packing.deform([[1.0, 1e-5], [0.0, 1.0]]), model), rtol=1e-10)
+    after = force_statistics(sheared.packing, model)
+    change = anisotropy_vector(after.force_anisotropy, after.force_axis) - anisotropy_vector(
+        stats.force_anisotropy, stats.force_axis
+    )
+    # axis within 22.5 degrees of the compressive one (measured on three packings: 2-11)
+    assert change[1] < 0.0 and abs(change[0]) < abs(change[1])
+    # in 2D the stress-force-fabric relation (branch lengths alike) makes the force-weighted
+    # anisotropy twice the stress ratio sigma_dev / sigma_iso: for the change (measured within
+    # 4 %), and for each state within what the spread of branch lengths leaves (measured on
+    # three packings: within 0.0033)
+    stress_change = stress_vector(measure(sheared.packing, model)) - stress_vector(obs)
+    np.testing.assert_allclose(change, stress_change, atol=0.1 * np.linalg.norm(stress_change))
+    for state, network in ((packing, stats), (sheared.packing, after)):
+        ratio = measure(state, model)
+        assert abs(network.force_anisotropy / 2 - ratio.stress_dev / ratio.stress_iso) < 0.005
+
+
+def stress_vector(obs):
+    """``2 ((sigma_xx - sigma_yy) / 2, sigma_xy) / sigma_iso``: twice the stress ratio as an
+    anisotropy vector (see :func:`anisotropy_vector`)."""
+    s = obs.stress
+    return np.array([s[0, 0] - s[1, 1], 2.0 * s[0, 1]]) / obs.stress_iso
+
+
+def anisotropy_vector(amplitude, axis):
+    """``a (cos 2 theta, sin 2 theta)`` of an anisotropy ``a`` with major axis at ``theta``."""
+    theta = np.arctan2(axis[1], axis[0])
+    return amplitude * np.array([np.cos(2.0 * theta), np.sin(2.0 * theta)])
 
 
 def test_rattlers_and_unjammed_packings():

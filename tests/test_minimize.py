@@ -199,12 +199,13 @@ def test_preconditioners_cut_iterations_on_a_compressed_relaxed_packing(seed):
     for pre in ("exp", "contact"):  # the scaled H0 = gamma P^-1: the unit step is accepted
         assert iterations[pre].evaluations <= 1.1 * iterations[pre].iterations
     assert iterations["exp"].precon_builds >= 1
-    # the incomplete factor of the same Exp matrix keeps the gain: measured 267 and 247
-    # iterations against the exact factor's 243 and 251 (this machine)
-    ic0 = minimize(
-        Objective(start, ContactModel(2.0)), "lbfgs", precon="exp", solver="ic0", rtol=1e-9
+    # "auto" factors the Exp matrix incompletely (IC(0)) and keeps the gain: measured 267 and
+    # 247 iterations against the exact factor's 243 and 251 (Intel Xeon)
+    direct = minimize(
+        Objective(start, ContactModel(2.0)), "lbfgs", precon="exp", solver="direct", rtol=1e-9
     )
-    assert ic0.converged and ic0.iterations <= 1.3 * iterations["exp"].iterations < plain
+    assert direct.converged and direct.iterations <= 300
+    assert iterations["exp"].iterations <= 1.3 * direct.iterations
 
 
 def test_status_says_why_a_run_stopped():

@@ -1,7 +1,7 @@
 import pytest
 
 from athermal.cli import main
-from athermal.paper import Settings, reproduce
+from athermal.paper import QUANTITIES, Settings, reproduce
 
 TINY = Settings(
     n=96,
@@ -35,9 +35,15 @@ def test_every_figure_and_the_report_are_written(tmp_path):
         assert data[:8] == PNG and len(data) > 5_000
     report = open(result.report).read()
     for alpha in ("2", "2.5"):
-        assert set(result.exponents[alpha]) >= {"p", "G"}
+        # p > 0 at every step above jamming; G need not be: an N = 96 packing in a fixed cell
+        # may be unstable to shear (G < 0, Dagois-Bohy et al. 2012; measured for Delta phi =
+        # 1e-5 ... 1e-3 here), and a law with fewer than 3 points is reported, not fitted
+        assert "p" in result.exponents[alpha]
         for fit in result.exponents[alpha].values():
             assert f"{fit['exponent']:.3f}" in report
+        for key, (_, name) in QUANTITIES.items():
+            if key not in result.exponents[alpha]:
+                assert f"alpha = {alpha}: no fit of {name}" in report
     assert "| alpha | case | method |" in report and "![convergence](convergence.png)" in report
     for name in expected:  # every figure has its caption
         assert f"*{name}.* " in report

@@ -223,10 +223,15 @@ def test_amg_is_a_fixed_spd_linear_operator_that_reduces_the_residual(dim, kind,
 
 def test_auto_solver_threshold():
     obj = objective(2)
-    assert ExpPreconditioner(obj, solver="auto").solver == "direct"
+    assert ExpPreconditioner(obj, solver="auto").solver == "ic0"  # an M-matrix
+    assert ContactPreconditioner(obj, solver="auto").solver == "direct"  # none
     assert linalg.AUTO_DIRECT_MAX_N == 200_000 and linalg.AUTO_DIRECT_MAX_N_2D == 2_000_000
-    assert linalg.resolve_solver("auto", 1_048_576, 2) == "direct"
-    assert linalg.resolve_solver("auto", 262_144, 3) == "amg"
+    assert linalg.AUTO_IC0_MAX_N == 200_000
+    for dim in (2, 3):
+        assert linalg.resolve_solver("auto", 199_999, dim, m_matrix=True) == "ic0"
+        assert linalg.resolve_solver("auto", 199_999, dim) == "direct"
+    assert linalg.resolve_solver("auto", 1_048_576, 2, m_matrix=True) == "direct"
+    assert linalg.resolve_solver("auto", 262_144, 3, m_matrix=True) == "amg"
 
 
 # --- rebuild rule and reuse ---------------------------------------------------------------------
@@ -334,7 +339,7 @@ def test_mu_falls_back_without_contacts():
     grid = (np.stack(np.meshgrid(np.arange(4), np.arange(4)), axis=-1).reshape(-1, 2) + 0.5) / 4
     free = Objective(packing.with_positions(grid - 0.5), ContactModel(stiffness=2.5))
     assert free(free.x0)[0] == 0.0
-    pre = ExpPreconditioner(free)
+    pre = ExpPreconditioner(free, solver="direct")
     pre.update(free.x0)
     assert pre.mu == 2.5  # first build: the contact stiffness
     assert rel(pre.solve(pre.dot(free.x0)), free.x0) < 1e-10

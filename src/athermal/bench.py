@@ -34,6 +34,7 @@ SCIPY = "scipy L-BFGS-B"
 METHODS = (
     Minimizer("lbfgs"),
     Minimizer("lbfgs", "exp"),
+    Minimizer("lbfgs", "exp", solver="direct"),
     Minimizer("lbfgs", "exp", 3.0),
     Minimizer("cg"),
     Minimizer("cg", "exp"),
@@ -41,7 +42,8 @@ METHODS = (
     Minimizer("lbfgs", "contact"),
     Minimizer("newton"),
 )
-"""The Table's methods (their :attr:`~athermal.minimize.Minimizer.name` labels its rows)."""
+"""The Table's methods (their :attr:`~athermal.minimize.Minimizer.name` labels its rows);
+P-L-BFGS twice, with the solver ``auto`` takes (the incomplete factor) and the exact one."""
 LABELS = (*(m.name for m in METHODS), SCIPY)
 RENAMED = {"P-L-BFGS (A=0)": "P-L-BFGS"}
 """Labels of earlier versions, still accepted (with a DeprecationWarning)."""

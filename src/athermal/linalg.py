@@ -39,6 +39,12 @@ AUTO_DIRECT_MAX_N_2D = 2_000_000
 """``solver="auto"`` in 2D. Measured (``benchmarks/results/scale.md``, Exp P-L-BFGS, one core):
 the direct solve is 2.1x faster per iteration than AMG at N = 262144 (82 against 169 ms), and
 at N = 1048576 ran at 424 ms per iteration in 1.8 GB while AMG did not finish in its time."""
+AUTO_IC0_MAX_N = 200_000
+"""``solver="auto"`` for an M-matrix (the Exp preconditioner's): the incomplete factor
+(:class:`IncompleteCholeskyFactor`, which quotes the measurements) below this number of
+particles, in 2D and 3D: faster than the exact factor up to N = 65536, even with it at
+N = 262144 and 1048576 (its iterations grow faster with N). The contact preconditioner's
+matrix is no M-matrix: its ``auto`` stays direct."""
 AMG_CYCLES = 1
 """Default number of AMG V-cycles per application (N = 65536, 2D: ~19 matrix-vector products)."""
 
@@ -143,16 +149,22 @@ class IncompleteCholeskyFactor:
     It exists for M-matrices (the Exp preconditioner's); for others a pivot may vanish, and the
     factor of ``A + s diag(A)`` is taken, ``s = 1e-3``, tenfold until every pivot is positive
     (``shift`` records it). Cheaper to build and apply than the exact factor, but a weaker
-    preconditioner whose iterations grow faster with N, so ``auto`` never picks it. Measured
-    (2D, Exp P-L-BFGS, one core, against ``direct`` in the same session): the Table's cases 1 /
-    2 / 3 (N = 4096) 1409 / 2476 / 986 against 1340 / 2102 / 873 iterations, the 2-column solve
-    0.21-0.25 against 0.24-0.35 ms, the build 1.2 against 35 ms; on the tiled start of
-    ``benchmarks/scale.py`` (``benchmarks/results/ic0/scale.md``), N = 65536: 1921 against 1451
-    iterations, 24.6 against 30.6 s (solve 5.1 against 12.8 ms); N = 262144: 2642 against 1490
-    iterations, 178 against 146 s, 452 against 591 MB (solve 13 against 48 ms, build 0.4
-    against 5.8 s); N = 1048576: 4086 against 1976 iterations, 942 against 755 s, 230 against
-    382 ms per iteration, 1157 against 1807 MB. 3D, N = 8192: 1.1 against 4.9 s (plain L-BFGS
-    0.7 s); ``athermal jam --dim 3`` at N = 1024: 46 against 34 s.
+    preconditioner whose iterations grow faster with N; ``auto`` takes it for the Exp matrix
+    below :data:`AUTO_IC0_MAX_N`. The solves take the columns in interleaved pairs (a
+    substitution is latency-bound: two chains cost about one). Measured (Exp P-L-BFGS, one
+    core, Intel Xeon, against ``direct`` in the same session):
+
+    * the Table (N = 4096, ``benchmarks/results/table1.md``): the 2-column solve 0.036 against
+      0.158 ms (one energy+gradient: 0.071 ms); 4-17 % more iterations but 0.73-0.78x the wall
+      time at alpha = 2 and 0.56-0.81x at 2.5 (case 2, alpha 2.5: fewer iterations, 1442
+      against 1839);
+    * the tiled start of ``benchmarks/scale.py`` (``benchmarks/results/ic0/scale.md``):
+      N = 65536 2004 against 1451 iterations, 16.6 against 23.5 s; N = 262144 2658 against
+      1490, 114.5 against 112.7 s; N = 1048576 4134 against 1976, 697 against 685 s, 1141
+      against 1967 MB, the build 1.0 against 36 s;
+    * ``athermal jam`` (``benchmarks/results/protocols/phic_*``): N = 4096 (2D), 10
+      realizations, 528 against 629 s in all (median 47.6 against 55.7 s); N = 1024 (3D), 3
+      realizations, 57 against 89 s.
     """
 
     backend = "ic0"
@@ -204,14 +216,17 @@ def available(module: str) -> bool:
     return importlib.util.find_spec(module) is not None
 
 
-def resolve_solver(solver: str, n: int, dim: int = 3) -> str:
+def resolve_solver(solver: str, n: int, dim: int = 3, *, m_matrix: bool = False) -> str:
     """``"direct"``, ``"amg"`` or ``"ic0"`` for ``solver`` and ``n`` particles in ``dim``
-    dimensions (``"auto"`` resolved)."""
+    dimensions (``"auto"`` resolved; ``m_matrix``: the matrix to factor is an M-matrix, so its
+    incomplete factor exists and ``auto`` takes it below :data:`AUTO_IC0_MAX_N`)."""
     choice(solver, "solver", SOLVERS)
     if solver == "amg" and not available("pyamg"):
         raise InputError(
             "solver: 'amg' needs pyamg; install it with `pip install athermal[solvers]`"
         )
+    if solver == "auto" and m_matrix and n < AUTO_IC0_MAX_N:
+        return "ic0"
     if solver == "auto":
         limit = AUTO_DIRECT_MAX_N_2D if dim == 2 else AUTO_DIRECT_MAX_N
         return "amg" if n >= limit and available("pyamg") else "direct"
