@@ -154,16 +154,16 @@ class IncompleteCholeskyFactor:
     substitution is latency-bound: two chains cost about one). Measured (Exp P-L-BFGS, one
     core, Intel Xeon, against ``direct`` in the same session):
 
-    * the Table (N = 4096, ``benchmarks/results/table1.md``): the 2-column solve 0.036 against
-      0.158 ms (one energy+gradient: 0.071 ms); 4-17 % more iterations but 0.73-0.78x the wall
-      time at alpha = 2 and 0.56-0.81x at 2.5 (case 2, alpha 2.5: fewer iterations, 1442
-      against 1839);
+    * the Table (N = 4096, ``benchmarks/results/table1.md``): the 2-column solve 0.036-0.064
+      against 0.14-0.16 ms, about one energy+gradient (0.05-0.07 ms; bare calls, five runs on
+      a machine whose load varied); 4-17 % more iterations but 0.73-0.78x the wall time at
+      alpha = 2 and 0.56-0.81x at 2.5 (case 2, alpha 2.5: fewer iterations, 1442 against 1839);
     * the tiled start of ``benchmarks/scale.py`` (``benchmarks/results/ic0/scale.md``):
       N = 65536 2004 against 1451 iterations, 16.6 against 23.5 s; N = 262144 2658 against
       1490, 114.5 against 112.7 s; N = 1048576 4134 against 1976, 697 against 685 s, 1141
       against 1967 MB, the build 1.0 against 36 s;
     * ``athermal jam`` (``benchmarks/results/protocols/phic_*``): N = 4096 (2D), 10
-      realizations, 528 against 629 s in all (median 47.6 against 55.7 s); N = 1024 (3D), 3
+      realizations, 392 against 582 s in all (median 36 against 53 s); N = 1024 (3D), 3
       realizations, 57 against 89 s.
     """
 

@@ -91,7 +91,15 @@ iterations, but live runs moved the crawl into the final step, one of them past 
 s; stopping only above 1e4 x the threshold, realizations 0-3 and 8 took 383 s against the
 committed runs' 380 s); and handing a settled relaxation to Newton-CG (realization 8: 25.8
 against 36.4 s, Newton taking 100-1300 iterations of 4-7 ms per step; realization 0: its steps
-at 0.840 and 0.841 took 53 and 32 s)."""
+at 0.840 and 0.841 took 53 and 32 s).
+
+Its Exp preconditioner is factored incompletely below N = 200,000 (``solver="auto"``,
+:data:`~athermal.linalg.AUTO_IC0_MAX_N`). Realizations 0-9 at N = 4096 (Intel Xeon, the two
+solvers side by side on its two cores, ``benchmarks/results/protocols/phic_2d_n4096_a2*.md``):
+392 s in all (median 36 s, 9 of 10 within 60 s) against 582 s (median 53 s, 6 of 10) with the
+exact factor, for about as many iterations (1.29 and 1.31 million). L-BFGS memory 6 instead of
+10 (the same runs, in the same conditions: 463 against 404 s) makes each iteration cheaper
+(0.25 against 0.31 ms) but the trials near phi_c take 41 % more."""
 JAMMING_SCHEME = 2
 """Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused)."""
 PHI_INIT = {2: 0.8, 3: 0.6}
