@@ -93,10 +93,15 @@ def write(args: argparse.Namespace, name: str, data: dict[str, Any], markdown: s
     log(markdown)
 
 
+def solver_suffix(solver: str) -> str:
+    """What a preconditioner solver other than ``auto`` adds to a result's or packing's name."""
+    return "" if solver == "auto" else f"_{solver}"
+
+
 def jammed(cache: Path, spec: JamSpec, seed: int) -> tuple[Packing, float, dict[str, Any]]:
     """The jammed packing of ``spec`` and ``seed`` (:func:`athermal.experiments.jam_packing`)
     and its checks, from the cache or run."""
-    solver = "" if spec.minimizer.solver == "auto" else f"_{spec.minimizer.solver}"
+    solver = solver_suffix(spec.minimizer.solver)
     path = cache / f"jam{JAMMING_SCHEME}_n{spec.n}_d{spec.dim}_a{spec.alpha:g}_s{seed}{solver}.gsd"
     if path.exists():
         frame = read_gsd(path)
@@ -203,8 +208,7 @@ def run_phic(args: argparse.Namespace) -> None:
         f"{r['reopened']:.0f} | {r['steps']:.0f} | {r['iterations']:.0f} | {r['seconds']:.1f} |"
         for r in rows
     ]
-    solver = "" if args.solver == "auto" else f"_{args.solver}"
-    name = f"phic_{args.dim}d_n{args.n}_a{args.alpha:g}{solver}"
+    name = f"phic_{args.dim}d_n{args.n}_a{args.alpha:g}{solver_suffix(args.solver)}"
     write(args, name, {"rows": rows}, "\n".join(lines) + "\n")
 
 
