@@ -10,6 +10,7 @@ from athermal.enthalpy import Enthalpy, relax_at_pressure
 from athermal.errors import InputError
 from athermal.moduli import linear_response, stability
 from athermal.objective import Objective
+from athermal.observables import isostatic_contacts, measure
 from athermal.packing import random_packing
 
 
@@ -49,7 +50,11 @@ def test_an_unjammed_start_shrinks_to_a_minimum_at_the_pressure(cell, precon):
     found = relax_at_pressure(start, model, 1e-3, cell=cell, precon=precon)
     assert found.result.converged
     assert found.pressure == pytest.approx(1e-3, rel=1e-6)
-    assert found.packing.phi > 0.83 and found.packing.cell.volume < start.cell.volume
+    assert found.packing.cell.volume < start.cell.volume
+    # jammed: a rigid backbone of at least isostatic contacts (where it jams, 0.826-0.845 over
+    # trajectories that differ in rounding only, is the protocol's luck at N = 128)
+    obs = measure(found.packing, model)
+    assert obs.contacts_nonrattler >= isostatic_contacts(obs.n - obs.n_rattlers, 2)
     # the forces balance in the relaxed cell
     objective = Objective(found.packing, model)
     force = objective.max_gradient(objective(objective.x0)[1])

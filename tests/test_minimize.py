@@ -250,7 +250,7 @@ def two_loop_reference(grad, pairs, precon_solve):
     return -r
 
 
-def test_compiled_two_loop_matches_the_textbook_recursion():
+def test_compiled_compact_form_matches_the_textbook_two_loop_recursion():
     from athermal.minimize.lbfgs import _Memory
 
     rng = np.random.default_rng(5)
@@ -309,3 +309,10 @@ def test_pairs_are_refreshed_when_the_preconditioner_is_rebuilt():
         np.testing.assert_allclose(memory.py[slot], pre.solve(memory.y[slot]), rtol=1e-15)
         ypy = memory.y[slot] @ memory.py[slot]
         assert memory.gamma[slot] == pytest.approx((memory.s[slot] @ memory.y[slot]) / ypy)
+    pairs = [(memory.s[slot], memory.y[slot]) for slot in memory.slots]
+    grad = rng.standard_normal(40)
+    np.testing.assert_allclose(
+        memory.direction(grad, pre.solve(grad)),
+        two_loop_reference(grad, pairs, pre.solve),
+        rtol=1e-12,
+    )
