@@ -5,6 +5,7 @@ import scipy.sparse.linalg as spla
 from athermal.cell import Cell, pure_shear, simple_shear
 from athermal.contact import (
     ContactModel,
+    assemble_blocks,
     contact_blocks,
     energy_gradient,
     find_contacts,
@@ -231,3 +232,30 @@ def test_hessian_is_symmetric_and_positive_semidefinite_at_a_minimum(jammed_pack
     low = spla.eigsh(h, k=6, sigma=-1e-4, which="LM", return_eigenvectors=False)
     scale = abs(h).max()
     assert low.min() > -1e-10 * scale
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_block_assembly_against_a_dense_loop(dim):
+    """Duplicate pairs (two images), self-image pairs and particles without pairs included."""
+    rng = np.random.default_rng(4)
+    n = 9
+    i = rng.integers(0, n - 1, 40)  # particle n - 1 has no pair
+    j = rng.integers(0, n - 1, 40)
+    i[:3], j[:3] = (2, 2, 5), (2, 6, 6)  # a self-image pair; (5, 6) twice below
+    i[3], j[3] = 5, 6
+    raw = rng.normal(size=(40, dim, dim))
+    blocks = raw + raw.transpose(0, 2, 1)
+    dense = np.zeros((n * dim, n * dim))
+    for p in range(40):
+        if i[p] == j[p]:
+            continue
+        a, b = slice(i[p] * dim, (i[p] + 1) * dim), slice(j[p] * dim, (j[p] + 1) * dim)
+        dense[a, a] += blocks[p]
+        dense[b, b] += blocks[p]
+        dense[a, b] -= blocks[p]
+        dense[b, a] -= blocks[p]
+    got = assemble_blocks(i, j, blocks, n)
+    np.testing.assert_allclose(got.toarray(), dense, rtol=0, atol=1e-13)
+    assert got.has_sorted_indices and abs(got - got.T).max() == 0.0
+    # every particle's diagonal block is stored (a factorization adds its shift there)
+    assert np.all(np.diff(got.indptr) >= dim)

@@ -582,6 +582,88 @@ def hessian_product(pairs, sep, coef, v, out):  # type: ignore[no-untyped-def]
 
 
 @_jit
+def block_csr(first, second, blocks, n):  # type: ignore[no-untyped-def]
+    """The symmetric ``(n d, n d)`` matrix with ``+K_p`` on blocks ``(i, i)`` and ``(j, j)`` and
+    ``-K_p`` on ``(i, j)`` and ``(j, i)`` of each pair ``p`` (``i = first[p]``, ``j =
+    second[p]``; pairs with ``i == j`` skipped), from symmetric ``blocks`` ``(M, d, d)``: CSR
+    ``(indptr, indices, data)`` with sorted columns, every diagonal block stored. Duplicate
+    pairs (two images) are summed in pair order on both sides, so the matrix is exactly
+    symmetric."""
+    d = blocks.shape[1]
+    degree = np.ones(n, dtype=np.int64)  # the diagonal block, then one per pair end
+    for p in range(first.size):
+        if first[p] != second[p]:
+            degree[first[p]] += 1
+            degree[second[p]] += 1
+    start = np.zeros(n + 1, dtype=np.int64)
+    for a in range(n):
+        start[a + 1] = start[a] + degree[a]
+    neighbours = np.empty(start[n], dtype=np.int64)
+    fill = start[:n].copy()
+    for a in range(n):
+        neighbours[fill[a]] = a
+        fill[a] += 1
+    for p in range(first.size):
+        i, j = first[p], second[p]
+        if i != j:
+            neighbours[fill[i]] = j
+            fill[i] += 1
+            neighbours[fill[j]] = i
+            fill[j] += 1
+    # each particle's distinct neighbours, sorted: the block pattern
+    bptr = np.zeros(n + 1, dtype=np.int64)
+    for a in range(n):
+        row = neighbours[start[a] : start[a + 1]]
+        for k in range(1, row.size):  # insertion sort: a handful of neighbours
+            value = row[k]
+            q = k - 1
+            while q >= 0 and row[q] > value:
+                row[q + 1] = row[q]
+                q -= 1
+            row[q + 1] = value
+        count = 1
+        for k in range(1, row.size):
+            if row[k] != row[count - 1]:
+                row[count] = row[k]
+                count += 1
+        bptr[a + 1] = bptr[a] + count
+    bcols = np.empty(bptr[n], dtype=np.int64)
+    for a in range(n):
+        for k in range(bptr[a + 1] - bptr[a]):
+            bcols[bptr[a] + k] = neighbours[start[a] + k]
+    bvals = np.zeros((bptr[n], d, d))
+    for p in range(first.size):
+        i, j = first[p], second[p]
+        if i == j:
+            continue
+        for end in range(4):
+            a = i if end % 2 == 0 else j  # blocks (i, i), (j, j), (i, j), (j, i)
+            b = a if end < 2 else (j if end == 2 else i)
+            k = bptr[a]
+            while bcols[k] != b:
+                k += 1
+            sign = 1.0 if end < 2 else -1.0
+            for r in range(d):
+                for c in range(d):
+                    bvals[k, r, c] += sign * blocks[p, r, c]
+    indptr = np.empty(n * d + 1, dtype=np.int64)
+    indices = np.empty(bptr[n] * d * d, dtype=np.int64)
+    data = np.empty(bptr[n] * d * d)
+    indptr[0] = 0
+    for a in range(n):
+        width = (bptr[a + 1] - bptr[a]) * d
+        for r in range(d):
+            q = bptr[a] * d * d + r * width
+            indptr[a * d + r + 1] = q + width
+            for k in range(bptr[a], bptr[a + 1]):
+                for c in range(d):
+                    indices[q] = bcols[k] * d + c
+                    data[q] = bvals[k, r, c]
+                    q += 1
+    return indptr, indices, data
+
+
+@_jit
 def incomplete_cholesky(indptr, indices, data, shift):  # type: ignore[no-untyped-def]
     """IC(0) of a symmetric matrix from its lower triangle in CSR (sorted columns, the
     diagonal last in each row, every diagonal present), diagonal scaled by ``1 + shift``: the

@@ -219,33 +219,14 @@ def assemble_blocks(
 
     Pairs of a particle with its own image (``i == j``) contribute nothing, as for the Hessian.
     """
-    d = blocks.shape[1]
-    keep = i != j
-    i, j, blocks = i[keep], j[keep], blocks[keep]
-    a = np.arange(d)
-    row_off = np.repeat(a, d)
-    col_off = np.tile(a, d)
-    flat = blocks.reshape(-1, d * d)
-    rows = np.concatenate(
-        [
-            (i[:, None] * d + row_off),
-            (j[:, None] * d + row_off),
-            (i[:, None] * d + row_off),
-            (j[:, None] * d + row_off),
-        ]
-    ).ravel()
-    cols = np.concatenate(
-        [
-            (i[:, None] * d + col_off),
-            (j[:, None] * d + col_off),
-            (j[:, None] * d + col_off),
-            (i[:, None] * d + col_off),
-        ]
-    ).ravel()
-    vals = np.concatenate([flat, flat, -flat, -flat]).ravel()
-    matrix = sp.coo_matrix((vals, (rows, cols)), shape=(n * d, n * d)).tocsr()
-    # duplicates are summed in an order that differs between (a, b) and (b, a): symmetrize exactly
-    return ((matrix + matrix.T) * 0.5).tocsr()
+    indptr, indices, data = _kernels.block_csr(
+        np.ascontiguousarray(i, dtype=np.int64),
+        np.ascontiguousarray(j, dtype=np.int64),
+        np.ascontiguousarray(blocks, dtype=np.float64),
+        n,
+    )
+    size = n * blocks.shape[1]
+    return sp.csr_matrix((data, indices, indptr), shape=(size, size))
 
 
 def hessian(contacts: Contacts, n: int) -> sp.csr_matrix:
