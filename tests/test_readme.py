@@ -62,8 +62,9 @@ def test_protocol_example_jams_compresses_and_shears_with_the_seeds_physics(tmp_
     assert abs(p - 1.0) < 0.1 and abs(z - 0.5) < 0.2
     # one packing's G is not self-averaging near jamming (per-packing exponents 0.37-0.61 over
     # five N = 1024 packings, benchmarks/results/protocols/scaling_n1024_a2.md; 0.75 +- 0.11 on
-    # one trajectory): its fit must be informative and agree with 1/2 within its own error
-    assert g_points >= 8 and g_err < 0.15 and abs(g - 0.5) < 3.0 * g_err
+    # one trajectory, stderr 0.03-0.11): its fit must be informative and agree with 1/2 within
+    # its own error
+    assert g_points >= 8 and g_err < 0.2 and abs(g - 0.5) < 3.0 * g_err
     bulk, shear = numbers(next(line for line in out if line.startswith("B ")), "B", "G")
     assert bulk > shear > 0.0
     strains = [line for line in out if line.startswith("strain")]

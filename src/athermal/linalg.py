@@ -162,9 +162,9 @@ class IncompleteCholeskyFactor:
       N = 65536 2004 against 1451 iterations, 16.6 against 23.5 s; N = 262144 2658 against
       1490, 114.5 against 112.7 s; N = 1048576 4134 against 1976, 697 against 685 s, 1141
       against 1967 MB, the build 1.0 against 36 s;
-    * ``athermal jam`` (``benchmarks/results/protocols/phic_*``): N = 4096 (2D), 10
-      realizations, 392 against 582 s in all (median 36 against 53 s); N = 1024 (3D), 3
-      realizations, 57 against 89 s.
+    * ``athermal jam`` (``benchmarks/results/protocols/phic_*``, two-loop L-BFGS): N = 4096
+      (2D), 10 realizations, 392 against 582 s in all (median 36 against 53 s); N = 1024
+      (3D), 3 realizations, 57 against 89 s.
 
     Tried and dropped: the modified factor (MIC, the dropped fill added to the diagonal so that
     row sums are kept, Gustafsson 1978) took 1.4-2.1x IC(0)'s iterations on the Table's six

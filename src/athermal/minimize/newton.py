@@ -42,9 +42,14 @@ L-BFGS family needs thousands to tens of thousands
 (``benchmarks/results/protocols/iterations_n*.md``); wall time per step at 1e-6 over that at
 1e-1: 1.3 at N = 1024, 5.9 at N = 4096, where the factorizations (25-30 ms each, analysis
 included: cholespy keeps none) and the CG solves with them (0.3 ms each) are two thirds of the
-time. Where contacts keep breaking and forming over a long rearrangement (``shear_steps`` to
-large strain, the jamming protocol's trials near ``phi_c``) it is slower than L-BFGS and
-P-L-BFGS (``negative_curvature/shear_n1024.md``: 2-8x).
+time. Again at N = 4096 on an Intel Xeon with the compiled Hessian assembly, on other packings
+(``benchmarks/results/protocols/iterations_n4096_linear.md``): 39 +- 17 iterations at 1e-6,
+the time ratio 5.9 again; 288 +- 665 at 1e-7 and 101 +- 291 at 1e-4, means pulled up by one
+packing whose steps crawl through rearrangements (realization 0: 2178 and 930 iterations per
+step there, 25 at 1e-6). Where
+contacts keep breaking and forming over a long rearrangement (``shear_steps`` to large strain,
+the jamming protocol's trials near ``phi_c``) it is slower than L-BFGS and P-L-BFGS
+(``negative_curvature/shear_n1024.md``: 2-8x).
 """
 
 from __future__ import annotations

@@ -95,11 +95,15 @@ at 0.840 and 0.841 took 53 and 32 s).
 
 Its Exp preconditioner is factored incompletely below N = 200,000 (``solver="auto"``,
 :data:`~athermal.linalg.AUTO_IC0_MAX_N`). Realizations 0-9 at N = 4096 (Intel Xeon, the two
-solvers side by side on its two cores, ``benchmarks/results/protocols/phic_2d_n4096_a2*.md``):
-392 s in all (median 36 s, 9 of 10 within 60 s) against 582 s (median 53 s, 6 of 10) with the
-exact factor, for about as many iterations (1.29 and 1.31 million). L-BFGS memory 6 instead of
-10 (the same runs, in the same conditions: 463 against 404 s) makes each iteration cheaper
-(0.25 against 0.31 ms) but the trials near phi_c take 41 % more."""
+solvers side by side on its two cores, with the two-loop L-BFGS step of that time,
+``benchmarks/results/protocols/phic_2d_n4096_a2_two_loop.md`` and ``_direct.md``): 392 s in
+all (median 36 s, 9 of 10 within 60 s) against 582 s (median 53 s, 6 of 10) with the exact
+factor, for about as many iterations (1.29 and 1.31 million). With the compact step
+(``phic_2d_n4096_a2.md``, ``_r1.md``: 20 realizations) a run takes 106k-321k iterations, 172k
+on average, of 0.28 ms each on a normal day: its time is set by how long the trials near
+``phi_c`` crawl. L-BFGS memory 6 instead of 10 (the same runs, in the same conditions: 463
+against 404 s) makes each iteration cheaper (0.25 against 0.31 ms) but the trials near phi_c
+take 41 % more."""
 JAMMING_SCHEME = 2
 """Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused)."""
 PHI_INIT = {2: 0.8, 3: 0.6}
