@@ -49,7 +49,10 @@ packing whose steps crawl through rearrangements (realization 0: 2178 and 930 it
 step there, 25 at 1e-6). Its third step at 1e-4 took 5392 iterations while the energy fell
 4.3x: CG met negative curvature in 77 % of them and the median accepted step was 0.02 of the
 Newton step; P-L-BFGS took 23100 iterations, and its three steps 21.0 s in all against 80.6
-s (the same session). Where
+s (the same session). Tried and not kept: handing a streak of 20 such directions to 2000
+iterations of plain L-BFGS, then Newton again: 50 s for those steps (11221 iterations), but
+ordinary steps near jamming have streaks of up to 22-26 (N = 4096, 1e-7 and 1e-5, 93-116
+iterations), so it would fire there too. Where
 contacts keep breaking and forming over a long rearrangement (``shear_steps`` to large strain,
 the jamming protocol's trials near ``phi_c``) it is slower than L-BFGS and P-L-BFGS
 (``negative_curvature/shear_n1024.md``: 2-8x).
