@@ -42,9 +42,9 @@ L-BFGS family needs thousands to tens of thousands
 (``benchmarks/results/protocols/iterations_n*.md``); wall time per step at 1e-6 over that at
 1e-1: 1.3 at N = 1024, 5.9 at N = 4096, where the factorizations (25-30 ms each, analysis
 included: cholespy keeps none) and the CG solves with them (0.3 ms each) are two thirds of the
-time. Again at N = 4096 on an Intel Xeon with the compiled Hessian assembly, on other packings
-(``benchmarks/results/protocols/iterations_n4096_linear.md``): 39 +- 17 iterations at 1e-6,
-the time ratio 5.9 again; 288 +- 665 at 1e-7 and 101 +- 291 at 1e-4, means pulled up by one
+time. At N = 4096 on an Intel Xeon, with the compiled Hessian assembly and other packings
+(``benchmarks/results/protocols/iterations_n4096_linear.md``): 39 +- 17 iterations at 1e-6 and
+the same time ratio, 5.9; 288 +- 665 at 1e-7 and 101 +- 291 at 1e-4, means pulled up by one
 packing whose steps crawl through rearrangements (realization 0: 2178 and 930 iterations per
 step there, 25 at 1e-6). Its third step at 1e-4 took 5392 iterations while the energy fell
 4.3x: CG met negative curvature in 77 % of them and the median accepted step was 0.02 of the
@@ -52,9 +52,11 @@ Newton step; P-L-BFGS took 23100 iterations, and its three steps 21.0 s in all a
 s (the same session). Tried and not kept: handing a streak of 20 such directions to 2000
 iterations of plain L-BFGS, then Newton again: 50 s for those steps (11221 iterations), but
 ordinary steps near jamming have streaks of up to 22-26 (N = 4096, 1e-7 and 1e-5, 93-116
-iterations), so it would fire there too. Where
-contacts keep breaking and forming over a long rearrangement (``shear_steps`` to large strain,
-the jamming protocol's trials near ``phi_c``) it is slower than L-BFGS and P-L-BFGS
+iterations), so it would fire there too; and the incomplete factor IC(0) of ``M`` instead of
+the exact one (three packings at 1e-6: 9.7-18.8 s per step against 0.55-0.61 s, one step of
+11088 iterations). Where contacts keep breaking and forming over a long
+rearrangement (``shear_steps`` to large strain, the jamming protocol's trials near ``phi_c``)
+it is slower than L-BFGS and P-L-BFGS
 (``negative_curvature/shear_n1024.md``: 2-8x).
 """
 
