@@ -40,6 +40,13 @@ def test_hessian_products_match_finite_differences_of_the_gradient(alpha, dim):
     assert abs(m - m.T).max() == 0.0
     ref = hessian(find_contacts(obj.packing(x, internal=True), obj.model), obj.n)
     assert abs(m - ref).max() <= 1e-12 * abs(ref).max()
+    # the lowest eigenvalue of a particle's diagonal block, from the dense matrix
+    dense = m.toarray()
+    lowest = min(
+        np.linalg.eigvalsh(dense[k : k + dim, k : k + dim])[0] for k in range(0, obj.n_dof, dim)
+    )
+    assert op.lowest_block_eigenvalue() == pytest.approx(lowest, rel=1e-12, abs=1e-14)
+    assert np.linalg.eigvalsh(dense)[0] <= lowest + 1e-12 * abs(dense).max()
 
 
 class MatrixHessian:
@@ -53,6 +60,9 @@ class MatrixHessian:
 
     def matrix(self):
         return self.a
+
+    def lowest_block_eigenvalue(self):
+        return float(self.a.diagonal().min())  # one-by-one blocks
 
 
 class Quadratic:
@@ -94,6 +104,17 @@ def test_a_quadratic_is_solved_in_one_newton_step():
     assert res.iterations <= 3
     np.testing.assert_allclose(res.x, 1.0, atol=1e-10)
     assert res.precon_builds == 1 and res.linear_iterations >= 1
+
+
+def test_a_build_starts_above_the_negative_diagonal_blocks():
+    """One DOF of negative curvature -1 (kappa = 100): the first shift tried is 2 x 1 / kappa,
+    where from SHIFT_MIN it took four failed factorizations."""
+    a = sp.diags([[-1.0] + [100.0] * 9], [0]).tocsr()
+    factor = newton_module.LaggedFactor()
+    factor.build(MatrixHessian(a))
+    assert factor.n_failed == 0 and factor.n_builds == 1
+    assert factor.shift * factor.scale == pytest.approx(newton_module.BLOCK_MARGIN)
+    np.testing.assert_allclose(factor.solve(np.ones(10)), 1.0 / (a.diagonal() + 2.0))
 
 
 # Iterations measured on these seeded random starts (rtol 1e-9; L-BFGS: 537, 822, 311);

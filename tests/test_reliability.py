@@ -176,7 +176,7 @@ def test_sigint_ends_in_one_line_with_exit_130_and_the_run_resumes(tmp_path):
         time.sleep(0.01)
     run.send_signal(signal.SIGINT)
     _, err = run.communicate(timeout=60)
-    assert run.returncode == 130
+    assert run.returncode == 130, err  # what the run said, should it ever miss the signal
     assert err == "athermal jam: interrupted; rerun with --resume to continue\n"
     again = subprocess.run([*argv, "--resume"], cwd=tmp_path, capture_output=True, text=True)
     assert again.returncode == 0, again.stderr

@@ -283,6 +283,20 @@ class HessianOperator:
         )
         return out
 
+    def lowest_block_eigenvalue(self) -> float:
+        """The smallest eigenvalue of the ``d x d`` diagonal blocks of ``H`` (``>= 0`` when it
+        has none): ``H`` is indefinite where it is negative (its value is then an upper bound on
+        the smallest eigenvalue of ``H``)."""
+        d = self.sep.shape[1]
+        own = self.pairs[:, 0] != self.pairs[:, 1]  # a self-image pair adds nothing
+        sep, coef, pairs = self.sep[own], self.coef[own], self.pairs[own]
+        blocks = coef[:, 0, None, None] * sep[:, :, None] * sep[:, None, :]
+        blocks -= coef[:, 1, None, None] * np.eye(d)
+        diagonal = np.zeros((self.n, d, d))
+        np.add.at(diagonal, pairs[:, 0], blocks)
+        np.add.at(diagonal, pairs[:, 1], blocks)
+        return float(np.linalg.eigvalsh(diagonal)[:, 0].min()) if self.n else 0.0
+
     def matrix(self) -> sp.csr_matrix:
         """``H`` as a symmetric sparse matrix (for a factorization)."""
         d = self.sep.shape[1]
