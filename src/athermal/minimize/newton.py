@@ -100,6 +100,8 @@ costs about 70 CG iterations at N = 4096 (24 ms against 0.34 ms). Measured on th
 :data:`SHIFT_MIN`, Newton / CG iterations / factorizations (failed ones included) / seconds:
 50: 1811 / 45344 / 223 / 27.7-30.2; 30: 1850 / 32147 / 306; 20: 1806 / 24709 / 386 /
 24.0-26.2; 10: 1865 / 18553 / 697 (AMD EPYC, one core, the two cores running one each)."""
+SHIFT_RAISE = 10.0
+"""Factor the shift is raised by after a failed factorization."""
 BLOCK_MARGIN = 2.0
 """A build starts no lower than this many times the most negative eigenvalue of a particle's
 diagonal block of ``H`` (over ``kappa``): below it ``M`` is indefinite and CHOLMOD fails."""
@@ -167,7 +169,7 @@ class LaggedFactor:
             if self._factor is not None or shift >= SHIFT_MAX:
                 break
             self.n_failed += 1
-            shift *= 10.0
+            shift *= SHIFT_RAISE
         self.shift = shift
         self._lowered_ok = self.n_failed == failed
         self.n_builds += 1
