@@ -115,6 +115,10 @@ def test_a_build_starts_above_the_negative_diagonal_blocks():
     assert factor.n_failed == 0 and factor.n_builds == 1
     assert factor.shift * factor.scale == pytest.approx(newton_module.BLOCK_MARGIN)
     np.testing.assert_allclose(factor.solve(np.ones(10)), 1.0 / (a.diagonal() + 2.0))
+    # a Hessian without the method (it is optional) is factored as before, from SHIFT_MIN up
+    plain = newton_module.LaggedFactor()
+    plain.build(type("PlainHessian", (), {"dot": a.dot, "matrix": lambda self: a})())
+    assert plain.n_failed == 4 and plain.shift == pytest.approx(0.1)
 
 
 # Iterations measured on these seeded random starts (rtol 1e-9; L-BFGS: 537, 822, 311);

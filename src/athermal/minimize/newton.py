@@ -26,20 +26,20 @@ quasi-static step is one linear solve with the stiffness matrix. Each iteration:
 
 The preconditioner of step 2 is a CHOLMOD factor of ``H(x_b) + sigma kappa I`` at an earlier
 iterate ``x_b`` (``kappa`` the mean positive diagonal of ``H``). ``sigma`` lifts the zero modes
-(translations, rattlers) and the negative curvature that the tangential terms of particles with
-one or two contacts, and saddles, give ``H``: it starts at a tenth of the last build's (the
-last one itself if that build had to raise it), never below :data:`SHIFT_MIN` nor below
-:data:`BLOCK_MARGIN` times the most negative eigenvalue of a particle's diagonal block (an
-upper bound on the lowest eigenvalue of ``H``: a lower shift cannot succeed), and is raised
-tenfold until CHOLMOD succeeds. On the Table (N = 4096, alpha = 2 and 2.5, cases 1-3; Intel
-Xeon, one core, the same session) that bound cut the failed factorizations from 7 to 3 at
-alpha = 2 and from 4 to 0 at alpha = 2.5; Newton-CG's times, two runs each (median of 3),
-went from 0.18-0.23 / 0.77-0.89 / 0.37-0.43 s to 0.31 / 0.63-0.66 / 0.33-0.35 s at alpha = 2
-(case 1 now ends at a higher shift: 21 iterations against 13), and from 0.20-0.29 / 0.36-0.41
-/ 0.40-0.42 s to 0.19-0.20 / 0.21-0.22 / 0.23-0.27 s at alpha = 2.5.
-``M`` is factored anew at the iterate after a direction that needed more than
-:data:`REFACTOR_INNER` CG iterations: while the contact network holds, ``H`` barely changes
-and CG converges in a few iterations on the lagged factor.
+(translations, rattlers) and the negative curvature that the tangential terms of particles with one
+or two contacts, and saddles, give ``H``: it starts at a tenth of the last build's (the last one
+itself if that build had to raise it), never below :data:`SHIFT_MIN` nor below :data:`BLOCK_MARGIN`
+times the most negative eigenvalue of a particle's diagonal block (an upper bound on the lowest
+eigenvalue of ``H``: a lower shift cannot succeed), and is raised tenfold (:data:`SHIFT_RAISE`)
+until CHOLMOD succeeds. Measured on 18 starts (the Table packings at alpha = 2 and 2.5, their radii
+grown by 2e-5, 5e-5 and 1e-4, sheared by 5e-5, 1e-4 and 2e-4, and displaced as in case 3 with seeds
+1-3; Intel Xeon, one core, two runs each): that bound cut the failed factorizations from 34 to 11,
+for 447 iterations in all against 433, and the total time from 8.76-8.83 to 8.13-8.63 s; a margin
+of 5 (6 failed, 470 iterations, 7.99 s, one run) and a threefold raise (14, 467, 8.27 s) were
+within that spread. Chaos decides single cases: Table case 1 at alpha = 2 took 21 iterations
+against 13, case 2 at alpha = 2.5 0.21 against 0.36-0.41 s. ``M`` is factored anew at the iterate
+after a direction that needed more than :data:`REFACTOR_INNER` CG iterations: while the contact
+network holds, ``H`` barely changes and CG converges in a few iterations on the lagged factor.
 
 Measured (2D, alpha = 2, one core, AMD EPYC; 10 realizations each,
 ``benchmarks/results/protocols/negative_curvature/iterations_n*_linear.md``): per quasi-static
@@ -49,26 +49,27 @@ L-BFGS family needs thousands to tens of thousands
 (``benchmarks/results/protocols/iterations_n*.md``); wall time per step at 1e-6 over that at 1e-1:
 1.3 at N = 1024, 5.9 at N = 4096, where the factorizations (25-30 ms each, analysis included:
 cholespy keeps none) and the CG solves with them (0.3 ms each) are two thirds of the time. At N =
-4096 on an Intel Xeon, with the compiled Hessian assembly and other packings
-(``benchmarks/results/protocols/iterations_n4096_linear.md``): 39 +- 17 iterations at 1e-6 and the
-same time ratio, 5.9; 288 +- 665 at 1e-7 and 101 +- 291 at 1e-4, means pulled up by one packing
-whose steps crawl through rearrangements (realization 0: 2178 and 930 iterations per step there, 25
-at 1e-6). Its third step at 1e-4 took 5392 iterations while the energy fell 4.3x: CG met negative
-curvature in 77 % of them and the median accepted step was 0.02 of the Newton step; P-L-BFGS took
-23100 iterations, and its three steps 21.0 s in all against 80.6 s (the same session). Tried and
-not kept: handing a streak of 20 such directions to 2000 iterations of plain L-BFGS, then Newton
-again: 50 s for those steps (11221 iterations), but ordinary steps near jamming have streaks of up
-to 22-26 (N = 4096, 1e-7 and 1e-5, 93-116 iterations), so it would fire there too; and the
-incomplete factor IC(0) of ``M`` instead of the exact one (three packings at 1e-6: 9.7-18.8 s per
-step against 0.55-0.61 s, one step of 11088 iterations); and a trust region instead of the line
-search (Steihaug's CG in the norm of ``M``, the radius cut to a quarter of the step or doubled by
-the ratio of actual to predicted decrease): at alpha = 2 the quadratic model fails at every radius
-where contacts open or close (``H`` jumps there), so Table case 1 took 14371 iterations, most of
-them rejected, and 21.7 s against 0.23 s; at alpha = 2.5 (a continuous ``H``) case 1 took 0.16
-against 0.29 s but cases 2 and 3 0.44 and 0.57 against 0.41 and 0.40 s. Where contacts keep
-breaking and forming over a long rearrangement (``shear_steps`` to large strain, the jamming
-protocol's trials near ``phi_c``) it is slower than L-BFGS and P-L-BFGS
-(``negative_curvature/shear_n1024.md``: 2-8x).
+4096 on an Intel Xeon, with the compiled Hessian assembly and other packings (commit ca7e0d4): 39
++- 17 iterations at 1e-6 and the same time ratio, 5.9; 288 +- 665 at 1e-7 and 101 +- 291 at 1e-4,
+means pulled up by one packing whose steps crawl through rearrangements (realization 0: 2178 and
+930 iterations per step there, 25 at 1e-6). With the diagonal-block bound on the shift (commit
+6d0d762, ``benchmarks/results/protocols/iterations_n4096_linear.md``): 44 +- 21 at 1e-6, ratio 6.0;
+64 +- 34 at 1e-7 and 94 +- 269 at 1e-4 (realization 0: 858 per step there). Its third step at 1e-4
+took 5392 iterations while the energy fell 4.3x: CG met negative curvature in 77 % of them and the
+median accepted step was 0.02 of the Newton step; P-L-BFGS took 23100 iterations, and its three
+steps 21.0 s in all against 80.6 s (the same session). Tried and not kept: handing a streak of 20
+such directions to 2000 iterations of plain L-BFGS, then Newton again: 50 s for those steps (11221
+iterations), but ordinary steps near jamming have streaks of up to 22-26 (N = 4096, 1e-7 and 1e-5,
+93-116 iterations), so it would fire there too; and the incomplete factor IC(0) of ``M`` instead of
+the exact one (three packings at 1e-6: 9.7-18.8 s per step against 0.55-0.61 s, one step of 11088
+iterations); and a trust region instead of the line search (Steihaug's CG in the norm of ``M``, the
+radius cut to a quarter of the step or doubled by the ratio of actual to predicted decrease): at
+alpha = 2 the quadratic model fails at every radius where contacts open or close (``H`` jumps
+there), so Table case 1 took 14371 iterations, most of them rejected, and 21.7 s against 0.23 s; at
+alpha = 2.5 (a continuous ``H``) case 1 took 0.16 against 0.29 s but cases 2 and 3 0.44 and 0.57
+against 0.41 and 0.40 s. Where contacts keep breaking and forming over a long rearrangement
+(``shear_steps`` to large strain, the jamming protocol's trials near ``phi_c``) it is slower than
+L-BFGS and P-L-BFGS (``negative_curvature/shear_n1024.md``: 2-8x).
 """
 
 from __future__ import annotations
@@ -123,9 +124,9 @@ class Hessian(Protocol):
         """``H`` as a symmetric sparse matrix."""
         ...
 
-    def lowest_block_eigenvalue(self) -> float:
-        """The smallest eigenvalue of the diagonal blocks of ``H`` (one per particle)."""
-        ...
+    # optional: ``lowest_block_eigenvalue() -> float``, the smallest eigenvalue of the diagonal
+    # blocks of ``H`` (one per particle), which spares :class:`LaggedFactor` factorizations
+    # bound to fail (:class:`~athermal.contact.HessianOperator` has it)
 
 
 class SecondOrderProblem(Problem, Protocol):
@@ -163,7 +164,9 @@ class LaggedFactor:
         identity = sp.identity(matrix.shape[0], format="csr")
         failed = self.n_failed
         shift = max(SHIFT_MIN, 0.1 * self.shift) if self._lowered_ok else self.shift
-        shift = max(shift, -BLOCK_MARGIN * hessian.lowest_block_eigenvalue() / self.scale)
+        lowest_block = getattr(hessian, "lowest_block_eigenvalue", None)
+        if lowest_block is not None:
+            shift = max(shift, -BLOCK_MARGIN * lowest_block() / self.scale)
         while True:
             self._factor = cholesky(matrix + (shift * self.scale) * identity)
             if self._factor is not None or shift >= SHIFT_MAX:
