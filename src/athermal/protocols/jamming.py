@@ -91,7 +91,13 @@ iterations, but live runs moved the crawl into the final step, one of them past 
 s; stopping only above 1e4 x the threshold, realizations 0-3 and 8 took 383 s against the
 committed runs' 380 s); and handing a settled relaxation to Newton-CG (realization 8: 25.8
 against 36.4 s, Newton taking 100-1300 iterations of 4-7 ms per step; realization 0: its steps
-at 0.840 and 0.841 took 53 and 32 s).
+at 0.840 and 0.841 took 53 and 32 s); and capping the growth steps before the first jammed
+bound at 10,000 iterations, a capped step counted jammed when its energy was above 1e4 x the
+threshold (relaxed on otherwise). The step that first jams lands a random distance above phi_c
+and can crawl (realization 0: 89k of its 172k iterations), but from the capped state the
+bisection finds another basin, whose trials crawl as long: realizations 0-8 of root seed 0 took
+-29, +1, -45, +39, +83, -11, 0, -21 and +84 % iterations against the committed runs, 1.83
+against 1.82 million in all (Intel Xeon; every check passed).
 
 Its Exp preconditioner is factored incompletely below N = 200,000 (``solver="auto"``,
 :data:`~athermal.linalg.AUTO_IC0_MAX_N`). Realizations 0-9 at N = 4096 (Intel Xeon, the two
