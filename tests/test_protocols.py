@@ -6,7 +6,7 @@ import pytest
 
 from athermal.cell import pure_shear
 from athermal.contact import ContactModel
-from athermal.errors import InputError
+from athermal.errors import ConvergenceError, InputError
 from athermal.fitting import fit_power_law
 from athermal.minimize import Status, minimize
 from athermal.moduli import linear_response
@@ -262,6 +262,30 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
     with pytest.raises(ConvergenceError, match="did not converge"):
         _relax.Relaxer(Objective(packing, model), Minimizer("lbfgs", maxiter=3)).relax(
             relaxer.objective.x0, gtol=1e-14
+        )
+
+
+def test_a_newton_relaxation_that_crawls_goes_on_with_plbfgs(monkeypatch):
+    """Past NEWTON_PATIENCE iterations Newton-CG hands over to P-L-BFGS; counts add up, the
+    message says so; within it, or with maxiter at or below it, Newton alone."""
+    from athermal.protocols import _relax
+
+    packing, model = random_packing(64, 0.9, seed=1), ContactModel(2.0)
+    alone = _relax.Relaxer(Objective(packing, model), Minimizer("newton"))
+    plain = alone.relax(alone.objective.x0, gtol=1e-12)
+    assert plain.method == "newton" and plain.converged and plain.iterations > 3
+
+    monkeypatch.setattr(_relax, "NEWTON_PATIENCE", 3)
+    relaxer = _relax.Relaxer(Objective(packing, model), Minimizer("newton"))
+    result = relaxer.relax(relaxer.objective.x0, gtol=1e-12)
+    assert result.converged and result.max_gradient <= 1e-12
+    assert result.method == "newton+lbfgs" and "P-L-BFGS after" in result.message
+    assert result.iterations == result.history_energy.size - 1 > 3
+    # another minimum than Newton's alone (a random start has many), reached downhill
+    assert result.energy < relaxer.objective(relaxer.objective.x0)[0]
+    with pytest.raises(ConvergenceError, match="did not converge"):
+        _relax.Relaxer(Objective(packing, model), Minimizer("newton", maxiter=3)).relax(
+            relaxer.objective.x0, gtol=1e-12
         )
 
 

@@ -69,7 +69,8 @@ there), so Table case 1 took 14371 iterations, most of them rejected, and 21.7 s
 alpha = 2.5 (a continuous ``H``) case 1 took 0.16 against 0.29 s but cases 2 and 3 0.44 and 0.57
 against 0.41 and 0.40 s. Where contacts keep breaking and forming over a long rearrangement
 (``shear_steps`` to large strain, the jamming protocol's trials near ``phi_c``) it is slower than
-L-BFGS and P-L-BFGS (``negative_curvature/shear_n1024.md``: 2-8x).
+L-BFGS and P-L-BFGS (``negative_curvature/shear_n1024.md``: 2-8x); the protocols hand a Newton
+relaxation on to P-L-BFGS after :data:`~athermal.protocols._relax.NEWTON_PATIENCE` iterations.
 """
 
 from __future__ import annotations

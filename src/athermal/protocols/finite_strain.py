@@ -43,7 +43,9 @@ step seen (N = 4096, ``Delta phi = 1e-5``, a long rearrangement): 9590 iteration
 where P-L-BFGS took 65517 and 41 s, and 200 Newton iterations handed to P-L-BFGS 32 s. Those
 are the Newton before it followed negative curvature and floored its shift
 (:mod:`athermal.minimize.newton`); since, from the linear start (AMD EPYC, 10 realizations):
-8 +- 7 iterations and 26 ms per step at N = 1024, 51 +- 16 and 0.74 s at N = 4096."""
+8 +- 7 iterations and 26 ms per step at N = 1024, 51 +- 16 and 0.74 s at N = 4096. A step
+still unconverged after :data:`~athermal.protocols._relax.NEWTON_PATIENCE` iterations goes on
+with P-L-BFGS."""
 
 
 @dataclass(frozen=True, eq=False)
