@@ -281,6 +281,7 @@ def test_a_newton_relaxation_that_crawls_goes_on_with_plbfgs(monkeypatch):
     assert result.converged and result.max_gradient <= 1e-12
     assert result.method == "newton+lbfgs" and "P-L-BFGS after" in result.message
     assert result.iterations == result.history_energy.size - 1 > 3
+    assert result.linear_iterations >= 3 and result.precon_builds >= 2  # Newton's, then Exp's
     # another minimum than Newton's alone (a random start has many), reached downhill
     assert result.energy < relaxer.objective(relaxer.objective.x0)[0]
     with pytest.raises(ConvergenceError, match="did not converge"):

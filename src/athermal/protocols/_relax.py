@@ -185,6 +185,11 @@ class Relaxer:
                 [first.history_max_gradient, rest.history_max_gradient[1:]]
             ),
             neighbor_rebuilds=first.neighbor_rebuilds + rest.neighbor_rebuilds,
+            # a preconditioner counts its builds over its life: add the first run's only when
+            # it had another one (Newton's own factor, before the Exp of the hand-over)
+            precon_builds=rest.precon_builds
+            + (first.precon_builds if precon is not self.precon else 0),
+            linear_iterations=first.linear_iterations + rest.linear_iterations,
         )
 
 
