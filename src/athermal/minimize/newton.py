@@ -53,8 +53,10 @@ cholespy keeps none) and the CG solves with them (0.3 ms each) are two thirds of
 +- 17 iterations at 1e-6 and the same time ratio, 5.9; 288 +- 665 at 1e-7 and 101 +- 291 at 1e-4,
 means pulled up by one packing whose steps crawl through rearrangements (realization 0: 2178 and
 930 iterations per step there, 25 at 1e-6). With the diagonal-block bound on the shift (commit
-6d0d762, ``benchmarks/results/protocols/iterations_n4096_linear.md``): 44 +- 21 at 1e-6, ratio 6.0;
-64 +- 34 at 1e-7 and 94 +- 269 at 1e-4 (realization 0: 858 per step there). Its third step at 1e-4
+6d0d762): 44 +- 21 at 1e-6, ratio 6.0; 64 +- 34 at 1e-7 and 94 +- 269 at 1e-4 (realization 0: 858
+per step there); with the protocols' hand-over to P-L-BFGS
+(``benchmarks/results/protocols/iterations_n4096_linear.md``, the other core idle): the same
+iterations at 1e-6, ratio 5.3, and 545 against 1621 ms per step at 1e-4. Its third step at 1e-4
 took 5392 iterations while the energy fell 4.3x: CG met negative curvature in 77 % of them and the
 median accepted step was 0.02 of the Newton step; P-L-BFGS took 23100 iterations, and its three
 steps 21.0 s in all against 80.6 s (the same session). Tried and not kept: handing a streak of 20

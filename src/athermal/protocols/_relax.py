@@ -32,11 +32,12 @@ NEWTON_PATIENCE = 300
 jamming a quasi-static step that rearranges can send Newton crawling (CG meeting negative
 curvature, the line search cutting its steps to a few per cent) for thousands of iterations of
 5-20 ms each, where P-L-BFGS takes many more but much cheaper ones; ordinary steps take 1-150
-(``athermal.minimize.newton``). Measured (N = 4096, alpha = 2, realization 0 of root seed 0 at
-Delta phi = 1e-4, its three shear steps of 1e-6 from the linear start; Intel Xeon, one core):
-18 / 26 / 2221 iterations and 9.2 s per step without, 18 / 26 / 300 + 20103 and 4.5 s per step
-with the hand-over (the third step, an instability, ended in another minimum: G -0.052 against
--0.119); at 1e-7 the same steps, 20 / 22 / 34 iterations, never reach it."""
+(``athermal.minimize.newton``). Measured (N = 4096, alpha = 2, realization 0 of root seed 0
+compressed to Delta phi = 1e-7 and 1e-4, three shear steps of 1e-6 from the linear start at
+each; Intel Xeon, one core): 18 / 26 / 2221 iterations and 9.2 s per step without, 18 / 26 / 300
++ 20103 and 4.5 s per step with the hand-over (the third step, an instability, ended in another
+minimum: G -0.052 against -0.119); at 1e-7 the same steps, 20 / 22 / 34 iterations, never reach
+it."""
 ROUND_OFF_MARGIN = 10.0
 """:func:`round_off_floor` is this many times the round-off estimate ``eps (L kappa + f)``."""
 
