@@ -283,15 +283,19 @@ class HessianOperator:
         )
         return out
 
+    def contact_blocks(self) -> NDArray[np.float64]:
+        """Each contact's block ``K = a b b^T - c I`` ``(M, d, d)``."""
+        d = self.sep.shape[1]
+        outer = self.sep[:, :, None] * self.sep[:, None, :]
+        return self.coef[:, 0, None, None] * outer - self.coef[:, 1, None, None] * np.eye(d)
+
     def lowest_block_eigenvalue(self) -> float:
         """The smallest eigenvalue of the ``d x d`` diagonal blocks of ``H`` (``>= 0`` when it
         has none): ``H`` is indefinite where it is negative (its value is then an upper bound on
         the smallest eigenvalue of ``H``)."""
-        d = self.sep.shape[1]
         own = self.pairs[:, 0] != self.pairs[:, 1]  # a self-image pair adds nothing
-        sep, coef, pairs = self.sep[own], self.coef[own], self.pairs[own]
-        blocks = coef[:, 0, None, None] * sep[:, :, None] * sep[:, None, :]
-        blocks -= coef[:, 1, None, None] * np.eye(d)
+        blocks, pairs = self.contact_blocks()[own], self.pairs[own]
+        d = self.sep.shape[1]
         diagonal = np.zeros((self.n, d, d))
         np.add.at(diagonal, pairs[:, 0], blocks)
         np.add.at(diagonal, pairs[:, 1], blocks)
@@ -299,7 +303,5 @@ class HessianOperator:
 
     def matrix(self) -> sp.csr_matrix:
         """``H`` as a symmetric sparse matrix (for a factorization)."""
-        d = self.sep.shape[1]
-        outer = self.sep[:, :, None] * self.sep[:, None, :]
-        blocks = self.coef[:, 0, None, None] * outer - self.coef[:, 1, None, None] * np.eye(d)
+        blocks = self.contact_blocks()
         return assemble_blocks(self.pairs[:, 0], self.pairs[:, 1], blocks, self.n)

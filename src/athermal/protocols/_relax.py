@@ -4,6 +4,7 @@ their tolerances are stated in."""
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -80,9 +81,9 @@ class Relaxer:
         )
         if result.status is Status.ITERATION_LIMIT and patience < maxiter:
             exp = make_preconditioner("exp", self.objective, solver=self.minimizer.solver)
-            result = self._go_on(result, Minimizer("lbfgs", "exp"), exp, gtol, etol)
+            result = self._go_on(result, "lbfgs", "P-L-BFGS", exp, gtol, etol)
         if result.status is Status.LINE_SEARCH_FAILED:
-            result = self._go_on(result, Minimizer("fire"), self.precon, gtol, etol)
+            result = self._go_on(result, "fire", "FIRE", self.precon, gtol, etol)
         if not result.converged:
             raise ConvergenceError(
                 f"{what}: {self.minimizer.label} did not converge ({result.message}; "
@@ -158,16 +159,17 @@ class Relaxer:
     def _go_on(
         self,
         first: MinimizeResult,
-        how: Minimizer,
+        method: Literal["lbfgs", "fire"],
+        label: str,
         precon: Preconditioner | None,
         gtol: float,
         etol: float,
     ) -> MinimizeResult:
-        """Relax on from where ``first`` stopped with the method of ``how`` and ``precon``,
-        within what is left of ``maxiter``; the result counts both."""
+        """Relax on from where ``first`` stopped by ``method`` (called ``label`` in the message)
+        with ``precon``, within what is left of ``maxiter``; the result counts both."""
         rest = minimize(
             self.objective,
-            how.method,
+            method,
             x0=first.x,
             precon=precon if precon is not None else "none",
             gtol=gtol,
@@ -176,8 +178,8 @@ class Relaxer:
         )
         return replace(
             rest,
-            message=f"{rest.message} ({how.name} after: {first.message})",
-            method=f"{first.method}+{how.method}",
+            message=f"{rest.message} ({label} after: {first.message})",
+            method=f"{first.method}+{method}",
             iterations=first.iterations + rest.iterations,
             evaluations=first.evaluations + rest.evaluations,
             seconds=first.seconds + rest.seconds,
