@@ -5,8 +5,10 @@ from athermal.cell import Cell
 from athermal.contact import ContactModel
 from athermal.errors import InputError
 from athermal.minimize import Status, minimize
+from athermal.minimize._step import advance
 from athermal.minimize.cg import cg
 from athermal.minimize.lbfgs import lbfgs
+from athermal.minimize.newton import newton
 from athermal.objective import Objective
 from athermal.packing import Packing, random_packing
 
@@ -316,3 +318,66 @@ def test_pairs_are_refreshed_when_the_preconditioner_is_rebuilt():
         two_loop_reference(grad, pairs, pre.solve),
         rtol=1e-12,
     )
+
+
+class PythonOnly:
+    """An objective without its compiled energy: the minimizers' generic (Python) search."""
+
+    def __init__(self, objective):
+        self._objective = objective
+
+    def __getattr__(self, name):
+        if name in ("search", "took"):
+            raise AttributeError(name)
+        return getattr(self._objective, name)
+
+    def __call__(self, x):
+        return self._objective(x)
+
+
+@pytest.mark.parametrize(("alpha", "dim"), [(2.0, 2), (2.5, 2), (2.0, 3)])
+@pytest.mark.parametrize("scale", [1e-3, 1.0, 30.0])
+def test_compiled_line_search_takes_the_python_search_s_step(alpha, dim, scale):
+    """The same search from the same point, compiled and in Python: the same trial steps and
+    result up to the round-off of the energy sum; ``scale`` 30 sends the trial points beyond
+    the Verlet skin, so the compiled search hands them to the objective, which rebuilds."""
+    packing = random_packing(96, 0.88 if dim == 2 else 0.7, dim=dim, seed=7)
+    model = ContactModel(alpha)
+    compiled, plain = Objective(packing, model), Objective(packing, model)
+    x = compiled.x0
+    energy, grad = compiled(x)
+    direction = -scale * grad / compiled.max_gradient(grad) * compiled.max_step
+    rebuilds = compiled.n_rebuilds
+    fast = advance(compiled, x, energy, grad, direction, 1.0, 0.9)
+    slow = advance(PythonOnly(plain), x, *plain(x), direction, 1.0, 0.9)
+    assert fast[0].ok and slow[0].ok
+    assert fast[0].step == slow[0].step
+    assert fast[0].evaluations == slow[0].evaluations
+    assert compiled.n_evaluations == plain.n_evaluations
+    np.testing.assert_array_equal(fast[1], slow[1])
+    assert fast[2] == pytest.approx(slow[2], rel=1e-13)
+    np.testing.assert_allclose(fast[3], slow[3], rtol=0.0, atol=1e-13 * np.abs(slow[3]).max())
+    if scale == 30.0:
+        assert compiled.n_rebuilds > rebuilds  # a trial point left the skin
+    # the accepted point is the objective's cached evaluation
+    evaluations = compiled.n_evaluations
+    again = compiled(fast[1])
+    assert compiled.n_evaluations == evaluations
+    assert again[0] == fast[2]
+    np.testing.assert_array_equal(again[1], fast[3])
+    assert compiled.count_contacts(fast[1]) == Objective(packing, model).count_contacts(fast[1])
+
+
+@pytest.mark.parametrize("method", ["lbfgs", "cg", "newton"])
+def test_minimizers_converge_alike_through_either_search(method):
+    """Whole relaxations: the compiled and the Python search end at the same minimum."""
+    model = ContactModel(2.0)
+    out = []
+    for wrap in (lambda obj: obj, PythonOnly):
+        obj = Objective(overlapped(seed=3), model)
+        run = {"lbfgs": lbfgs, "cg": cg, "newton": newton}[method]
+        res = run(wrap(obj), obj.x0, gtol=1e-12)
+        assert res.converged, res.message
+        out.append(res)
+    assert out[0].energy == pytest.approx(out[1].energy, rel=1e-9)
+    assert abs(out[0].iterations - out[1].iterations) <= 0.2 * out[1].iterations

@@ -69,10 +69,16 @@ class NeighborList:
             + np.take(self.shifts(cell), self.code, axis=0)
         )
 
+    @property
+    def reach_sq(self) -> float:
+        """Squared displacement from :attr:`reference` up to which the list holds,
+        ``(skin / 2)^2``."""
+        return 0.25 * self.skin * self.skin
+
     def is_current(self, positions: NDArray[np.float64]) -> bool:
         """True while no particle has moved more than ``skin / 2`` since the build."""
         moved = _kernels.max_displacement_sq(np.asarray(positions), self.reference)
-        return bool(moved <= 0.25 * self.skin * self.skin)
+        return bool(moved <= self.reach_sq)
 
 
 def _bin_layout(cell: Cell, cutoff: float, n: int) -> tuple[NDArray[np.int64], NDArray[np.int64]]:

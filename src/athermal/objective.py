@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _kernels
+from ._wolfe import energy_search
 from .contact import ContactModel, HessianOperator, energy_gradient_contacts, find_contacts
 from .errors import InputError
 from .neighbors import NeighborList, build_neighbor_list, default_skin
@@ -102,6 +103,61 @@ class Objective:
         self._last_x[:] = x
         self._last = (energy, grad)
         return self._last
+
+    def search(
+        self,
+        state: NDArray[np.float64],
+        code: int,
+        x: NDArray[np.float64],
+        direction: NDArray[np.float64],
+        trial: NDArray[np.float64],
+        grad: NDArray[np.float64],
+    ) -> tuple[int, int, float, int, bool]:
+        """Run a line search's state machine on the energy in compiled code, for the minimizers.
+
+        Trial points ``x + a direction`` ``(N d,)`` are evaluated (into ``trial`` and
+        ``grad``) by :func:`~athermal._wolfe.energy_search` over the current Verlet list until
+        the search ends or a trial point moves a particle more than ``skin / 2`` from the
+        list's build; returns the code, the evaluations, the last energy and contact count,
+        and whether it stopped there (the caller then evaluates that point by ``self(...)``,
+        which rebuilds the list). :meth:`took` takes the evaluations back."""
+        nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
+        code, evaluations, energy, contacts, stale = energy_search(
+            state,
+            code,
+            x,
+            direction,
+            trial,
+            grad,
+            self.radii,
+            nlist.first,
+            nlist.second,
+            nlist.code,
+            self._shifts,
+            self._typeid,
+            self.model.kmat,
+            self.model.alpha,
+            nlist.reference,
+            nlist.reach_sq,
+        )
+        return int(code), int(evaluations), float(energy), int(contacts), bool(stale)
+
+    def took(
+        self,
+        x: NDArray[np.float64],
+        energy: float,
+        grad: NDArray[np.float64],
+        contacts: int,
+        evaluations: int,
+    ) -> None:
+        """Take back ``evaluations`` made by compiled code, the last one becoming the cached one.
+
+        That last one is at ``x`` ``(N d,)``, with ``energy``, ``grad`` and ``contacts``
+        overlapping pairs."""
+        self.n_evaluations += evaluations
+        self._last_x[:] = x
+        self._last = (float(energy), grad)
+        self._last_contacts = int(contacts)
 
     def hessian(self, x: NDArray[np.float64]) -> HessianOperator:
         """The Hessian of the energy at ``x`` (internal order) over the overlapping pairs of

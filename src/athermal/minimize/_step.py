@@ -1,12 +1,55 @@
-"""What L-BFGS and CG share: the line search along a direction, with the problem's step cap."""
+"""What L-BFGS, CG and Newton share: the line search along a direction, with the problem's step
+cap, and the move to the accepted point.
+
+A :class:`CompiledProblem` (an :class:`~athermal.objective.Objective`) is searched without
+leaving compiled code: the trial points, the energy kernel and the line search's state machine
+run in one call, and control comes back to Python only when the search ends or a trial point
+moves beyond where the Verlet list holds. Measured on the Table's Case 1 (N = 4096,
+``benchmarks/results/breakdown.md``): the per-iteration cost of the Python loop around the
+kernels is what this saves.
+"""
 
 from __future__ import annotations
+
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .linesearch import LineSearchResult, strong_wolfe
+from .._wolfe import GO_ON, TRIAL, feed
+from .linesearch import C1, EPS, MAX_EVALUATIONS, LineSearchResult, started, strong_wolfe
 from .result import Problem
+
+
+class CompiledProblem(Problem, Protocol):
+    """A :class:`Problem` that runs a line search's state machine on its own energy in compiled
+    code (:meth:`athermal.objective.Objective.search`), and takes back what that evaluated."""
+
+    def search(
+        self,
+        state: NDArray[np.float64],
+        code: int,
+        x: NDArray[np.float64],
+        direction: NDArray[np.float64],
+        trial: NDArray[np.float64],
+        grad: NDArray[np.float64],
+    ) -> tuple[int, int, float, int, bool]:
+        """Feed the search ``state`` (:mod:`athermal._wolfe`) trial points ``x + a direction``
+        (written into ``trial``, their gradients into ``grad``) until it ends or needs a point
+        this problem cannot evaluate in compiled code; returns the code, the evaluations, the
+        last energy and contact count, and whether it stopped at such a point."""
+        ...
+
+    def took(
+        self,
+        x: NDArray[np.float64],
+        energy: float,
+        grad: NDArray[np.float64],
+        contacts: int,
+        evaluations: int,
+    ) -> None:
+        """Count ``evaluations``; the last, at ``x`` with ``energy`` and ``grad``, is cached."""
+        ...
 
 
 def search(
@@ -35,3 +78,55 @@ def search(
         step_max=problem.step_limit(direction),
         noise=problem.energy_noise(energy),
     )
+
+
+def advance(
+    problem: Problem,
+    x: NDArray[np.float64],
+    energy: float,
+    grad: NDArray[np.float64],
+    direction: NDArray[np.float64],
+    step: float,
+    c2: float,
+) -> tuple[LineSearchResult, NDArray[np.float64], float, NDArray[np.float64]]:
+    """:func:`search`, then the accepted point ``x + a direction``, its energy and gradient
+    (``x``, ``energy``, ``grad`` themselves when the search failed); compiled for a
+    :class:`CompiledProblem`."""
+    if not callable(getattr(problem, "took", None)):  # not a CompiledProblem
+        ls = search(problem, x, energy, grad, direction, step, c2)
+        if not ls.ok:
+            return ls, x, energy, grad
+        x_new = x + ls.step * direction
+        energy_new, grad_new = problem(x_new)
+        return ls, x_new, energy_new, grad_new
+    state, code = started(
+        energy,
+        float(grad @ direction),
+        step,
+        C1,
+        c2,
+        problem.step_limit(direction),
+        EPS,
+        problem.energy_noise(energy),
+        MAX_EVALUATIONS,
+    )
+    trial = np.empty_like(x)
+    trial_grad = np.empty_like(x)
+    last: tuple[NDArray[np.float64], float, NDArray[np.float64]] | None = None
+    while code == GO_ON:
+        code, evaluations, f, contacts, stale = problem.search(  # type: ignore[attr-defined]
+            state, code, x, direction, trial, trial_grad
+        )
+        if evaluations:
+            problem.took(trial, f, trial_grad, contacts, evaluations)  # type: ignore[attr-defined]
+            last = (trial, f, trial_grad)
+        if stale:  # the problem's own call renews what the kernel needs
+            point = x + float(state[TRIAL]) * direction
+            f, g = problem(point)
+            last = (point, f, g)
+            code = int(feed(state, f, float(g @ direction)))
+    ls = LineSearchResult.of(state, code)
+    if not ls.ok:
+        return ls, x, energy, grad
+    assert last is not None  # an accepted step is the last point evaluated
+    return ls, *last

@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._validate import choice
-from ._step import search
+from ._step import advance
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 CGVariant = Literal["fr", "pr+"]
@@ -57,16 +57,15 @@ def cg(
         slope = float(grad @ direction)
         if not slope < 0.0:
             direction, slope, restarted = -y, -yg, True
-        ls = search(problem, x, energy, grad, direction, step, c2=0.1)
+        ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, step, 0.1)
         if not ls.ok and not restarted:
             direction, slope, restarted = -y, -yg, True
-            ls = search(problem, x, energy, grad, direction, 1.0, c2=0.1)
+            ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.1)
         if not ls.ok:
             return tracker.finish(
                 x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
             )
-        x = x + ls.step * direction
-        energy, grad_new = problem(x)
+        x, energy = x_new, energy_new
         if precon is not None:
             precon.update(x)
         y_new = precon.solve(grad_new) if precon is not None else grad_new

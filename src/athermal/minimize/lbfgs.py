@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels
-from ._step import search
+from ._step import advance
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 
@@ -167,17 +167,16 @@ def lbfgs(
         if not float(grad @ direction) < 0.0:  # curvature pairs gone stale: restart
             pairs.clear()
             direction = -z
-        ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
+        ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok and pairs:
             pairs.clear()  # stale curvature pairs: restart from the (preconditioned) gradient
             direction = -z
-            ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
+            ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok:
             return tracker.finish(
                 x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
             )
-        x_new = x + ls.step * direction
-        energy, grad_new = problem(x_new)
+        energy = energy_new
         rebuilt = False
         if precon is not None:
             precon.update(x_new)

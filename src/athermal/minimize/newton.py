@@ -84,7 +84,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from ..linalg import Factor, cholesky
-from ._step import search
+from ._step import advance
 from .result import MinimizeResult, Problem, Status, Tracker
 
 SHIFT_MIN = 1e-5
@@ -240,12 +240,8 @@ def follow_negative_curvature(
     if slope == 0.0 or norm == 0.0 or not length > 0.0:
         return x, energy, grad
     downhill = -np.sign(slope) * curved
-    ls = search(problem, x, energy, grad, downhill, length / norm, c2=0.9)
-    if not ls.ok:
-        return x, energy, grad
-    x = x + ls.step * downhill
-    energy, grad = problem(x)
-    return x, energy, grad
+    _, x_new, energy_new, grad_new = advance(problem, x, energy, grad, downhill, length / norm, 0.9)
+    return x_new, energy_new, grad_new
 
 
 def newton(
@@ -277,17 +273,16 @@ def newton(
         direction, inner, negative = newton_direction(hessian, grad, factor, eta, INNER_MAX)
         tracker.linear_iterations += inner
         refactor = inner > REFACTOR_INNER
-        ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
+        ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok and not refactor:  # retry along -M^-1 g on a fresh factor
             factor.build(hessian)
             direction = -factor.solve(grad)
-            ls = search(problem, x, energy, grad, direction, 1.0, c2=0.9)
+            ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok:
             return tracker.finish(
                 x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
             )
-        x = x + ls.step * direction
-        energy, grad = problem(x)
+        x, energy, grad = x_new, energy_new, grad_new
         if negative is not None:
             length = ls.step * float(np.linalg.norm(direction))
             x, energy, grad = follow_negative_curvature(problem, x, energy, grad, negative, length)
