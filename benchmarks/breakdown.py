@@ -1,13 +1,13 @@
 """B1 supplement: where one iteration's time goes (Table Case 1, N = 4096, pinned).
 
-Each method relaxes Case 1 (alpha = 2 by default) to 1e-9 F0 while the parts of an iteration
-are timed by wrappers (about 1 us per call): the compiled energy+gradient kernel, the rest of
+Each method relaxes Case 1 (alpha = 2 by default) to 1e-9 F0 while the parts of an iteration are
+timed by wrappers (about 1 us per call): the compiled energy+gradient kernel, the rest of
 ``Objective.__call__`` (its bookkeeping), the preconditioner's solve and its builds (assembly,
 ``mu``, factorization: a cost per build, left out of the ratios), the L-BFGS direction (its
-compact form), the compiled line search (its trial points, kernel calls and state machine in
-one call), the Python line search without its evaluations, and the rest. The floor an iteration
-should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, with the kernel
-and the solve timed bare, in a loop, on the same configuration; the issue's target is
+compact form), the compiled line search (its trial points, kernel calls and state machine in one
+call), the line search's Python part (without its evaluations), and the rest. The floor an
+iteration should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, with the
+kernel and the solve timed bare, in a loop, on the same configuration; the issue's target is
 ``ms / iteration <= 1.3 x floor``.
 
     python benchmarks/breakdown.py                     # N = 4096 Case 1, alpha 2 (~30 s)
@@ -46,7 +46,7 @@ from machine import ROOT, pin, save
 
 # athermal.minimize is also a function name: the modules by import_module
 contact_module = import_module("athermal.contact")
-step_module = import_module("athermal.minimize._step")
+cg_module = import_module("athermal.minimize.cg")
 lbfgs_module = import_module("athermal.minimize.lbfgs")
 objective_module = import_module("athermal.objective")
 precon_module = import_module("athermal.precon")
@@ -176,11 +176,10 @@ def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> di
                 clock.wrap("direction", lbfgs_module._Memory.direction),
             )
         )
-        stack.enter_context(
-            mock.patch.object(
-                step_module, "strong_wolfe", clock.wrap("line search", step_module.strong_wolfe)
+        for module in (lbfgs_module, cg_module):
+            stack.enter_context(
+                mock.patch.object(module, "advance", clock.wrap("line search", module.advance))
             )
-        )
         stack.enter_context(
             mock.patch.object(
                 objective_module.Objective,
@@ -263,8 +262,8 @@ def main(argv: list[str] | None = None) -> int:
         "builds out. "
         "Parts in ms per iteration (objective: Objective.__call__ without the kernel; "
         "compiled search: the line search's trial points, their kernel calls and its state "
-        "machine in one compiled call, for an objective that gives its energy compiled; line "
-        "search: the Python one, without its evaluations).",
+        "machine in one compiled call; line search: its Python part, without the compiled call and "
+        "the evaluations).",
         "",
         header,
         "|---|" + "---:|" * (8 + len(PARTS)),

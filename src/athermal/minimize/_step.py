@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._wolfe import GO_ON, TRIAL, feed
-from .linesearch import C1, EPS, MAX_EVALUATIONS, LineSearchResult, started, strong_wolfe
+from .linesearch import C1, EPS, MAX_EVALUATIONS, LineSearchResult, started
 from .result import Problem
 
 
@@ -52,34 +52,6 @@ class CompiledProblem(Problem, Protocol):
         ...
 
 
-def search(
-    problem: Problem,
-    x: NDArray[np.float64],
-    energy: float,
-    grad: NDArray[np.float64],
-    direction: NDArray[np.float64],
-    step: float,
-    c2: float,
-) -> LineSearchResult:
-    """Strong-Wolfe search along ``direction`` from ``x``, the step capped at
-    :meth:`Problem.step_limit` (for an :class:`~athermal.objective.Objective`: no particle moves
-    more than its ``max_step``)."""
-
-    def phi(a: float) -> tuple[float, float]:
-        f, g = problem(x + a * direction)
-        return f, float(g @ direction)
-
-    return strong_wolfe(
-        phi,
-        energy,
-        float(grad @ direction),
-        step,
-        c2=c2,
-        step_max=problem.step_limit(direction),
-        noise=problem.energy_noise(energy),
-    )
-
-
 def advance(
     problem: Problem,
     x: NDArray[np.float64],
@@ -89,16 +61,11 @@ def advance(
     step: float,
     c2: float,
 ) -> tuple[LineSearchResult, NDArray[np.float64], float, NDArray[np.float64]]:
-    """:func:`search`, then the accepted point ``x + a direction``, its energy and gradient
-    (``x``, ``energy``, ``grad`` themselves when the search failed); compiled for a
-    :class:`CompiledProblem`."""
-    if not callable(getattr(problem, "took", None)):  # not a CompiledProblem
-        ls = search(problem, x, energy, grad, direction, step, c2)
-        if not ls.ok:
-            return ls, x, energy, grad
-        x_new = x + ls.step * direction
-        energy_new, grad_new = problem(x_new)
-        return ls, x_new, energy_new, grad_new
+    """Strong-Wolfe search along ``direction`` from ``x`` from the first trial ``step``, capped
+    at :meth:`Problem.step_limit` (for an :class:`~athermal.objective.Objective`: no particle
+    moves more than its ``max_step``); returns the result, the accepted point ``x + a
+    direction``, its energy and gradient (``x``, ``energy``, ``grad`` themselves when the
+    search failed). A :class:`CompiledProblem` evaluates the trial points in compiled code."""
     state, code = started(
         energy,
         float(grad @ direction),
@@ -110,21 +77,25 @@ def advance(
         problem.energy_noise(energy),
         MAX_EVALUATIONS,
     )
-    trial = np.empty_like(x)
+    compiled = callable(getattr(problem, "took", None))
+    trial = np.empty_like(x)  # the compiled search's trial points and their gradients
     trial_grad = np.empty_like(x)
     last: tuple[NDArray[np.float64], float, NDArray[np.float64]] | None = None
     while code == GO_ON:
-        code, evaluations, f, contacts, stale = problem.search(  # type: ignore[attr-defined]
-            state, code, x, direction, trial, trial_grad
-        )
-        if evaluations:
-            problem.took(trial, f, trial_grad, contacts, evaluations)  # type: ignore[attr-defined]
-            last = (trial, f, trial_grad)
-        if stale:  # the problem's own call renews what the kernel needs
-            point = x + float(state[TRIAL]) * direction
-            f, g = problem(point)
-            last = (point, f, g)
-            code = int(feed(state, f, float(g @ direction)))
+        if compiled:
+            code, evaluations, f, contacts, stale = problem.search(  # type: ignore[attr-defined]
+                state, code, x, direction, trial, trial_grad
+            )
+            if evaluations:
+                problem.took(trial, f, trial_grad, contacts, evaluations)  # type: ignore[attr-defined]
+                last = (trial, f, trial_grad)
+            if not stale:
+                continue
+        # in Python, or a trial point the problem's own call evaluates (renewing its lists)
+        point = x + float(state[TRIAL]) * direction
+        f, g = problem(point)
+        last = (point, f, g)
+        code = int(feed(state, f, float(g @ direction)))
     ls = LineSearchResult.of(state, code)
     if not ls.ok:
         return ls, x, energy, grad
