@@ -7,10 +7,14 @@ timed by wrappers (about 1 us per call): the compiled energy+gradient kernel, th
 compact form), the compiled line search (its trial points, kernel calls and state machine in one
 call), the line search's Python part (without its evaluations), and the rest. The floor an
 iteration should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, with the
-kernel and the solve timed bare, in a loop, on the same configuration; the issue's target is
-``ms / iteration <= 1.3 x floor``.
+kernel and the solve timed bare, in a loop, on the same configuration, right before and after
+each method's run (each row takes the mean of its two); the issue's target is
+``ms / iteration <= 1.3 x floor``. ``--compare-search K`` also runs each method ``K`` times with
+the compiled line search and with the Python one (an objective without ``took``), alternating in
+one process, and reports their time ratio (FIRE, which has no line search, is the control).
 
     python benchmarks/breakdown.py                     # N = 4096 Case 1, alpha 2 (~30 s)
+    python benchmarks/breakdown.py --compare-search 5  # and the two line searches (~2 min)
     python benchmarks/breakdown.py --name breakdown_before
     python benchmarks/breakdown.py --tile 16 --maxiter 40 --methods L-BFGS P-L-BFGS FR-CG FIRE \
         --name breakdown_n1048576                      # scale.py's start at N = 1048576
@@ -205,6 +209,44 @@ def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> di
     }
 
 
+class PythonSearch(Objective):
+    """The objective without its compiled line search (``took`` missing): the minimizers
+    evaluate each trial point through ``__call__``, as before the compiled search."""
+
+    took = None
+
+
+def compare_searches(
+    start: Any, model: ContactModel, methods: list[Minimizer], repeats: int, maxiter: int
+) -> list[dict[str, Any]]:
+    """Each method with the compiled line search and with the Python one, alternating in this
+    process ``repeats`` times after a warm-up: the medians and the median of the per-pair
+    time ratios (compiled / Python)."""
+    out = []
+    for how in methods:
+        times: dict[str, list[float]] = {"compiled": [], "python": []}
+        counts = {}
+        for r in range(repeats + 1):
+            for name, cls in (("compiled", Objective), ("python", PythonSearch)):
+                t0 = time.perf_counter()
+                res = relax(cls(start, model), how, rtol=RTOL, maxiter=maxiter)
+                if r:  # the first round warms up
+                    times[name].append(time.perf_counter() - t0)
+                counts[name] = (res.iterations, res.evaluations)
+        ratios = [a / b for a, b in zip(times["compiled"], times["python"], strict=True)]
+        out.append(
+            {
+                "method": how.name,
+                "iterations": counts,
+                "seconds": {k: float(np.median(v)) for k, v in times.items()},
+                "ratio": float(np.median(ratios)),
+                "ratio_range": [min(ratios), max(ratios)],
+            }
+        )
+        print(f"{how.name}: compiled / python {out[-1]['ratio']:.3f}", file=sys.stderr)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--alpha", type=float, default=2.0)
@@ -214,6 +256,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--maxiter", type=int, default=50_000)
     parser.add_argument("--methods", nargs="+", default=[m.name for m in METHODS])
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
+    parser.add_argument(
+        "--compare-search",
+        type=int,
+        default=0,
+        metavar="K",
+        help="also run each method K times with the compiled and with the Python line search, "
+        "alternating (their time ratio)",
+    )
     args = parser.parse_args(argv)
     pin()
     model = ContactModel(args.alpha)
@@ -226,12 +276,16 @@ def main(argv: list[str] | None = None) -> int:
         start = make_case(reference_packing(args.alpha), args.case)
         what = f"Table Case {args.case}"
     chosen = [how for how in METHODS if how.name in args.methods]
-    floor = floors(start, model, {how.precon for how in chosen} - {"none"})
-    rows = []
+    precons = {how.precon for how in chosen} - {"none"}
+    rows, measured = [], []
     for how in chosen:
         if start.n <= 65536:
             profile(start, model, how, args.maxiter)  # warm-up: compilation, caches
+        before = floors(start, model, precons)
         row = profile(start, model, how, args.maxiter)
+        after = floors(start, model, precons)
+        measured += [before, after]
+        floor = {k: 0.5 * (before[k] + after[k]) for k in before}  # the machine's speed drifts
         precon = how.precon if how.precon != "none" else None
         solve = floor[f"solve {precon}"] if precon else 0.0
         iters = max(row["iterations"], 1)
@@ -247,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
         row["ratio_to_floor_with_recursion"] = steady / row["floor_with_recursion_ms"]
         rows.append(row)
         print(f"{how.name}: {row['ms_per_iteration']:.3f} ms/it", file=sys.stderr, flush=True)
+    floor = {k: float(np.median([m[k] for m in measured])) for k in measured[0]}
     header = "| method | iterations | evaluations / it | solves / it | ms / it | floor ms / it "
     header += "| ratio | floor + direction | ratio | " + " | ".join(PARTS) + " |"
     md = [
@@ -257,6 +312,8 @@ def main(argv: list[str] | None = None) -> int:
         + "; bare "
         f"L-BFGS direction (compact form, m = 10, full memory) {1e3 * floor['direction']:.4f} ms, "
         f"with a preconditioner (P^-1 y kept) {1e3 * floor['direction P']:.4f} ms. "
+        "(medians of the bare timings taken right before and after each method's run; each "
+        "row's floor takes the mean of its own two, since this machine's speed drifts). "
         "floor = evaluations/it x kernel + solves/it x solve (the issue's; target ratio <= 1.3); "
         "floor + direction adds the bare direction for the L-BFGS rows; the ratios leave the "
         "builds out. "
@@ -279,10 +336,32 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['ratio_to_floor_with_recursion']:.2f} | {parts} |"
         )
     md.append("")
+    searches = []
+    if args.compare_search:
+        searches = compare_searches(start, model, chosen, args.compare_search, args.maxiter)
+        md += [
+            f"The compiled line search against the Python one, the two alternating in this "
+            f"process, {args.compare_search} runs each after a warm-up (medians; the Python one "
+            "evaluates each trial point through `Objective.__call__`):",
+            "",
+            "| method | iterations, evaluations (compiled / Python) | compiled s | Python s | "
+            "compiled / Python (median of pairs, range) |",
+            "|---|---|---:|---:|---:|",
+        ]
+        for c in searches:
+            its = c["iterations"]
+            md.append(
+                f"| {c['method']} | {its['compiled'][0]}, {its['compiled'][1]} / "
+                f"{its['python'][0]}, {its['python'][1]} | {c['seconds']['compiled']:.3f} | "
+                f"{c['seconds']['python']:.3f} | {c['ratio']:.2f} "
+                f"({c['ratio_range'][0]:.2f}-{c['ratio_range'][1]:.2f}) |"
+            )
+        md.append("")
     text = "\n".join(md)
     print(text)
     data = {"alpha": args.alpha, "case": args.case, "tile": args.tile, "n": start.n}
     data |= {"maxiter": args.maxiter, "floor_seconds": floor, "rows": rows}
+    data |= {"search_comparison": searches}
     save(args.output_dir, args.name, data, text)
     return 0
 
