@@ -4,7 +4,8 @@ Each method relaxes Case 1 (alpha = 2 by default) to 1e-9 F0 while the parts of 
 timed by wrappers (about 1 us per call): the compiled energy+gradient kernel, the rest of
 ``Objective.__call__`` (its bookkeeping), the preconditioner's solve and its builds (assembly,
 ``mu``, factorization: a cost per build, left out of the ratios), the L-BFGS direction (its
-compact form), the compiled line search (its trial points, kernel calls and state machine in one
+compact form), whole L-BFGS iterations run in compiled code (kernels, searches and solves
+included), the compiled line search (its trial points, kernel calls and state machine in one
 call), the line search's Python part (without its evaluations), and the rest. The floor an
 iteration should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, with the
 kernel and the solve timed bare, in a loop, on the same configuration, right before and after
@@ -66,6 +67,7 @@ METHODS = (
 PARTS = (
     "kernel",
     "objective",
+    "compiled iterations",
     "compiled search",
     "solve",
     "build",
@@ -178,6 +180,13 @@ def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> di
                 lbfgs_module._Memory,
                 "direction",
                 clock.wrap("direction", lbfgs_module._Memory.direction),
+            )
+        )
+        stack.enter_context(
+            mock.patch.object(
+                lbfgs_module,
+                "_iterate",
+                clock.wrap("compiled iterations", lbfgs_module._iterate),
             )
         )
         for module in (lbfgs_module, cg_module):
@@ -318,6 +327,8 @@ def main(argv: list[str] | None = None) -> int:
         "floor + direction adds the bare direction for the L-BFGS rows; the ratios leave the "
         "builds out. "
         "Parts in ms per iteration (objective: Objective.__call__ without the kernel; "
+        "compiled iterations: whole L-BFGS iterations in one compiled call, their kernels, "
+        "searches and solves included; "
         "compiled search: the line search's trial points, their kernel calls and its state "
         "machine in one compiled call; line search: its Python part, without the compiled call and "
         "the evaluations).",

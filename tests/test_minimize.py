@@ -1,3 +1,5 @@
+import importlib
+
 import numpy as np
 import pytest
 
@@ -327,7 +329,7 @@ class PythonOnly:
         self._objective = objective
 
     def __getattr__(self, name):
-        if name in ("search", "took"):
+        if name in ("search", "took", "search_arguments", "search_constants"):
             raise AttributeError(name)
         return getattr(self._objective, name)
 
@@ -381,3 +383,46 @@ def test_minimizers_converge_alike_through_either_search(method):
         out.append(res)
     assert out[0].energy == pytest.approx(out[1].energy, rel=1e-9)
     assert abs(out[0].iterations - out[1].iterations) <= 0.2 * out[1].iterations
+
+
+@pytest.mark.parametrize("precon", ["none", "exp"])
+def test_compiled_lbfgs_iterations_hand_over_and_match_the_python_loop(precon, monkeypatch):
+    """L-BFGS with whole iterations compiled against the Python loop (both searching in
+    compiled code), on a relaxation whose Verlet list and Exp preconditioner are rebuilt along
+    the way and whose compiled history fills up every 7 iterates: the same minimum, about the
+    same iterations, and every iterate in the history."""
+    from athermal.precon import ExpPreconditioner
+
+    lbfgs_module = importlib.import_module("athermal.minimize.lbfgs")
+
+    model = ContactModel(2.0)
+    monkeypatch.setattr(lbfgs_module, "_HISTORY", 7)
+    out = []
+    for compiled in (True, False):
+        if not compiled:
+            monkeypatch.setattr(
+                lbfgs_module._Compiled, "possible", staticmethod(lambda p, q: False)
+            )
+        obj = Objective(overlapped(seed=4, phi=0.92), model)
+        pre = ExpPreconditioner(obj, solver="ic0") if precon == "exp" else None
+        res = lbfgs(obj, obj.x0, gtol=1e-11, precon=pre)
+        assert res.converged, res.message
+        assert obj.n_rebuilds > 1
+        if pre is not None:
+            assert pre.n_builds > 1 and pre.n_solves >= res.iterations
+        assert res.history_energy.size == res.iterations + 1
+        history = res.history_energy  # non-increasing up to round-off
+        assert np.all(np.diff(history) <= 1e-12 * history[:-1])
+        assert res.max_gradient == res.history_max_gradient[-1] <= 1e-11
+        energy, grad = obj(res.x)
+        assert energy == res.energy and obj.max_gradient(grad) == res.max_gradient
+        out.append(res)
+    assert out[0].energy == pytest.approx(out[1].energy, rel=1e-9)
+    assert abs(out[0].iterations - out[1].iterations) <= 0.15 * out[1].iterations
+
+
+def test_compiled_lbfgs_stops_at_the_iteration_limit():
+    obj = Objective(overlapped(seed=4, phi=0.92), ContactModel(2.0))
+    res = lbfgs(obj, obj.x0, gtol=1e-14, maxiter=23)
+    assert res.status is Status.ITERATION_LIMIT and res.iterations == 23
+    assert res.history_energy.size == 24

@@ -377,6 +377,21 @@ def max_row_norm(v, d):  # type: ignore[no-untyped-def]
     return np.sqrt(best)
 
 
+@_jit
+def step_limit(max_step, direction, d):  # type: ignore[no-untyped-def]
+    """Largest ``a`` for which ``a direction`` moves no ``d``-vector more than ``max_step``;
+    ``inf`` for a zero direction."""
+    longest = max_row_norm(direction, d)
+    return max_step / longest if longest > 0.0 else np.inf
+
+
+@_jit
+def energy_noise(scale, alpha, energy):  # type: ignore[no-untyped-def]
+    """``scale (alpha max(E, 0))^(1 - 1/alpha)``: the round-off of a contact energy ``E``
+    (:meth:`athermal.objective.Objective.energy_noise` says why)."""
+    return scale * (alpha * max(energy, 0.0)) ** (1.0 - 1.0 / alpha)
+
+
 _CHUNK = 1024
 """Entries of a vector per block of the L-BFGS loops: two 8 kB blocks stay in L1 cache."""
 
@@ -694,6 +709,15 @@ def incomplete_cholesky(indptr, indices, data, shift):  # type: ignore[no-untype
             return lower, False
         lower[b - 1] = np.sqrt(pivot)
     return lower, True
+
+
+@_jit
+def cholesky_solve_columns(indptr, indices, lower, inverse_diagonal, rhs, out):  # type: ignore[no-untyped-def]
+    """``out = (L L^T)^-1 rhs`` for every column of ``rhs`` ``(n, k)``, in interleaved pairs
+    (:func:`cholesky_solve_pair`; an odd last column alone)."""
+    last = rhs.shape[1] - 1
+    for c in range(0, last + 1, 2):
+        cholesky_solve_pair(indptr, indices, lower, inverse_diagonal, rhs, out, c, min(c + 1, last))
 
 
 @_jit

@@ -18,8 +18,8 @@ from ._kernels import _jit, energy_gradient_2d, energy_gradient_3d
 # The state vector's fields (float64, ``STATE_SIZE``).
 (_F0, _G0, _C1, _C2, _EPS, _NOISE, _STEP_MAX, _MAX_EVALS, EVALUATIONS, _ZOOM) = range(10)
 (TRIAL, _A_PREV, _F_PREV, _DF_PREV, _LO, _F_LO, _DF_LO, _HI, _F_HI, _DF_HI) = range(10, 20)
-(STEP, VALUE, SLOPE) = range(20, 23)
-STATE_SIZE = 23
+(STEP, VALUE, SLOPE, _CODE) = range(20, 24)
+STATE_SIZE = 24
 """Length of the state vector of :func:`begin` and :func:`feed`."""
 GO_ON, ACCEPTED, FAILED = 0, 1, 2
 """What :func:`begin` and :func:`feed` return: evaluate ``phi`` at ``state[TRIAL]`` next; the
@@ -38,6 +38,7 @@ def begin(state, f0, g0, step, c1, c2, step_max, eps, noise, max_evaluations):  
     state[_MAX_EVALS], state[EVALUATIONS], state[_ZOOM] = max_evaluations, 0.0, 0.0
     state[_A_PREV], state[_F_PREV], state[_DF_PREV] = 0.0, f0, g0
     state[TRIAL] = min(step, step_max)
+    state[_CODE] = GO_ON
     if max_evaluations <= 0:
         return _end(state, 0.0, f0, g0, FAILED)
     return GO_ON
@@ -45,8 +46,13 @@ def begin(state, f0, g0, step, c1, c2, step_max, eps, noise, max_evaluations):  
 
 @_jit
 def _end(state, a, f, df, code):  # type: ignore[no-untyped-def]
-    state[STEP], state[VALUE], state[SLOPE] = a, f, df
+    state[STEP], state[VALUE], state[SLOPE], state[_CODE] = a, f, df, code
     return code
+
+
+def resumed(state: np.ndarray) -> int:
+    """The code of the search ``state`` (:data:`GO_ON` while it goes on)."""
+    return int(state[_CODE])
 
 
 @_jit

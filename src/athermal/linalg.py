@@ -200,19 +200,15 @@ class IncompleteCholeskyFactor:
         b = np.ascontiguousarray(rhs, dtype=np.float64)
         columns = b.reshape(b.shape[0], -1)
         out = np.empty_like(columns)
-        last = columns.shape[1] - 1
-        for c in range(0, last + 1, 2):  # columns in pairs; an odd last one solved alone
-            _kernels.cholesky_solve_pair(
-                self._indptr,
-                self._indices,
-                self._lower,
-                self._inverse_diagonal,
-                columns,
-                out,
-                c,
-                min(c + 1, last),
-            )
+        _kernels.cholesky_solve_columns(*self.arrays(), columns, out)
         return out.reshape(b.shape)
+
+    def arrays(
+        self,
+    ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.float64], NDArray[np.float64]]:
+        """``(indptr, indices, lower, inverse_diagonal)``: ``L`` in CSR, its diagonal last in
+        each row, for :func:`~athermal._kernels.cholesky_solve_columns`."""
+        return self._indptr, self._indices, self._lower, self._inverse_diagonal
 
 
 def available(module: str) -> bool:

@@ -9,6 +9,8 @@ caller's order.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -121,14 +123,19 @@ class Objective:
         list's build; returns the code, the evaluations, the last energy and contact count,
         and whether it stopped there (the caller then evaluates that point by ``self(...)``,
         which rebuilds the list). :meth:`took` takes the evaluations back."""
-        nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
         code, evaluations, energy, contacts, stale = energy_search(
-            state,
-            code,
-            x,
-            direction,
-            trial,
-            grad,
+            state, code, x, direction, trial, grad, *self.search_arguments(x)
+        )
+        return int(code), int(evaluations), float(energy), int(contacts), bool(stale)
+
+    def search_arguments(self, x: NDArray[np.float64]) -> tuple[Any, ...]:
+        """The arguments of the compiled search of the energy, for compiled minimizer loops.
+
+        Those of :func:`~athermal._wolfe.energy_search` after ``(state, code, x, direction,
+        trial, grad)``: the radii, the current Verlet list (built at ``x`` ``(N d,)`` if there
+        is none) with the positions it was built at and its reach."""
+        nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
+        return (
             self.radii,
             nlist.first,
             nlist.second,
@@ -140,7 +147,12 @@ class Objective:
             nlist.reference,
             nlist.reach_sq,
         )
-        return int(code), int(evaluations), float(energy), int(contacts), bool(stale)
+
+    def search_constants(self) -> tuple[int, float, float, float]:
+        """What compiled code needs for :meth:`step_limit` and :meth:`energy_noise`.
+
+        ``(d, max_step, noise scale, alpha)``."""
+        return self.dim, self.max_step, self._noise_scale, float(self.model.alpha)
 
     def took(
         self,
@@ -207,8 +219,7 @@ class Objective:
         the measured scatter (``E`` under global translations of a packing jammed at
         ``Delta phi ~ 1e-4``, N = 1024) about 20x; a quarter of it is returned.
         """
-        alpha = self.model.alpha
-        return self._noise_scale * (alpha * max(energy, 0.0)) ** (1.0 - 1.0 / alpha)
+        return float(_kernels.energy_noise(self._noise_scale, self.model.alpha, energy))
 
     def max_gradient(self, grad: NDArray[np.float64]) -> float:
         """``max_i |grad_i|``: the largest Euclidean norm of one particle's gradient."""
@@ -217,8 +228,7 @@ class Objective:
     def step_limit(self, direction: NDArray[np.float64]) -> float:
         """Largest ``a`` for which ``x + a direction`` moves no particle more than
         :attr:`max_step` (``MAX_STEP_FACTOR`` x the mean radius); ``inf`` for a zero direction."""
-        longest = float(_kernels.max_row_norm(direction, self.dim))
-        return self.max_step / longest if longest > 0.0 else float("inf")
+        return float(_kernels.step_limit(self.max_step, direction, self.dim))
 
     def tolerance(
         self, gtol: float | None, rtol: float | None, x: NDArray[np.float64] | None = None

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
@@ -33,6 +33,7 @@ from .errors import InputError
 from .linalg import (
     AMG_CYCLES,
     Factor,
+    IncompleteCholeskyFactor,
     SolverName,
     factorize,
     resolve_solver,
@@ -189,7 +190,12 @@ class _PairPreconditioner(ABC):
     def _stale(self, positions: NDArray[np.float64]) -> bool:
         """True when a particle moved more than ``r_cut / 4`` since the last build."""
         moved_sq = _kernels.max_displacement_sq(positions, self._reference)
-        return bool(moved_sq > (REBUILD_FRACTION * self.r_cut) ** 2)
+        return bool(moved_sq > self._reach_sq)
+
+    @property
+    def _reach_sq(self) -> float:
+        """Squared displacement since the last build beyond which ``P`` is rebuilt."""
+        return (REBUILD_FRACTION * self.r_cut) ** 2
 
     def _exp_part(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
         """The scalar Exp matrix ``mu P_{mu=1}`` at ``positions``; sets ``r_nn`` and ``mu``."""
@@ -327,6 +333,16 @@ class ExpPreconditioner(_PairPreconditioner):
         self.n_solves += 1
         rhs = np.asarray(g, dtype=np.float64).reshape(self.objective.n, self.objective.dim)
         return factor.solve(rhs).ravel()
+
+    def compiled_solver(
+        self,
+    ) -> tuple[tuple[NDArray[Any], ...], NDArray[np.float64], float] | None:
+        """The incomplete factor's arrays (:meth:`~athermal.linalg.IncompleteCholeskyFactor
+        .arrays`), the positions ``(N, d)`` of the last build and the squared displacement up
+        to which it holds, for a solve in compiled code; None unless built with ``ic0``."""
+        if not isinstance(self._factor, IncompleteCholeskyFactor) or self._reference is None:
+            return None
+        return self._factor.arrays(), self._reference, self._reach_sq
 
     def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
         """``P v = (L (x) I_d) v`` ``(N d,)``."""

@@ -11,19 +11,20 @@ kernels is what this saves.
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .._wolfe import GO_ON, TRIAL, feed
+from .._wolfe import GO_ON, TRIAL, feed, resumed
 from .linesearch import C1, EPS, MAX_EVALUATIONS, LineSearchResult, started
 from .result import Problem
 
 
 class CompiledProblem(Problem, Protocol):
     """A :class:`Problem` that runs a line search's state machine on its own energy in compiled
-    code (:meth:`athermal.objective.Objective.search`), and takes back what that evaluated."""
+    code (:meth:`athermal.objective.Objective.search`; for L-BFGS's compiled iterations, the
+    arguments and constants that takes), and takes back what that evaluated."""
 
     def search(
         self,
@@ -40,6 +41,16 @@ class CompiledProblem(Problem, Protocol):
         last energy and contact count, and whether it stopped at such a point."""
         ...
 
+    def search_arguments(self, x: NDArray[np.float64]) -> tuple[Any, ...]:
+        """The arguments of :func:`~athermal._wolfe.energy_search` after its first six, valid
+        near ``x``."""
+        ...
+
+    def search_constants(self) -> tuple[int, float, float, float]:
+        """``(d, max_step, noise scale, alpha)`` of :func:`~athermal._kernels.step_limit` and
+        :func:`~athermal._kernels.energy_noise`."""
+        ...
+
     def took(
         self,
         x: NDArray[np.float64],
@@ -52,6 +63,11 @@ class CompiledProblem(Problem, Protocol):
         ...
 
 
+def is_compiled(problem: Problem) -> bool:
+    """Whether ``problem`` is a :class:`CompiledProblem` (it has ``took``)."""
+    return callable(getattr(problem, "took", None))
+
+
 def advance(
     problem: Problem,
     x: NDArray[np.float64],
@@ -60,24 +76,31 @@ def advance(
     direction: NDArray[np.float64],
     step: float,
     c2: float,
+    resume: NDArray[np.float64] | None = None,
 ) -> tuple[LineSearchResult, NDArray[np.float64], float, NDArray[np.float64]]:
     """Strong-Wolfe search along ``direction`` from ``x`` from the first trial ``step``, capped
     at :meth:`Problem.step_limit` (for an :class:`~athermal.objective.Objective`: no particle
     moves more than its ``max_step``); returns the result, the accepted point ``x + a
     direction``, its energy and gradient (``x``, ``energy``, ``grad`` themselves when the
-    search failed). A :class:`CompiledProblem` evaluates the trial points in compiled code."""
-    state, code = started(
-        energy,
-        float(grad @ direction),
-        step,
-        C1,
-        c2,
-        problem.step_limit(direction),
-        EPS,
-        problem.energy_noise(energy),
-        MAX_EVALUATIONS,
-    )
-    compiled = callable(getattr(problem, "took", None))
+    search failed). A :class:`CompiledProblem` evaluates the trial points in compiled code.
+    ``resume`` is the state of a search along ``direction`` from ``x`` that compiled code
+    began and left at a trial point it could not evaluate, or ended without a step (``step``
+    and ``c2`` are then its own)."""
+    if resume is None:
+        state, code = started(
+            energy,
+            float(grad @ direction),
+            step,
+            C1,
+            c2,
+            problem.step_limit(direction),
+            EPS,
+            problem.energy_noise(energy),
+            MAX_EVALUATIONS,
+        )
+    else:
+        state, code = resume, resumed(resume)
+    compiled = is_compiled(problem)
     trial = np.empty_like(x)  # the compiled search's trial points and their gradients
     trial_grad = np.empty_like(x)
     last: tuple[NDArray[np.float64], float, NDArray[np.float64]] | None = None

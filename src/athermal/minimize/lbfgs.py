@@ -17,16 +17,33 @@ Byrd, Nocedal & Schnabel (1994): two blocked passes over the stored ``s`` and ``
 ``O(m^2)`` work on their dot products, kept from one iteration to the next. The recursion
 streams ``s``, ``y`` and ``P^-1 y`` about five times; measured on Case 1 (Intel Xeon, one core),
 0.064 against 0.090 ms per P-L-BFGS iteration (0.291 against 0.322 ms in all).
+
+On a problem that searches in compiled code (:class:`~._step.CompiledProblem`, an
+:class:`~athermal.objective.Objective`), without a preconditioner or with one solved in compiled
+code (the Exp preconditioner's incomplete factor), whole iterations run compiled
+(:func:`_iterate`): the direction, the line search with its evaluations, the solve, the pair and
+the record. Python takes over, for the rest of that iteration, where compiled code cannot go on:
+a trial point beyond the Verlet skin, a failed search or a direction that does not descend, a
+preconditioner to rebuild. The same iterations either way.
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from .. import _kernels
-from ._step import advance
+from .._kernels import _jit
+from .._wolfe import ACCEPTED, STATE_SIZE, begin, energy_search
+from ._step import advance, is_compiled
+from .linesearch import C1, EPS, MAX_EVALUATIONS
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
+
+_COUNT, _FREE, _FRESH = 0, 1, 2
+"""Fields of :attr:`_Memory.ring`: pairs kept, the row the next pair goes to, and whether the
+newest pair's dot products with the others are still due (0 / 1)."""
 
 
 class _Memory:
@@ -34,7 +51,9 @@ class _Memory:
     buffers of ``m + 1`` rows ``(m + 1, n)`` (a new pair is written into the free row, so a
     rejected pair costs no stored one), with their dot products ``s_a.y_b`` and
     ``y_a.P^-1 y_b`` ``(m + 1, m + 1)`` for the compact form; without a preconditioner
-    ``P^-1 y`` is ``y`` (the same buffer)."""
+    ``P^-1 y`` is ``y`` (the same buffer). ``rows`` ``(m,)`` lists the rows in use, oldest
+    first; ``ring`` holds the counters (:data:`_COUNT`, :data:`_FREE`, :data:`_FRESH`), so that
+    compiled code updates them as Python does."""
 
     def __init__(self, m: int, n: int, precon: Preconditioner | None) -> None:
         self.m = m
@@ -45,26 +64,48 @@ class _Memory:
         self.ypy = np.zeros((m + 1, m + 1))
         self.gamma = np.zeros(m + 1)
         self.work = np.zeros((4, m + 1))
-        self.slots: list[int] = []  # rows in use, oldest to newest
-        self.order = np.zeros(0, dtype=np.int64)  # the same, for the compiled kernel
-        self.free = 0
-        self.fresh = False  # the newest pair's dot products with the others are still due
+        self.rows = np.zeros(m, dtype=np.int64)
+        self.ring = np.zeros(3, dtype=np.int64)
 
     def __len__(self) -> int:
-        return len(self.slots)
+        return int(self.ring[_COUNT])
+
+    @property
+    def order(self) -> NDArray[np.int64]:
+        """The rows in use, oldest first."""
+        return self.rows[: self.ring[_COUNT]]
+
+    @property
+    def slots(self) -> list[int]:
+        """:attr:`order` as a list."""
+        return [int(r) for r in self.order]
+
+    @property
+    def fresh(self) -> bool:
+        """The newest pair's dot products with the others are still due."""
+        return bool(self.ring[_FRESH])
+
+    @fresh.setter
+    def fresh(self, value: bool) -> None:
+        self.ring[_FRESH] = int(value)
+
+    def arrays(self) -> tuple[NDArray[Any], ...]:
+        """The buffers compiled code works on: ``s, y, py, sy, ypy, gamma, work, rows, ring``."""
+        return (
+            self.s,
+            self.y,
+            self.py,
+            self.sy,
+            self.ypy,
+            self.gamma,
+            self.work,
+            self.rows,
+            self.ring,
+        )
 
     def clear(self) -> None:
-        self.slots = []
-        self.order = self.order[:0]
-        self.fresh = False
-
-    def _complete_newest(self) -> None:
-        """Form the newest pair's dot products with the others now (a pair stored without a
-        :meth:`direction` after it; the minimizer never does this)."""
-        newest, rows = self.slots[-1], self.order
-        self.sy[rows, newest] = self.s[rows] @ self.y[newest]
-        self.ypy[rows, newest] = self.ypy[newest, rows] = self.py[rows] @ self.y[newest]
-        self.fresh = False
+        self.ring[_COUNT] = 0
+        self.ring[_FRESH] = 0
 
     def store(
         self,
@@ -81,28 +122,21 @@ class _Memory:
         just rebuilt, so ``z_new - z`` mixes two matrices). Kept only when ``s.y > 0`` and
         ``y.P^-1 y > 0``; its dot products with the other pairs are formed by the next
         :meth:`direction`."""
-        if self.fresh:
-            self._complete_newest()
-        row = self.free
-        sy, ypy = _kernels.lbfgs_pair(
+        if precon is None:
+            _store_pair(x, x_new, grad, grad_new, z, z_new, *self.arrays())
+            return
+        _complete_newest(*self.arrays())
+        row = int(self.ring[_FREE])
+        sy, _ = _kernels.lbfgs_pair(
             x, x_new, grad, grad_new, z, z_new, self.s[row], self.y[row], self.py[row]
         )
-        if precon is not None:
-            self.py[row] = precon.solve(self.y[row])
-            ypy = float(self.y[row] @ self.py[row])
-        if not (sy > 0.0 and ypy > 0.0):
-            return
-        self.gamma[row] = sy / ypy
-        self.sy[row, row], self.ypy[row, row] = sy, ypy
-        self.slots = [*self.slots[-(self.m - 1) :], row] if self.m > 1 else [row]
-        self.order = np.array(self.slots, dtype=np.int64)
-        self.free = (row + 1) % (self.m + 1)
-        self.fresh = True
+        self.py[row] = precon.solve(self.y[row])
+        _keep(row, sy, float(self.y[row] @ self.py[row]), *self.arrays())
 
     def refresh(self, precon: Preconditioner) -> None:
         """Recompute ``P^-1 y``, ``gamma`` and ``y.P^-1 y`` of every stored pair after ``P``
         was rebuilt."""
-        for slot in self.order.tolist():
+        for slot in self.slots:
             self.py[slot] = precon.solve(self.y[slot])
             ypy = float(self.y[slot] @ self.py[slot])
             if not ypy > 0.0:  # cannot happen for an SPD P; keep the direction well defined
@@ -116,23 +150,247 @@ class _Memory:
     def direction(self, grad: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
         """``-H grad`` by the compiled compact form, with ``z = P^-1 grad``."""
         out = np.empty_like(grad)
-        newest = self.y[self.slots[-1]] if self.slots else grad
-        _kernels.lbfgs_direction(
-            grad,
-            z,
-            self.s,
-            self.py,
-            newest,
-            self.fresh,
-            self.sy,
-            self.ypy,
-            self.gamma,
-            self.order,
-            self.work,
-            out,
-        )
-        self.fresh = False
+        _direction(grad, z, *self.arrays(), out)  # type: ignore[call-arg]
         return out
+
+
+@_jit
+def _complete_newest(s, y, py, sy, ypy, gamma, work, rows, ring):  # type: ignore[no-untyped-def]
+    """Form the newest pair's dot products with the others now, if still due (a pair stored
+    without a direction after it; the minimizer never does this)."""
+    if ring[_FRESH] == 0:
+        return
+    count = ring[_COUNT]
+    newest = rows[count - 1]
+    for t in range(count):
+        r = rows[t]
+        sy[r, newest] = np.dot(s[r], y[newest])
+        ypy[r, newest] = ypy[newest, r] = np.dot(py[r], y[newest])
+    ring[_FRESH] = 0
+
+
+@_jit
+def _keep(row, sy_row, ypy_row, s, y, py, sy, ypy, gamma, work, rows, ring):  # type: ignore[no-untyped-def]
+    """Keep the pair just written into ``row`` (``s.y = sy_row``, ``y.P^-1 y = ypy_row``) when
+    both are > 0, dropping the oldest of a full memory."""
+    if not (sy_row > 0.0 and ypy_row > 0.0):
+        return
+    gamma[row] = sy_row / ypy_row
+    sy[row, row] = sy_row
+    ypy[row, row] = ypy_row
+    m = rows.size
+    count = ring[_COUNT]
+    if count == m:
+        for t in range(m - 1):
+            rows[t] = rows[t + 1]
+        rows[m - 1] = row
+    else:
+        rows[count] = row
+        ring[_COUNT] = count + 1
+    ring[_FREE] = (row + 1) % (m + 1)
+    ring[_FRESH] = 1
+
+
+@_jit
+def _store_pair(x, x_new, g, g_new, z, z_new, s, y, py, sy, ypy, gamma, work, rows, ring):  # type: ignore[no-untyped-def]
+    """:meth:`_Memory.store` without a rebuilt preconditioner."""
+    _complete_newest(s, y, py, sy, ypy, gamma, work, rows, ring)
+    row = ring[_FREE]
+    sy_row, ypy_row = _kernels.lbfgs_pair(x, x_new, g, g_new, z, z_new, s[row], y[row], py[row])
+    _keep(row, sy_row, ypy_row, s, y, py, sy, ypy, gamma, work, rows, ring)
+
+
+@_jit
+def _direction(grad, z, s, y, py, sy, ypy, gamma, work, rows, ring, out):  # type: ignore[no-untyped-def]
+    """:meth:`_Memory.direction` into ``out``."""
+    count = ring[_COUNT]
+    newest = y[rows[count - 1]] if count > 0 else grad
+    _kernels.lbfgs_direction(
+        grad, z, s, py, newest, ring[_FRESH] == 1, sy, ypy, gamma, rows[:count], work, out
+    )
+    ring[_FRESH] = 0
+
+
+# What :func:`_iterate` stopped at.
+_CONVERGED, _LIMIT, _FULL, _HEAD, _SEARCH, _TAIL = range(6)
+
+
+@_jit
+def _iterate(  # type: ignore[no-untyped-def]
+    x,
+    grad,
+    z,
+    z_new,
+    direction,
+    trial,
+    trial_grad,
+    state,
+    energy,
+    memory,
+    history,
+    counts,
+    tolerances,
+    constants,
+    energy_args,
+    solver,
+):
+    """L-BFGS iterations in compiled code, the same as :func:`lbfgs`'s, from ``x``, ``grad``,
+    ``z`` (``grad`` itself without a preconditioner) and ``energy``, all updated in place.
+
+    ``memory`` is :meth:`_Memory.arrays`; ``history`` ``(2, K)`` receives each iterate's energy
+    and largest gradient; ``counts`` is ``[iterations, maxiter, recorded, evaluations,
+    solves]``; ``tolerances`` ``(gtol, etol)``; ``constants`` the problem's ``(d, max_step,
+    noise scale, alpha)``; ``energy_args`` the rest of :func:`~athermal._wolfe.energy_search`'s
+    arguments; ``solver`` the incomplete factor's arrays with the positions of its build and
+    its reach, or None for no preconditioner. Runs until convergence (:data:`_CONVERGED`), the
+    iteration limit (:data:`_LIMIT`) or a full history (:data:`_FULL`), or until the iteration
+    under way needs Python: a direction that does not descend (:data:`_HEAD`, nothing done), a
+    search that failed or reached a trial point beyond the Verlet skin (:data:`_SEARCH`, its
+    ``direction`` and ``state`` kept), a preconditioner to rebuild at the accepted point
+    (:data:`_TAIL`, in ``trial``, ``trial_grad``). Returns the code, the energy of the last
+    point evaluated (always in ``trial``, ``trial_grad``), its contact count, and the energy
+    of the accepted point when stopping at :data:`_TAIL`."""
+    s, y, py, sy, ypy, gamma, work, rows, ring = memory
+    dim, max_step, noise_scale, alpha = constants
+    gtol, etol = tolerances
+    iterations, maxiter, recorded = counts[0], counts[1], counts[2]
+    evaluations = 0
+    solves = 0
+    last_energy = energy
+    contacts = -1
+    accepted = energy
+    stop = _LIMIT
+    while iterations < maxiter:
+        if recorded >= history.shape[1]:
+            stop = _FULL
+            break
+        _direction(grad, z, s, y, py, sy, ypy, gamma, work, rows, ring, direction)
+        slope = np.dot(grad, direction)
+        if not slope < 0.0:
+            stop = _HEAD
+            break
+        cap = _kernels.step_limit(max_step, direction, dim)
+        noise = _kernels.energy_noise(noise_scale, alpha, energy)
+        code = begin(state, energy, slope, 1.0, C1, 0.9, cap, EPS, noise, MAX_EVALUATIONS)
+        code, n_eval, f, n_contacts, stale = energy_search(
+            state, code, x, direction, trial, trial_grad, *energy_args
+        )
+        if n_eval:
+            evaluations += n_eval
+            last_energy = f
+            contacts = n_contacts
+        if stale or code != ACCEPTED:
+            stop = _SEARCH
+            break
+        accepted = f
+        if solver is None:
+            fresh_z = trial_grad
+        else:
+            arrays, reference, reach_sq = solver
+            n = reference.shape[0]
+            if _kernels.max_displacement_sq(trial.reshape(n, dim), reference) > reach_sq:
+                stop = _TAIL
+                break
+            _kernels.cholesky_solve_columns(
+                *arrays, trial_grad.reshape(n, dim), z_new.reshape(n, dim)
+            )
+            solves += 1
+            fresh_z = z_new
+        _store_pair(
+            x, trial, grad, trial_grad, z, fresh_z, s, y, py, sy, ypy, gamma, work, rows, ring
+        )
+        x[:] = trial
+        grad[:] = trial_grad
+        if solver is not None:
+            z[:] = z_new
+        energy = f
+        gmax = _kernels.max_row_norm(grad, dim)
+        history[0, recorded] = energy
+        history[1, recorded] = gmax
+        recorded += 1
+        iterations += 1
+        if gmax <= gtol or energy <= etol:
+            stop = _CONVERGED
+            break
+    counts[0], counts[2], counts[3], counts[4] = iterations, recorded, evaluations, solves
+    return stop, last_energy, contacts, accepted
+
+
+_HISTORY = 4096
+"""Iterates :func:`_iterate` records before it hands its history to the tracker."""
+
+
+class _Compiled:
+    """The buffers of :func:`_iterate` and what runs it: the problem's arguments and the
+    preconditioner's arrays, fetched anew at every run (Python may have rebuilt either)."""
+
+    def __init__(self, problem: Problem, precon: Preconditioner | None, pairs: _Memory) -> None:
+        n = problem.n_dof
+        self.problem, self.precon, self.pairs = problem, precon, pairs
+        self.x, self.grad, self.z = np.empty(n), np.empty(n), np.empty(n)
+        self.z_new, self.direction = np.empty(n), np.empty(n)
+        self.trial, self.trial_grad = np.empty(n), np.empty(n)
+        self.state = np.empty(STATE_SIZE)
+        self.history = np.empty((2, _HISTORY))
+        self.counts = np.zeros(5, dtype=np.int64)
+
+    @staticmethod
+    def possible(problem: Problem, precon: Preconditioner | None) -> bool:
+        """Whether the problem searches in compiled code and the preconditioner, if any (built),
+        is solved there."""
+        if not is_compiled(problem):
+            return False
+        solver = getattr(precon, "compiled_solver", None)
+        return precon is None or (callable(solver) and solver() is not None)
+
+    def run(
+        self,
+        x: NDArray[np.float64],
+        grad: NDArray[np.float64],
+        z: NDArray[np.float64],
+        energy: float,
+        tracker: Tracker,
+    ) -> tuple[int, float]:
+        """Iterate from ``x``, ``grad``, ``z``, ``energy`` (copied in); the results stay in the
+        buffers, the iterates go to ``tracker``. Returns :func:`_iterate`'s code and the
+        accepted energy of a :data:`_TAIL` stop."""
+        solver = None
+        if self.precon is not None:
+            solver = self.precon.compiled_solver()  # type: ignore[attr-defined]
+        problem = self.problem
+        self.x[:] = x
+        self.grad[:] = grad
+        z_buffer = self.grad if self.precon is None else self.z
+        if self.precon is not None:
+            self.z[:] = z
+        self.counts[:] = (tracker.iterations, tracker.maxiter, 0, 0, 0)
+        stop, last_energy, contacts, accepted = _iterate(
+            self.x,
+            self.grad,
+            z_buffer,
+            self.z_new,
+            self.direction,
+            self.trial,
+            self.trial_grad,
+            self.state,
+            energy,
+            self.pairs.arrays(),
+            self.history,
+            self.counts,
+            (tracker.gtol, tracker.etol),
+            problem.search_constants(),  # type: ignore[attr-defined]
+            problem.search_arguments(x),  # type: ignore[attr-defined]
+            solver,
+        )
+        recorded, evaluations, solves = (int(v) for v in self.counts[2:])
+        tracker.extend(self.history[0, :recorded], self.history[1, :recorded])
+        if evaluations:
+            problem.took(  # type: ignore[attr-defined]
+                self.trial.copy(), last_energy, self.trial_grad.copy(), contacts, evaluations
+            )
+        if self.precon is not None and solves:
+            self.precon.n_solves += solves  # type: ignore[attr-defined]
+        return int(stop), float(accepted)
 
 
 def lbfgs(
@@ -162,20 +420,44 @@ def lbfgs(
     pairs = _Memory(memory, problem.n_dof, precon)
     if tracker.record(energy, grad):
         return tracker.finish(x, Status.CONVERGED, "converged")
+    compiled = _Compiled(problem, precon, pairs) if _Compiled.possible(problem, precon) else None
     while tracker.iterations < maxiter:
-        direction = pairs.direction(grad, z)
-        if not float(grad @ direction) < 0.0:  # curvature pairs gone stale: restart
-            pairs.clear()
-            direction = -z
-        ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
-        if not ls.ok and pairs:
-            pairs.clear()  # stale curvature pairs: restart from the (preconditioned) gradient
-            direction = -z
-            ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
-        if not ls.ok:
-            return tracker.finish(
-                x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
+        stop = _HEAD  # Python's own iteration
+        if compiled is not None:
+            stop, accepted = compiled.run(x, grad, z, energy, tracker)
+            x, grad = compiled.x.copy(), compiled.grad.copy()
+            z = compiled.z.copy() if precon is not None else grad
+            energy = tracker.energies[-1]
+            if stop == _CONVERGED:
+                return tracker.finish(x, Status.CONVERGED, "converged")
+            if stop in (_LIMIT, _FULL):
+                continue
+        if stop == _TAIL:
+            x_new, energy_new = compiled.trial.copy(), accepted  # type: ignore[union-attr]
+            grad_new = compiled.trial_grad.copy()  # type: ignore[union-attr]
+        else:
+            resume = None
+            if stop == _SEARCH:
+                direction = compiled.direction.copy()  # type: ignore[union-attr]
+                resume = compiled.state.copy()  # type: ignore[union-attr]
+            else:
+                direction = pairs.direction(grad, z)
+                if not float(grad @ direction) < 0.0:  # curvature pairs gone stale: restart
+                    pairs.clear()
+                    direction = -z
+            ls, x_new, energy_new, grad_new = advance(
+                problem, x, energy, grad, direction, 1.0, 0.9, resume=resume
             )
+            if not ls.ok and pairs:
+                pairs.clear()  # stale curvature pairs: restart from the (preconditioned) gradient
+                direction = -z
+                ls, x_new, energy_new, grad_new = advance(
+                    problem, x, energy, grad, direction, 1.0, 0.9
+                )
+            if not ls.ok:
+                return tracker.finish(
+                    x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
+                )
         energy = energy_new
         rebuilt = False
         if precon is not None:

@@ -175,6 +175,12 @@ class Tracker:
         self.gradients.append(gmax)
         return gmax <= self.gtol or energy <= self.etol
 
+    def extend(self, energies: NDArray[np.float64], gradients: NDArray[np.float64]) -> None:
+        """Log iterates recorded elsewhere (compiled code): their energies and largest
+        gradients ``(k,)``."""
+        self.energies.extend(energies.tolist())
+        self.gradients.extend(gradients.tolist())
+
     @property
     def iterations(self) -> int:
         """Iterations done so far (recorded iterates minus the start)."""
