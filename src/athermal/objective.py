@@ -135,6 +135,11 @@ class Objective:
         trial, grad)``: the radii, the current Verlet list (built at ``x`` ``(N d,)`` if there
         is none) with the positions it was built at and its reach."""
         nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
+        return (*self._pair_arguments(nlist), nlist.reference, nlist.reach_sq)
+
+    def _pair_arguments(self, nlist: NeighborList) -> tuple[Any, ...]:
+        """What the compiled pair loops take after the positions: radii, ``nlist``'s pairs and
+        image codes, their shifts, species and the contact law's ``kmat`` and ``alpha``."""
         return (
             self.radii,
             nlist.first,
@@ -144,8 +149,6 @@ class Objective:
             self._typeid,
             self.model.kmat,
             self.model.alpha,
-            nlist.reference,
-            nlist.reach_sq,
         )
 
     def search_constants(self) -> tuple[int, float, float, float]:
@@ -180,20 +183,9 @@ class Objective:
         pairs = np.empty((size, 2), dtype=np.int64)
         sep = np.empty((size, self.dim))
         coef = np.empty((size, 2))
-        m = _kernels.hessian_terms(
-            positions.reshape(self.n, self.dim),
-            self.radii,
-            nlist.first,
-            nlist.second,
-            nlist.code,
-            self._shifts,
-            self._typeid,
-            self.model.kmat,
-            self.model.alpha,
-            pairs,
-            sep,
-            coef,
-        )
+        positions_2d = positions.reshape(self.n, self.dim)
+        arguments = (positions_2d, *self._pair_arguments(nlist), pairs, sep, coef)
+        m = _kernels.hessian_terms(*arguments)
         return HessianOperator(self.n, pairs[:m], sep[:m], coef[:m])
 
     def count_contacts(self, x: NDArray[np.float64]) -> int:
