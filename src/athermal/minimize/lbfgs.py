@@ -41,6 +41,8 @@ from ._step import advance, is_compiled
 from .linesearch import C1, EPS, MAX_EVALUATIONS
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
+C2 = 0.9
+"""The line search's curvature constant (the unit step is always tried first)."""
 _COUNT, _FREE, _FRESH = 0, 1, 2
 """Fields of :attr:`_Memory.ring`: pairs kept, the row the next pair goes to, and whether the
 newest pair's dot products with the others are still due (0 / 1)."""
@@ -271,7 +273,7 @@ def _iterate(  # type: ignore[no-untyped-def]
             break
         cap = _kernels.step_limit(max_step, direction, dim)
         noise = _kernels.energy_noise(noise_scale, alpha, energy)
-        code = begin(state, energy, slope, 1.0, C1, 0.9, cap, EPS, noise, MAX_EVALUATIONS)
+        code = begin(state, energy, slope, 1.0, C1, C2, cap, EPS, noise, MAX_EVALUATIONS)
         code, n_eval, f, n_contacts, stale = energy_search(
             state, code, x, direction, trial, trial_grad, *energy_args
         )
@@ -422,7 +424,7 @@ def lbfgs(
         return tracker.finish(x, Status.CONVERGED, "converged")
     compiled = _Compiled(problem, precon, pairs) if _Compiled.possible(problem, precon) else None
     while tracker.iterations < maxiter:
-        stop = _HEAD  # Python's own iteration
+        stop, step, resume = _HEAD, None, None  # Python's own iteration, from its start
         if compiled is not None:
             stop, accepted = compiled.run(x, grad, z, energy, tracker)
             x, grad = compiled.x.copy(), compiled.grad.copy()
@@ -432,27 +434,26 @@ def lbfgs(
                 return tracker.finish(x, Status.CONVERGED, "converged")
             if stop in (_LIMIT, _FULL):
                 continue
-        if stop == _TAIL:
-            x_new, energy_new = compiled.trial.copy(), accepted  # type: ignore[union-attr]
-            grad_new = compiled.trial_grad.copy()  # type: ignore[union-attr]
+            if stop == _TAIL:  # the step is taken, the preconditioner is Python's
+                step = (compiled.trial.copy(), accepted, compiled.trial_grad.copy())
+            elif stop == _SEARCH:  # the search goes on in Python
+                direction, resume = compiled.direction.copy(), compiled.state.copy()
+        if step is not None:
+            x_new, energy_new, grad_new = step
         else:
-            resume = None
-            if stop == _SEARCH:
-                direction = compiled.direction.copy()  # type: ignore[union-attr]
-                resume = compiled.state.copy()  # type: ignore[union-attr]
-            else:
+            if resume is None:
                 direction = pairs.direction(grad, z)
                 if not float(grad @ direction) < 0.0:  # curvature pairs gone stale: restart
                     pairs.clear()
                     direction = -z
             ls, x_new, energy_new, grad_new = advance(
-                problem, x, energy, grad, direction, 1.0, 0.9, resume=resume
+                problem, x, energy, grad, direction, 1.0, C2, resume=resume
             )
             if not ls.ok and pairs:
                 pairs.clear()  # stale curvature pairs: restart from the (preconditioned) gradient
                 direction = -z
                 ls, x_new, energy_new, grad_new = advance(
-                    problem, x, energy, grad, direction, 1.0, 0.9
+                    problem, x, energy, grad, direction, 1.0, C2
                 )
             if not ls.ok:
                 return tracker.finish(
