@@ -188,10 +188,8 @@ def energy_search(  # type: ignore[no-untyped-def]
     and contact count, and whether it stopped at a trial point out of reach (not evaluated:
     ``trial`` still holds the last point evaluated).
 
-    The kernel is inlined here, and its reciprocal approximations may round differently than
-    where it is called on its own: energies agree with
-    :meth:`~athermal.objective.Objective.__call__`'s to round-off (bit for bit at alpha = 2,
-    1.4e-16 relative at 2.5 on the Table's case 1, Intel Xeon), gradients bit for bit."""
+    Energies and gradients are :func:`evaluate`'s, as in
+    :meth:`~athermal.objective.Objective.__call__`."""
     n, dim = reference.shape
     points = trial.reshape(n, dim)
     gradient = grad.reshape(n, dim)
@@ -204,14 +202,24 @@ def energy_search(  # type: ignore[no-untyped-def]
             return code, evaluations, energy, contacts, True
         for p in range(x.size):
             trial[p] = x[p] + a * direction[p]
-        args = (radii, first, second, images, shift, typeid, kmat, alpha, gradient)
-        if dim == 2:
-            energy, contacts = energy_gradient_2d(points, *args)
-        else:
-            energy, contacts = energy_gradient_3d(points, *args)
+        energy, contacts = evaluate(
+            points, gradient, radii, first, second, images, shift, typeid, kmat, alpha
+        )
         evaluations += 1
         code = feed(state, energy, np.dot(grad, direction))
     return code, evaluations, energy, contacts, False
+
+
+@_jit
+def evaluate(points, gradient, radii, first, second, images, shift, typeid, kmat, alpha):  # type: ignore[no-untyped-def]
+    """The contact energy and overlapping pairs at ``points`` ``(N, d)``, its gradient written
+    into ``gradient`` ``(N, d)``, by the kernel of the dimension (arguments as
+    :func:`~athermal._kernels.energy_gradient_2d`): the one evaluation every caller uses, so
+    that the energy at a point is the same bits from Python and from compiled loops."""
+    args = (radii, first, second, images, shift, typeid, kmat, alpha, gradient)
+    if points.shape[1] == 2:
+        return energy_gradient_2d(points, *args)
+    return energy_gradient_3d(points, *args)
 
 
 @_jit

@@ -15,6 +15,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from . import _kernels
+from ._wolfe import evaluate
 from .errors import InputError
 from .neighbors import NeighborList
 from .packing import Packing
@@ -88,9 +89,9 @@ def energy_gradient_contacts(
     grad: NDArray[np.float64],
 ) -> tuple[float, int]:
     """:func:`energy_gradient` and the number of overlapping pairs, from the same pass."""
-    kernel = _kernels.energy_gradient_2d if positions.shape[1] == 2 else _kernels.energy_gradient_3d
-    energy, contacts = kernel(
+    energy, contacts = evaluate(
         positions,
+        grad,
         radii,
         nlist.first,
         nlist.second,
@@ -99,7 +100,6 @@ def energy_gradient_contacts(
         typeid,
         model.kmat,
         model.alpha,
-        grad,
     )
     return float(energy), int(contacts)
 
