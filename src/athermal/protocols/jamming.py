@@ -107,7 +107,10 @@ all (median 36 s, 9 of 10 within 60 s) against 582 s (median 53 s, 6 of 10) with
 factor, for about as many iterations (1.29 and 1.31 million). With the compact step
 (``phic_2d_n4096_a2.md``, ``_r1.md``: 20 realizations) a run takes 106k-321k iterations, 172k
 on average, of 0.28 ms each on a normal day: its time is set by how long the trials near
-``phi_c`` crawl. L-BFGS memory 6 instead of 10 (the same runs, in the same conditions: 463
+``phi_c`` crawl. L-BFGS's compiled iterations (:mod:`athermal.minimize.lbfgs`) run the same
+trajectories in 0.62-0.67x the time at N = 1024 (``benchmarks/results/compiled_loops_n1024.md``)
+and in 880 against 1164 s for the ten N = 4096 runs of root seed 0 (two slow days). L-BFGS
+memory 6 instead of 10 (the same runs, in the same conditions: 463
 against 404 s) makes each iteration cheaper (0.25 against 0.31 ms) but the trials near phi_c
 take 41 % more."""
 JAMMING_SCHEME = 2
