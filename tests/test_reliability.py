@@ -259,3 +259,26 @@ def test_a_full_disk_leaves_the_trajectory_whole_and_resumable(tmp_path):
     assert resumed.returncode == 0, resumed.stderr
     a, b = read_gsd(tmp_path / "w.gsd"), read_gsd(tmp_path / "x.gsd")
     np.testing.assert_array_equal(a.packing.positions, b.packing.positions)
+
+
+def test_an_interrupt_reported_by_compiled_code_still_ends_in_one_line(monkeypatch, capsys):
+    """numba turns a KeyboardInterrupt raised while its code calls back into Python into a
+    SystemError; the command still ends as interrupted, and any other SystemError propagates."""
+    from athermal import cli
+
+    def interrupted_inside_compiled_code(args):
+        try:
+            raise KeyboardInterrupt
+        except KeyboardInterrupt as exc:
+            raise SystemError("returned a result with an exception set") from exc
+
+    monkeypatch.setitem(cli.COMMANDS, "jam", interrupted_inside_compiled_code)
+    assert main([*JAM, "-o", "unused.gsd"]) == 130
+    assert capsys.readouterr().err == "athermal jam: interrupted; rerun with --resume to continue\n"
+
+    def broken(args):
+        raise SystemError("something else")
+
+    monkeypatch.setitem(cli.COMMANDS, "jam", broken)
+    with pytest.raises(SystemError, match="something else"):
+        main([*JAM, "-o", "unused.gsd"])

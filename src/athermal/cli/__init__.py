@@ -58,6 +58,28 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     return args
 
 
+def _interrupted(args: argparse.Namespace) -> int:
+    """Report an interrupted command in one line; its exit code, 130."""
+    again = "; rerun with --resume to continue" if hasattr(args, "resume") else ""
+    print(f"athermal {args.command}: interrupted{again}", file=sys.stderr)
+    return 130
+
+
+def _caused_by_interrupt(exc: BaseException) -> bool:
+    """Whether a ``KeyboardInterrupt`` stands in the chain of causes of ``exc``: numba reports
+    one raised while its compiled code calls back into Python (its ``_numba_unpickle``) as a
+    ``SystemError``, "returned a result with an exception set" (seen once in CI, in the SIGINT
+    test of ``athermal jam``)."""
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, KeyboardInterrupt):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``athermal`` command; returns the exit code."""
     args = _parse(argv)
@@ -70,9 +92,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 141
     except KeyboardInterrupt:
-        again = "; rerun with --resume to continue" if hasattr(args, "resume") else ""
-        print(f"athermal {args.command}: interrupted{again}", file=sys.stderr)
-        return 130
+        return _interrupted(args)
+    except SystemError as exc:  # Ctrl-C while compiled code called back into Python
+        if not _caused_by_interrupt(exc):
+            raise
+        return _interrupted(args)
     except (InputError, ConvergenceError) as exc:
         print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, InputError) else 3
