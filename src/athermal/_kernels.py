@@ -344,18 +344,58 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
 
 
 @_jit
+def _row_sq(u, v, a, w, p, dim, mode):  # type: ignore[no-untyped-def]
+    """``|t|^2`` of the ``dim``-vector at flat offset ``p``: ``t = u`` (``mode`` 0), ``u - w``
+    (1) or ``(u + a v) - w`` (2)."""
+    s = 0.0
+    for k in range(dim):
+        t = u[p + k]
+        if mode == 2:
+            t = t + a * v[p + k]
+        if mode >= 1:
+            t = t - w[p + k]
+        s += t * t
+    return s
+
+
+@_jit
+def _max_row_sq(u, v, a, w, dim, mode):  # type: ignore[no-untyped-def]
+    """``max_i`` of :func:`_row_sq` over the ``dim``-vectors of the flat arrays, four rows at a
+    time: four running maxima, where one waits on the last comparison (2.5 against 5-10 us at
+    N = 4096, 2D, Intel Xeon). Called with a literal ``dim`` and ``mode``, which the compiler
+    folds in."""
+    rows = u.size // dim
+    b0 = b1 = b2 = b3 = 0.0
+    i = 0
+    while i + 4 <= rows:
+        p = i * dim
+        b0 = max(b0, _row_sq(u, v, a, w, p, dim, mode))
+        b1 = max(b1, _row_sq(u, v, a, w, p + dim, dim, mode))
+        b2 = max(b2, _row_sq(u, v, a, w, p + 2 * dim, dim, mode))
+        b3 = max(b3, _row_sq(u, v, a, w, p + 3 * dim, dim, mode))
+        i += 4
+    while i < rows:
+        b0 = max(b0, _row_sq(u, v, a, w, i * dim, dim, mode))
+        i += 1
+    return max(max(b0, b1), max(b2, b3))
+
+
+@_jit
+def max_row_sq(u, v, a, w, dim, mode):  # type: ignore[no-untyped-def]
+    """:func:`_max_row_sq` with ``dim`` 2 and 3 as compile-time constants."""
+    if dim == 2:
+        return _max_row_sq(u, v, a, w, 2, mode)
+    if dim == 3:
+        return _max_row_sq(u, v, a, w, 3, mode)
+    return _max_row_sq(u, v, a, w, dim, mode)
+
+
+@_jit
 def max_displacement_sq(x, reference):  # type: ignore[no-untyped-def]
-    """Largest squared displacement ``max_i |x_i - reference_i|^2``."""
-    best = 0.0
-    n, d = x.shape
-    for i in range(n):
-        s = 0.0
-        for a in range(d):
-            t = x[i, a] - reference[i, a]
-            s += t * t
-        if s > best:
-            best = s
-    return best
+    """Largest squared displacement ``max_i |x_i - reference_i|^2`` over the rows of ``x`` and
+    ``reference`` ``(N, d)`` (C-contiguous)."""
+    flat = x.reshape(x.size)
+    return max_row_sq(flat, flat, 0.0, reference.reshape(reference.size), x.shape[1], 1)
 
 
 @_jit
@@ -368,16 +408,10 @@ def same_values(a, b):  # type: ignore[no-untyped-def]
     return True
 
 
-@_jit_fast
+@_jit
 def max_row_norm(v, d):  # type: ignore[no-untyped-def]
     """``max_i |v_i|`` over the ``d``-vectors of a flat ``(N d,)`` array."""
-    best = 0.0
-    for i in range(v.size // d):
-        s = 0.0
-        for a in range(d):
-            s += v[i * d + a] * v[i * d + a]
-        best = max(best, s)
-    return np.sqrt(best)
+    return np.sqrt(max_row_sq(v, v, 0.0, v, d, 0))
 
 
 @_jit

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kernels import _jit, energy_gradient_2d, energy_gradient_3d
+from ._kernels import _jit, energy_gradient_2d, energy_gradient_3d, max_row_sq
 
 # The state vector's fields (float64, ``STATE_SIZE``).
 (_F0, _G0, _C1, _C2, _EPS, _NOISE, _STEP_MAX, _MAX_EVALS, EVALUATIONS, _ZOOM) = range(10)
@@ -226,12 +226,4 @@ def evaluate(points, gradient, radii, first, second, images, shift, typeid, kmat
 def _farthest_sq(x, direction, a, reference):  # type: ignore[no-untyped-def]
     """``max_i |x_i + a direction_i - reference_i|^2`` over the ``(n, d)`` rows of
     ``reference`` (``x``, ``direction`` flat)."""
-    n, dim = reference.shape
-    best = 0.0
-    for i in range(n):
-        s = 0.0
-        for k in range(dim):
-            t = (x[i * dim + k] + a * direction[i * dim + k]) - reference[i, k]
-            s += t * t
-        best = max(best, s)
-    return best
+    return max_row_sq(x, direction, a, reference.reshape(reference.size), reference.shape[1], 2)

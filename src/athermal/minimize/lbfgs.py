@@ -265,6 +265,7 @@ def _iterate(  # type: ignore[no-untyped-def]
     contacts = -1
     accepted = energy
     stop = _LIMIT
+    swapped = False
     while iterations < maxiter:
         if recorded >= history.shape[1]:
             stop = _FULL
@@ -304,10 +305,13 @@ def _iterate(  # type: ignore[no-untyped-def]
         _store_pair(
             x, trial, grad, trial_grad, z, fresh_z, s, y, py, sy, ypy, gamma, work, rows, ring
         )
-        x[:] = trial
-        grad[:] = trial_grad
-        if solver is not None:
-            z[:] = z_new
+        x, trial = trial, x  # the accepted point becomes the iterate: buffers swap, no copies
+        grad, trial_grad = trial_grad, grad
+        if solver is None:
+            z = grad
+        else:
+            z, z_new = z_new, z
+        swapped = not swapped
         energy = f
         gmax = _kernels.max_row_norm(grad, dim)
         history[0, recorded] = energy
@@ -317,8 +321,20 @@ def _iterate(  # type: ignore[no-untyped-def]
         if gmax <= gtol or energy <= etol:
             stop = _CONVERGED
             break
+    if swapped:  # back into the caller's buffers
+        _swap_contents(x, trial)
+        _swap_contents(grad, trial_grad)
+        if solver is not None:
+            _swap_contents(z, z_new)
     counts[0], counts[2], counts[3], counts[4] = iterations, recorded, evaluations, solves
     return stop, last_energy, contacts, accepted
+
+
+@_jit
+def _swap_contents(a, b):  # type: ignore[no-untyped-def]
+    """Exchange the values of the flat arrays ``a`` and ``b`` (same size)."""
+    for p in range(a.size):
+        a[p], b[p] = b[p], a[p]
 
 
 _HISTORY = 4096
