@@ -390,13 +390,25 @@ def test_compiled_lbfgs_iterations_hand_over_and_match_the_python_loop(precon, m
     """L-BFGS with whole iterations compiled against the Python loop (both searching in
     compiled code), on a relaxation whose Verlet list and Exp preconditioner are rebuilt along
     the way and whose compiled history fills up every 7 iterates: the same minimum, about the
-    same iterations, and every iterate in the history."""
+    same iterations, every iterate in the history, and each point handed back to the objective
+    as the last one evaluated has that energy and gradient."""
     from athermal.precon import ExpPreconditioner
 
     lbfgs_module = importlib.import_module("athermal.minimize.lbfgs")
 
     model = ContactModel(2.0)
     monkeypatch.setattr(lbfgs_module, "_HISTORY", 7)
+    handed = []
+    took = Objective.took
+    fresh = Objective(overlapped(seed=4, phi=0.92), model)  # the same internal order
+
+    def checked(self, x, energy, grad, contacts, evaluations):
+        fresh_energy, fresh_grad = fresh(x.copy())
+        handed.append(energy == pytest.approx(fresh_energy, rel=1e-12, abs=0.0))
+        handed[-1] &= np.allclose(grad, fresh_grad, rtol=0.0, atol=1e-14)  # forces ~0.1
+        took(self, x, energy, grad, contacts, evaluations)
+
+    monkeypatch.setattr(Objective, "took", checked)
     out = []
     for compiled in (True, False):
         if not compiled:
@@ -417,6 +429,7 @@ def test_compiled_lbfgs_iterations_hand_over_and_match_the_python_loop(precon, m
         energy, grad = obj(res.x)
         assert energy == res.energy and obj.max_gradient(grad) == res.max_gradient
         out.append(res)
+    assert len(handed) > 20 and all(handed)
     assert out[0].energy == pytest.approx(out[1].energy, rel=1e-9)
     assert abs(out[0].iterations - out[1].iterations) <= 0.15 * out[1].iterations
 

@@ -343,7 +343,7 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
     return energy / alpha, contacts
 
 
-@_jit
+@_jit_fast
 def _row_sq(u, v, a, w, p, dim, mode):  # type: ignore[no-untyped-def]
     """``|t|^2`` of the ``dim``-vector at flat offset ``p``: ``t = u`` (``mode`` 0), ``u - w``
     (1) or ``(u + a v) - w`` (2)."""
@@ -358,7 +358,7 @@ def _row_sq(u, v, a, w, p, dim, mode):  # type: ignore[no-untyped-def]
     return s
 
 
-@_jit
+@_jit_fast
 def _max_row_sq(u, v, a, w, dim, mode):  # type: ignore[no-untyped-def]
     """``max_i`` of :func:`_row_sq` over the ``dim``-vectors of the flat arrays, four rows at a
     time: four running maxima, where one waits on the last comparison (2.5 against 5-10 us at
@@ -380,7 +380,7 @@ def _max_row_sq(u, v, a, w, dim, mode):  # type: ignore[no-untyped-def]
     return max(max(b0, b1), max(b2, b3))
 
 
-@_jit
+@_jit_fast
 def max_row_sq(u, v, a, w, dim, mode):  # type: ignore[no-untyped-def]
     """:func:`_max_row_sq` with ``dim`` 2 and 3 as compile-time constants."""
     if dim == 2:

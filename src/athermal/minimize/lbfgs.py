@@ -265,7 +265,8 @@ def _iterate(  # type: ignore[no-untyped-def]
     contacts = -1
     accepted = energy
     stop = _LIMIT
-    swapped = False
+    swapped = False  # the buffers x, grad, z hold the caller's trial, trial_grad, z_new
+    last_in_x = False  # the last point evaluated is the iterate (trial holds an older one)
     while iterations < maxiter:
         if recorded >= history.shape[1]:
             stop = _FULL
@@ -285,6 +286,7 @@ def _iterate(  # type: ignore[no-untyped-def]
             evaluations += n_eval
             last_energy = f
             contacts = n_contacts
+            last_in_x = False
         if stale or code != ACCEPTED:
             stop = _SEARCH
             break
@@ -312,6 +314,7 @@ def _iterate(  # type: ignore[no-untyped-def]
         else:
             z, z_new = z_new, z
         swapped = not swapped
+        last_in_x = True
         energy = f
         gmax = _kernels.max_row_norm(grad, dim)
         history[0, recorded] = energy
@@ -326,6 +329,10 @@ def _iterate(  # type: ignore[no-untyped-def]
         _swap_contents(grad, trial_grad)
         if solver is not None:
             _swap_contents(z, z_new)
+        x, trial, grad, trial_grad = trial, x, trial_grad, grad
+    if last_in_x:
+        trial[:] = x
+        trial_grad[:] = grad
     counts[0], counts[2], counts[3], counts[4] = iterations, recorded, evaluations, solves
     return stop, last_energy, contacts, accepted
 
