@@ -385,19 +385,20 @@ def test_minimizers_converge_alike_through_either_search(method):
     assert abs(out[0].iterations - out[1].iterations) <= 0.2 * out[1].iterations
 
 
+@pytest.mark.parametrize("method", ["lbfgs", "fr", "pr+"])
 @pytest.mark.parametrize("precon", ["none", "exp"])
-def test_compiled_lbfgs_iterations_hand_over_and_match_the_python_loop(precon, monkeypatch):
-    """L-BFGS with whole iterations compiled against the Python loop (both searching in
-    compiled code), on a relaxation whose Verlet list and Exp preconditioner are rebuilt along
+def test_compiled_iterations_hand_over_and_match_the_python_loop(method, precon, monkeypatch):
+    """L-BFGS and CG (both variants) with whole iterations compiled against the Python loop
+    (both searching in compiled code), on a relaxation whose Verlet list and Exp preconditioner are rebuilt along
     the way and whose compiled history fills up every 7 iterates: the same minimum, about the
     same iterations, every iterate in the history, and each point handed back to the objective
     as the last one evaluated has that energy and gradient."""
     from athermal.precon import ExpPreconditioner
 
-    lbfgs_module = importlib.import_module("athermal.minimize.lbfgs")
+    compiled_module = importlib.import_module("athermal.minimize._compiled")
 
     model = ContactModel(2.0)
-    monkeypatch.setattr(lbfgs_module, "_HISTORY", 7)
+    monkeypatch.setattr(compiled_module, "HISTORY", 7)
     handed = []
     took = Objective.took
     fresh = Objective(overlapped(seed=4, phi=0.92), model)  # the same internal order
@@ -413,11 +414,14 @@ def test_compiled_lbfgs_iterations_hand_over_and_match_the_python_loop(precon, m
     for compiled in (True, False):
         if not compiled:
             monkeypatch.setattr(
-                lbfgs_module._Compiled, "possible", staticmethod(lambda p, q: False)
+                compiled_module.CompiledLoop, "possible", staticmethod(lambda p, q: False)
             )
         obj = Objective(overlapped(seed=4, phi=0.92), model)
         pre = ExpPreconditioner(obj, solver="ic0") if precon == "exp" else None
-        res = lbfgs(obj, obj.x0, gtol=1e-11, precon=pre)
+        if method == "lbfgs":
+            res = lbfgs(obj, obj.x0, gtol=1e-11, precon=pre)
+        else:
+            res = cg(obj, obj.x0, gtol=1e-11, precon=pre, variant=method)
         assert res.converged, res.message
         assert obj.n_rebuilds > 1
         if pre is not None:
@@ -434,8 +438,9 @@ def test_compiled_lbfgs_iterations_hand_over_and_match_the_python_loop(precon, m
     assert abs(out[0].iterations - out[1].iterations) <= 0.15 * out[1].iterations
 
 
-def test_compiled_lbfgs_stops_at_the_iteration_limit():
+@pytest.mark.parametrize("method", [lbfgs, cg])
+def test_compiled_iterations_stop_at_the_iteration_limit(method):
     obj = Objective(overlapped(seed=4, phi=0.92), ContactModel(2.0))
-    res = lbfgs(obj, obj.x0, gtol=1e-14, maxiter=23)
+    res = method(obj, obj.x0, gtol=1e-14, maxiter=23)
     assert res.status is Status.ITERATION_LIMIT and res.iterations == 23
     assert res.history_energy.size == 24

@@ -17,12 +17,203 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from .._kernels import _jit
 from .._validate import choice
+from .._wolfe import ACCEPTED, STEP
+from ._compiled import (
+    CONVERGED,
+    FULL,
+    LIMIT,
+    SEARCH,
+    TAIL,
+    CompiledLoop,
+    record,
+    search_from,
+    solve_at,
+    swap_contents,
+)
 from ._step import advance
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 CGVariant = Literal["fr", "pr+"]
+C2 = 0.1
+"""The line search's curvature constant."""
 _POWELL = 0.1  # restart threshold on the overlap of consecutive gradients
+_YG, _STEP_GUESS, _RESTARTED, _SLOPE = range(4)
+"""Fields of :func:`_iterate`'s ``scalars``: ``y.g`` of the iterate, the next first trial step,
+whether the direction is the (preconditioned) gradient, and the slope of the last search."""
+
+
+@_jit
+def _next(ls_step, slope, beta, direction, y_new, grad_new):  # type: ignore[no-untyped-def]
+    """The next direction ``beta direction - y_new``, written into ``direction``, and the first
+    trial step along it: Nocedal & Wright's ``a_{k-1} g_{k-1}.p_{k-1} / g_k.p_k``, or 1 after a
+    restart or where that is not a positive number."""
+    for p in range(direction.size):
+        direction[p] = beta * direction[p] - y_new[p]
+    step = ls_step * slope / np.dot(grad_new, direction) if beta else 1.0
+    return step if np.isfinite(step) and step > 0.0 else 1.0
+
+
+@_jit
+def _beta(y_new, grad_new, grad, yg, polak):  # type: ignore[no-untyped-def]
+    """``(beta, y_new.grad_new)``: zero by Powell's restart test, else Fletcher-Reeves or, with
+    ``polak``, Polak-Ribiere+."""
+    yg_new = np.dot(y_new, grad_new)
+    if abs(np.dot(y_new, grad)) >= _POWELL * yg_new:
+        return 0.0, yg_new
+    if not polak:
+        return yg_new / yg, yg_new
+    return max(0.0, np.dot(y_new, grad_new - grad) / yg), yg_new
+
+
+@_jit
+def _iterate(  # type: ignore[no-untyped-def]
+    x,
+    grad,
+    y,
+    y_new,
+    direction,
+    trial,
+    trial_grad,
+    state,
+    energy,
+    scalars,
+    polak,
+    history,
+    counts,
+    tolerances,
+    constants,
+    energy_args,
+    solver,
+):
+    """CG iterations in compiled code, the same as :func:`cg`'s, from ``x``, ``grad``, ``y``
+    (``P^-1 grad``, or ``grad`` itself without a preconditioner), ``direction``, ``energy``
+    and ``scalars`` (:data:`_YG`, ...), all updated in place; ``polak`` for Polak-Ribiere+, the
+    other arguments as :func:`~athermal.minimize.lbfgs._iterate`'s. Runs until convergence, the
+    iteration limit or a full history, or until the iteration under way needs Python
+    (:mod:`._compiled`'s codes). Returns the code, the energy of the last point evaluated
+    (always in ``trial``, ``trial_grad``), its contact count, and the energy of the accepted
+    point when stopping at :data:`~._compiled.TAIL`."""
+    dim = constants[0]
+    gtol, etol = tolerances
+    yg, step, restarted = scalars[_YG], scalars[_STEP_GUESS], scalars[_RESTARTED] != 0.0
+    slope = scalars[_SLOPE]
+    iterations, maxiter, recorded = counts[0], counts[1], counts[2]
+    evaluations = 0
+    solves = 0
+    last_energy = energy
+    contacts = -1
+    accepted = energy
+    stop = LIMIT
+    swapped = False  # the buffers x, grad, y hold the caller's trial, trial_grad, y_new
+    last_in_x = False  # the last point evaluated is the iterate (trial holds an older one)
+    while iterations < maxiter:
+        if recorded >= history.shape[1]:
+            stop = FULL
+            break
+        slope = np.dot(grad, direction)
+        if not slope < 0.0:
+            for p in range(direction.size):
+                direction[p] = -y[p]
+            slope, restarted = -yg, True
+        code, n_eval, f, n_contacts, stale = search_from(
+            state, x, direction, trial, trial_grad, energy, slope, step, C2, constants, energy_args
+        )
+        if n_eval:
+            evaluations += n_eval
+            last_energy = f
+            contacts = n_contacts
+            last_in_x = False
+        if stale or code != ACCEPTED:
+            stop = SEARCH
+            break
+        accepted = f
+        if solver is None:
+            fresh_y = trial_grad
+        else:
+            if not solve_at(solver, trial, trial_grad, y_new, dim):
+                stop = TAIL
+                break
+            solves += 1
+            fresh_y = y_new
+        beta, yg = _beta(fresh_y, trial_grad, grad, yg, polak)
+        step = _next(state[STEP], slope, beta, direction, fresh_y, trial_grad)
+        x, trial = trial, x  # the accepted point becomes the iterate: buffers swap, no copies
+        grad, trial_grad = trial_grad, grad
+        if solver is None:
+            y = grad
+        else:
+            y, y_new = y_new, y
+        swapped = not swapped
+        last_in_x = True
+        restarted = False
+        energy = f
+        gmax = record(history, recorded, energy, grad, dim)
+        recorded += 1
+        iterations += 1
+        if gmax <= gtol or energy <= etol:
+            stop = CONVERGED
+            break
+    if swapped:  # back into the caller's buffers
+        swap_contents(x, trial)
+        swap_contents(grad, trial_grad)
+        if solver is not None:
+            swap_contents(y, y_new)
+        x, trial, grad, trial_grad = trial, x, trial_grad, grad
+    if last_in_x:
+        trial[:] = x
+        trial_grad[:] = grad
+    scalars[_YG], scalars[_STEP_GUESS] = yg, step
+    scalars[_RESTARTED] = 1.0 if restarted else 0.0
+    scalars[_SLOPE] = slope
+    counts[0], counts[2], counts[3], counts[4] = iterations, recorded, evaluations, solves
+    return stop, last_energy, contacts, accepted
+
+
+class _Compiled(CompiledLoop):
+    """:class:`~._compiled.CompiledLoop` for :func:`_iterate`, with its scalars."""
+
+    def __init__(self, problem: Problem, precon: Preconditioner | None, polak: bool) -> None:
+        super().__init__(problem, precon)
+        self.polak = polak
+        self.scalars = np.zeros(4)
+
+    def run(
+        self,
+        x: NDArray[np.float64],
+        grad: NDArray[np.float64],
+        y: NDArray[np.float64],
+        direction: NDArray[np.float64],
+        energy: float,
+        tracker: Tracker,
+    ) -> tuple[int, float]:
+        """Iterate from ``x``, ``grad``, ``y``, ``direction``, ``energy`` and :attr:`scalars`
+        (copied in); the results stay in the buffers, the iterates go to ``tracker``. Returns
+        :func:`_iterate`'s code and the accepted energy of a :data:`~._compiled.TAIL` stop."""
+        y_buffer, solver, constants, arguments = self.load(x, grad, y, tracker)
+        self.direction[:] = direction
+        stop, last_energy, contacts, accepted = _iterate(
+            self.x,
+            self.grad,
+            y_buffer,
+            self.z_new,
+            self.direction,
+            self.trial,
+            self.trial_grad,
+            self.state,
+            energy,
+            self.scalars,
+            self.polak,
+            self.history,
+            self.counts,
+            (tracker.gtol, tracker.etol),
+            constants,
+            arguments,
+            solver,
+        )
+        self.unload(tracker, last_energy, contacts)
+        return int(stop), float(accepted)
 
 
 def cg(
@@ -53,33 +244,57 @@ def cg(
     yg = float(y @ grad)
     step = 1.0
     restarted = True
+    polak = variant == "pr+"
+    compiled = None
+    if CompiledLoop.possible(problem, precon):
+        compiled = _Compiled(problem, precon, polak)
     while tracker.iterations < maxiter:
-        slope = float(grad @ direction)
-        if not slope < 0.0:
-            direction, slope, restarted = -y, -yg, True
-        ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, step, 0.1)
-        if not ls.ok and not restarted:
-            direction, slope, restarted = -y, -yg, True
-            ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.1)
-        if not ls.ok:
-            return tracker.finish(
-                x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
+        resume, accepted = None, None  # Python's own iteration, from its start
+        if compiled is not None:
+            compiled.scalars[:] = (yg, step, float(restarted), 0.0)
+            stop, accepted_energy = compiled.run(x, grad, y, direction, energy, tracker)
+            x, grad = compiled.x.copy(), compiled.grad.copy()
+            y = compiled.z.copy() if precon is not None else grad
+            direction = compiled.direction.copy()
+            energy = tracker.energies[-1]
+            yg, step, restarted, slope = compiled.scalars
+            restarted = bool(restarted)
+            if stop == CONVERGED:
+                return tracker.finish(x, Status.CONVERGED, "converged")
+            if stop in (LIMIT, FULL):
+                continue
+            if stop == TAIL:  # the step is taken, the preconditioner is Python's
+                accepted = (compiled.trial.copy(), accepted_energy, compiled.trial_grad.copy())
+                ls_step = float(compiled.state[STEP])
+            elif stop == SEARCH:  # the search goes on in Python
+                resume = compiled.state.copy()
+        if accepted is not None:
+            x_new, energy_new, grad_new = accepted
+        else:
+            if resume is None:
+                slope = float(grad @ direction)
+                if not slope < 0.0:
+                    direction, slope, restarted = -y, -yg, True
+            ls, x_new, energy_new, grad_new = advance(
+                problem, x, energy, grad, direction, step, C2, resume=resume
             )
+            if not ls.ok and not restarted:
+                direction, slope, restarted = -y, -yg, True
+                ls, x_new, energy_new, grad_new = advance(
+                    problem, x, energy, grad, direction, 1.0, C2
+                )
+            if not ls.ok:
+                return tracker.finish(
+                    x, Status.LINE_SEARCH_FAILED, "line search failed: no Wolfe step along descent"
+                )
+            ls_step = ls.step
         x, energy = x_new, energy_new
         if precon is not None:
             precon.update(x)
         y_new = precon.solve(grad_new) if precon is not None else grad_new
-        yg_new = float(y_new @ grad_new)
-        if abs(float(y_new @ grad)) >= _POWELL * yg_new:
-            beta = 0.0
-        elif variant == "fr":
-            beta = yg_new / yg
-        else:
-            beta = max(0.0, float(y_new @ (grad_new - grad)) / yg)
-        step = ls.step * slope / float(grad_new @ (beta * direction - y_new)) if beta else 1.0
-        step = step if np.isfinite(step) and step > 0.0 else 1.0
-        direction = beta * direction - y_new
-        grad, y, yg, restarted = grad_new, y_new, yg_new, False
+        beta, yg = _beta(y_new, grad_new, grad, yg, polak)
+        step = _next(ls_step, slope, beta, direction, y_new, grad_new)
+        grad, y, restarted = grad_new, y_new, False
         if tracker.record(energy, grad):
             return tracker.finish(x, Status.CONVERGED, "converged")
     return tracker.finish(x, Status.ITERATION_LIMIT, f"iteration limit {maxiter} reached")

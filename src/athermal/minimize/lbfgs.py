@@ -39,9 +39,21 @@ from numpy.typing import NDArray
 
 from .. import _kernels
 from .._kernels import _jit
-from .._wolfe import ACCEPTED, STATE_SIZE, begin, energy_search
-from ._step import advance, is_compiled
-from .linesearch import C1, EPS, MAX_EVALUATIONS
+from .._wolfe import ACCEPTED
+from ._compiled import (
+    CONVERGED,
+    FULL,
+    HEAD,
+    LIMIT,
+    SEARCH,
+    TAIL,
+    CompiledLoop,
+    record,
+    search_from,
+    solve_at,
+    swap_contents,
+)
+from ._step import advance
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
 C2 = 0.9
@@ -216,10 +228,6 @@ def _direction(grad, z, s, y, py, sy, ypy, gamma, work, rows, ring, out):  # typ
     ring[_FRESH] = 0
 
 
-# What :func:`_iterate` stopped at.
-_CONVERGED, _LIMIT, _FULL, _HEAD, _SEARCH, _TAIL = range(6)
-
-
 @_jit
 def _iterate(  # type: ignore[no-untyped-def]
     x,
@@ -247,16 +255,14 @@ def _iterate(  # type: ignore[no-untyped-def]
     solves]``; ``tolerances`` ``(gtol, etol)``; ``constants`` the problem's ``(d, max_step,
     noise scale, alpha)``; ``energy_args`` the rest of :func:`~athermal._wolfe.energy_search`'s
     arguments; ``solver`` the incomplete factor's arrays with the positions of its build and
-    its reach, or None for no preconditioner. Runs until convergence (:data:`_CONVERGED`), the
-    iteration limit (:data:`_LIMIT`) or a full history (:data:`_FULL`), or until the iteration
-    under way needs Python: a direction that does not descend (:data:`_HEAD`, nothing done), a
-    search that failed or reached a trial point beyond the Verlet skin (:data:`_SEARCH`, its
-    ``direction`` and ``state`` kept), a preconditioner to rebuild at the accepted point
-    (:data:`_TAIL`, in ``trial``, ``trial_grad``). Returns the code, the energy of the last
-    point evaluated (always in ``trial``, ``trial_grad``), its contact count, and the energy
-    of the accepted point when stopping at :data:`_TAIL`."""
+    its reach, or None for no preconditioner. Runs until convergence, the iteration limit or a
+    full history, or until the iteration under way needs Python (the codes of
+    :mod:`._compiled`: :data:`~._compiled.HEAD` here is a direction that does not descend).
+    Returns the code, the energy of the last point evaluated (always in ``trial``,
+    ``trial_grad``), its contact count, and the energy of the accepted point when stopping at
+    :data:`~._compiled.TAIL`."""
     s, y, py, sy, ypy, gamma, work, rows, ring = memory
-    dim, max_step, noise_scale, alpha = constants
+    dim = constants[0]
     gtol, etol = tolerances
     iterations, maxiter, recorded = counts[0], counts[1], counts[2]
     evaluations = 0
@@ -264,23 +270,20 @@ def _iterate(  # type: ignore[no-untyped-def]
     last_energy = energy
     contacts = -1
     accepted = energy
-    stop = _LIMIT
+    stop = LIMIT
     swapped = False  # the buffers x, grad, z hold the caller's trial, trial_grad, z_new
     last_in_x = False  # the last point evaluated is the iterate (trial holds an older one)
     while iterations < maxiter:
         if recorded >= history.shape[1]:
-            stop = _FULL
+            stop = FULL
             break
         _direction(grad, z, s, y, py, sy, ypy, gamma, work, rows, ring, direction)
         slope = np.dot(grad, direction)
         if not slope < 0.0:
-            stop = _HEAD
+            stop = HEAD
             break
-        cap = _kernels.step_limit(max_step, direction, dim)
-        noise = _kernels.energy_noise(noise_scale, alpha, energy)
-        code = begin(state, energy, slope, 1.0, C1, C2, cap, EPS, noise, MAX_EVALUATIONS)
-        code, n_eval, f, n_contacts, stale = energy_search(
-            state, code, x, direction, trial, trial_grad, *energy_args
+        code, n_eval, f, n_contacts, stale = search_from(
+            state, x, direction, trial, trial_grad, energy, slope, 1.0, C2, constants, energy_args
         )
         if n_eval:
             evaluations += n_eval
@@ -288,20 +291,15 @@ def _iterate(  # type: ignore[no-untyped-def]
             contacts = n_contacts
             last_in_x = False
         if stale or code != ACCEPTED:
-            stop = _SEARCH
+            stop = SEARCH
             break
         accepted = f
         if solver is None:
             fresh_z = trial_grad
         else:
-            arrays, reference, reach_sq = solver
-            n = reference.shape[0]
-            if _kernels.max_displacement_sq(trial.reshape(n, dim), reference) > reach_sq:
-                stop = _TAIL
+            if not solve_at(solver, trial, trial_grad, z_new, dim):
+                stop = TAIL
                 break
-            _kernels.cholesky_solve_columns(
-                *arrays, trial_grad.reshape(n, dim), z_new.reshape(n, dim)
-            )
             solves += 1
             fresh_z = z_new
         _store_pair(
@@ -316,19 +314,17 @@ def _iterate(  # type: ignore[no-untyped-def]
         swapped = not swapped
         last_in_x = True
         energy = f
-        gmax = _kernels.max_row_norm(grad, dim)
-        history[0, recorded] = energy
-        history[1, recorded] = gmax
+        gmax = record(history, recorded, energy, grad, dim)
         recorded += 1
         iterations += 1
         if gmax <= gtol or energy <= etol:
-            stop = _CONVERGED
+            stop = CONVERGED
             break
     if swapped:  # back into the caller's buffers
-        _swap_contents(x, trial)
-        _swap_contents(grad, trial_grad)
+        swap_contents(x, trial)
+        swap_contents(grad, trial_grad)
         if solver is not None:
-            _swap_contents(z, z_new)
+            swap_contents(z, z_new)
         x, trial, grad, trial_grad = trial, x, trial_grad, grad
     if last_in_x:
         trial[:] = x
@@ -337,39 +333,12 @@ def _iterate(  # type: ignore[no-untyped-def]
     return stop, last_energy, contacts, accepted
 
 
-@_jit
-def _swap_contents(a, b):  # type: ignore[no-untyped-def]
-    """Exchange the values of the flat arrays ``a`` and ``b`` (same size)."""
-    for p in range(a.size):
-        a[p], b[p] = b[p], a[p]
-
-
-_HISTORY = 4096
-"""Iterates :func:`_iterate` records before it hands its history to the tracker."""
-
-
-class _Compiled:
-    """The buffers of :func:`_iterate` and what runs it: the problem's arguments and the
-    preconditioner's arrays, fetched anew at every run (Python may have rebuilt either)."""
+class _Compiled(CompiledLoop):
+    """:class:`~._compiled.CompiledLoop` for :func:`_iterate`, with the L-BFGS memory."""
 
     def __init__(self, problem: Problem, precon: Preconditioner | None, pairs: _Memory) -> None:
-        n = problem.n_dof
-        self.problem, self.precon, self.pairs = problem, precon, pairs
-        self.x, self.grad, self.z = np.empty(n), np.empty(n), np.empty(n)
-        self.z_new, self.direction = np.empty(n), np.empty(n)
-        self.trial, self.trial_grad = np.empty(n), np.empty(n)
-        self.state = np.empty(STATE_SIZE)
-        self.history = np.empty((2, _HISTORY))
-        self.counts = np.zeros(5, dtype=np.int64)
-
-    @staticmethod
-    def possible(problem: Problem, precon: Preconditioner | None) -> bool:
-        """Whether the problem searches in compiled code and the preconditioner, if any (built),
-        is solved there."""
-        if not is_compiled(problem):
-            return False
-        solver = getattr(precon, "compiled_solver", None)
-        return precon is None or (callable(solver) and solver() is not None)
+        super().__init__(problem, precon)
+        self.pairs = pairs
 
     def run(
         self,
@@ -381,17 +350,8 @@ class _Compiled:
     ) -> tuple[int, float]:
         """Iterate from ``x``, ``grad``, ``z``, ``energy`` (copied in); the results stay in the
         buffers, the iterates go to ``tracker``. Returns :func:`_iterate`'s code and the
-        accepted energy of a :data:`_TAIL` stop."""
-        solver = None
-        if self.precon is not None:
-            solver = self.precon.compiled_solver()  # type: ignore[attr-defined]
-        problem = self.problem
-        self.x[:] = x
-        self.grad[:] = grad
-        z_buffer = self.grad if self.precon is None else self.z
-        if self.precon is not None:
-            self.z[:] = z
-        self.counts[:] = (tracker.iterations, tracker.maxiter, 0, 0, 0)
+        accepted energy of a :data:`~._compiled.TAIL` stop."""
+        z_buffer, solver, constants, arguments = self.load(x, grad, z, tracker)
         stop, last_energy, contacts, accepted = _iterate(
             self.x,
             self.grad,
@@ -406,18 +366,11 @@ class _Compiled:
             self.history,
             self.counts,
             (tracker.gtol, tracker.etol),
-            problem.search_constants(),  # type: ignore[attr-defined]
-            problem.search_arguments(x),  # type: ignore[attr-defined]
+            constants,
+            arguments,
             solver,
         )
-        recorded, evaluations, solves = (int(v) for v in self.counts[2:])
-        tracker.extend(self.history[0, :recorded], self.history[1, :recorded])
-        if evaluations:
-            problem.took(  # type: ignore[attr-defined]
-                self.trial.copy(), last_energy, self.trial_grad.copy(), contacts, evaluations
-            )
-        if self.precon is not None and solves:
-            self.precon.n_solves += solves  # type: ignore[attr-defined]
+        self.unload(tracker, last_energy, contacts)
         return int(stop), float(accepted)
 
 
@@ -448,21 +401,21 @@ def lbfgs(
     pairs = _Memory(memory, problem.n_dof, precon)
     if tracker.record(energy, grad):
         return tracker.finish(x, Status.CONVERGED, "converged")
-    compiled = _Compiled(problem, precon, pairs) if _Compiled.possible(problem, precon) else None
+    compiled = _Compiled(problem, precon, pairs) if CompiledLoop.possible(problem, precon) else None
     while tracker.iterations < maxiter:
-        stop, step, resume = _HEAD, None, None  # Python's own iteration, from its start
+        stop, step, resume = HEAD, None, None  # Python's own iteration, from its start
         if compiled is not None:
             stop, accepted = compiled.run(x, grad, z, energy, tracker)
             x, grad = compiled.x.copy(), compiled.grad.copy()
             z = compiled.z.copy() if precon is not None else grad
             energy = tracker.energies[-1]
-            if stop == _CONVERGED:
+            if stop == CONVERGED:
                 return tracker.finish(x, Status.CONVERGED, "converged")
-            if stop in (_LIMIT, _FULL):
+            if stop in (LIMIT, FULL):
                 continue
-            if stop == _TAIL:  # the step is taken, the preconditioner is Python's
+            if stop == TAIL:  # the step is taken, the preconditioner is Python's
                 step = (compiled.trial.copy(), accepted, compiled.trial_grad.copy())
-            elif stop == _SEARCH:  # the search goes on in Python
+            elif stop == SEARCH:  # the search goes on in Python
                 direction, resume = compiled.direction.copy(), compiled.state.copy()
         if step is not None:
             x_new, energy_new, grad_new = step
