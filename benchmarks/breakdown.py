@@ -4,12 +4,13 @@ Each method relaxes Case 1 (alpha = 2 by default) to 1e-9 F0 while the parts of 
 timed by wrappers (about 1 us per call): the compiled energy+gradient kernel, the rest of
 ``Objective.__call__`` (its bookkeeping), the preconditioner's solve and its builds (assembly,
 ``mu``, factorization: a cost per build, left out of the ratios), the L-BFGS direction (its
-compact form), whole L-BFGS iterations run in compiled code (kernels, searches and solves
-included), the compiled line search (its trial points, kernel calls and state machine in one
-call), the line search's Python part (without its evaluations), and the rest. The floor an
+compact form), whole L-BFGS or CG iterations run in compiled code (kernels, searches and
+solves included), the compiled line search (its trial points, kernel calls and state machine in
+one call), the line search's Python part (without its evaluations), and the rest. The floor an
 iteration should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, with the
-kernel and the solve timed bare, in a loop, on the same configuration, right before and after
-each method's run (each row takes the mean of its two); the issue's target is
+kernel and the solve timed bare, in a loop, on the same configuration, between ``--repeats``
+runs of each method (each run takes the mean of the two around it, each row is the run of the
+median ratio); the issue's target is
 ``ms / iteration <= 1.3 x floor``. ``--compare-search K`` also runs each method ``K`` times with
 the compiled line search and with the Python one (an objective without ``took``), alternating in
 one process, and reports their time ratio (FIRE, which has no line search, is the control).
@@ -182,16 +183,16 @@ def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> di
                 clock.wrap("direction", lbfgs_module._Memory.direction),
             )
         )
-        iterate = lbfgs_module._iterate
-
-        def counted(*args: Any) -> Any:  # the compiled iterations' solves count as solves
-            out = iterate(*args)
-            clock.calls["solve"] += int(args[11][4])  # counts[4]: solves of this call
-            return out
-
-        stack.enter_context(
-            mock.patch.object(lbfgs_module, "_iterate", clock.wrap("compiled iterations", counted))
-        )
+        for module, position in ((lbfgs_module, 11), (cg_module, 12)):  # where counts is
+            if not hasattr(module, "_iterate"):  # older code (--name breakdown_before)
+                continue
+            stack.enter_context(
+                mock.patch.object(
+                    module,
+                    "_iterate",
+                    clock.wrap("compiled iterations", counted(clock, module._iterate, position)),
+                )
+            )
         for module in (lbfgs_module, cg_module):
             stack.enter_context(
                 mock.patch.object(module, "advance", clock.wrap("line search", module.advance))
@@ -219,6 +220,18 @@ def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> di
         "ms_per_iteration": 1e3 * total / iters,
         "parts_ms_per_iteration": {p: 1e3 * clock.seconds[p] / iters for p in PARTS},
     }
+
+
+def counted(clock: Clock, iterate: Callable[..., Any], position: int) -> Callable[..., Any]:
+    """``iterate`` (a compiled loop) with its solves added to ``clock``'s: ``counts[4]`` of the
+    call, its argument at ``position``."""
+
+    def run(*args: Any) -> Any:
+        out = iterate(*args)
+        clock.calls["solve"] += int(args[position][4])
+        return out
+
+    return run
 
 
 class PythonSearch(Objective):
@@ -259,6 +272,23 @@ def compare_searches(
     return out
 
 
+def rated(row: dict[str, Any], floor: dict[str, float], how: Minimizer) -> dict[str, Any]:
+    """``row`` (a :func:`profile`) with its floors and its ratios to them, for the bare
+    timings ``floor`` (seconds)."""
+    precon = how.precon if how.precon != "none" else None
+    solve = floor[f"solve {precon}"] if precon else 0.0
+    iters = max(row["iterations"], 1)
+    row["floor_ms"] = 1e3 * (
+        row["evaluations"] / iters * floor["kernel"] + row["solves"] / iters * solve
+    )
+    steady = row["ms_per_iteration"] - row["parts_ms_per_iteration"]["build"]
+    row["ratio_to_floor"] = steady / row["floor_ms"]
+    recursion = floor["direction P" if precon else "direction"] if how.method == "lbfgs" else 0.0
+    row["floor_with_recursion_ms"] = row["floor_ms"] + 1e3 * recursion
+    row["ratio_to_floor_with_recursion"] = steady / row["floor_with_recursion_ms"]
+    return row
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--alpha", type=float, default=2.0)
@@ -266,6 +296,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--name", default="breakdown")
     parser.add_argument("--tile", type=int, default=1, help="scale.py's start, tiled K x K")
     parser.add_argument("--maxiter", type=int, default=50_000)
+    parser.add_argument(
+        "--repeats", type=int, default=3, help="runs of each method (the median ratio's shown)"
+    )
     parser.add_argument("--methods", nargs="+", default=[m.name for m in METHODS])
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     parser.add_argument(
@@ -293,29 +326,24 @@ def main(argv: list[str] | None = None) -> int:
     for how in chosen:
         if start.n <= 65536:
             profile(start, model, how, args.maxiter)  # warm-up: compilation, caches
-        before = floors(start, model, precons)
-        row = profile(start, model, how, args.maxiter)
         after = floors(start, model, precons)
-        measured += [before, after]
-        floor = {k: 0.5 * (before[k] + after[k]) for k in before}  # the machine's speed drifts
-        precon = how.precon if how.precon != "none" else None
-        solve = floor[f"solve {precon}"] if precon else 0.0
-        iters = max(row["iterations"], 1)
-        row["floor_ms"] = 1e3 * (
-            row["evaluations"] / iters * floor["kernel"] + row["solves"] / iters * solve
-        )
-        steady = row["ms_per_iteration"] - row["parts_ms_per_iteration"]["build"]
-        row["ratio_to_floor"] = steady / row["floor_ms"]
-        recursion = (
-            floor["direction P" if precon else "direction"] if how.method == "lbfgs" else 0.0
-        )
-        row["floor_with_recursion_ms"] = row["floor_ms"] + 1e3 * recursion
-        row["ratio_to_floor_with_recursion"] = steady / row["floor_with_recursion_ms"]
+        runs = []
+        for _ in range(args.repeats):
+            before = after
+            row = profile(start, model, how, args.maxiter)
+            after = floors(start, model, precons)
+            measured += [before, after]
+            floor = {k: 0.5 * (before[k] + after[k]) for k in before}  # the speed drifts
+            runs.append(rated(row, floor, how))
+        runs.sort(key=lambda r: r["ratio_to_floor_with_recursion"])
+        row = runs[len(runs) // 2]  # the run of the median ratio
+        row["ratio_range"] = [runs[0]["ratio_to_floor_with_recursion"]]
+        row["ratio_range"].append(runs[-1]["ratio_to_floor_with_recursion"])
         rows.append(row)
         print(f"{how.name}: {row['ms_per_iteration']:.3f} ms/it", file=sys.stderr, flush=True)
     floor = {k: float(np.median([m[k] for m in measured])) for k in measured[0]}
     header = "| method | iterations | evaluations / it | solves / it | ms / it | floor ms / it "
-    header += "| ratio | floor + direction | ratio | " + " | ".join(PARTS) + " |"
+    header += "| ratio | floor + direction | ratio (range) | " + " | ".join(PARTS) + " |"
     md = [
         f"# Per-iteration breakdown: {what}, alpha = {args.alpha:g}, N = {start.n}",
         "",
@@ -324,14 +352,16 @@ def main(argv: list[str] | None = None) -> int:
         + "; bare "
         f"L-BFGS direction (compact form, m = 10, full memory) {1e3 * floor['direction']:.4f} ms, "
         f"with a preconditioner (P^-1 y kept) {1e3 * floor['direction P']:.4f} ms. "
-        "(medians of the bare timings taken right before and after each method's run; each "
-        "row's floor takes the mean of its own two, since this machine's speed drifts). "
+        f"(medians of the bare timings taken between {args.repeats} runs of each method; each "
+        "run's floor takes the mean of the two around it, since this machine's speed drifts; "
+        "each row is the run of the median ratio to floor + direction, the range over the "
+        "runs in brackets). "
         "floor = evaluations/it x kernel + solves/it x solve (the issue's; target ratio <= 1.3); "
         "floor + direction adds the bare direction for the L-BFGS rows; the ratios leave the "
         "builds out. "
         "Parts in ms per iteration (objective: Objective.__call__ without the kernel; "
-        "compiled iterations: whole L-BFGS iterations in one compiled call, their kernels, "
-        "searches and solves included; "
+        "compiled iterations: whole L-BFGS or CG iterations in one compiled call, their "
+        "kernels, searches and solves included; "
         "compiled search: the line search's trial points, their kernel calls and its state "
         "machine in one compiled call; line search: its Python part, without the compiled call and "
         "the evaluations).",
@@ -347,7 +377,8 @@ def main(argv: list[str] | None = None) -> int:
             f"{r['evaluations'] / iters:.2f} | "
             f"{r['solves'] / iters:.2f} | {r['ms_per_iteration']:.3f} | {r['floor_ms']:.3f} | "
             f"{r['ratio_to_floor']:.2f} | {r['floor_with_recursion_ms']:.3f} | "
-            f"{r['ratio_to_floor_with_recursion']:.2f} | {parts} |"
+            f"{r['ratio_to_floor_with_recursion']:.2f} ({r['ratio_range'][0]:.2f}-"
+            f"{r['ratio_range'][1]:.2f}) | {parts} |"
         )
     md.append("")
     searches = []

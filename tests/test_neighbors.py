@@ -75,6 +75,7 @@ def test_rebuild_rule_on_maximal_displacement():
     assert nl.is_current(x)
     x[5, 0] += 0.0002
     assert not nl.is_current(x)
+    assert not nl.is_current(np.asfortranarray(x))  # any memory layout
 
 
 def test_list_built_with_skin_stays_complete_within_half_skin():
@@ -89,3 +90,25 @@ def test_list_built_with_skin_stays_complete_within_half_skin():
     listed = {(i, j, n) for i, j, n in pair_set(nl)}
     touching = brute_force_pairs(moved, p.radii, p.cell, 0.0)
     assert touching <= listed
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3, 4])
+@pytest.mark.parametrize("rows", [1, 3, 4, 9, 1027])
+def test_row_maxima_match_numpy(dim, rows):
+    """The compiled row maxima (four rows at a time, 2D and 3D specialized) against numpy, for
+    row counts that leave every remainder of four."""
+    from athermal import _kernels
+    from athermal._wolfe import _farthest_sq
+
+    rng = np.random.default_rng(rows * dim)
+    x, direction = rng.normal(size=(2, rows * dim))
+    reference = rng.normal(size=(rows, dim))
+    flat = x.reshape(rows, dim)
+    assert _kernels.max_row_norm(x, dim) == pytest.approx(np.linalg.norm(flat, axis=1).max())
+    moved = ((flat - reference) ** 2).sum(axis=1).max()
+    assert _kernels.max_displacement_sq(flat, reference) == pytest.approx(moved)
+    trial = ((flat + 0.3 * direction.reshape(rows, dim) - reference) ** 2).sum(axis=1).max()
+    assert _farthest_sq(x, direction, 0.3, reference) == pytest.approx(trial)
+    assert _kernels.step_limit(0.5, x, dim) == pytest.approx(
+        0.5 / np.linalg.norm(flat, axis=1).max()
+    )

@@ -77,7 +77,9 @@ class NeighborList:
 
     def is_current(self, positions: NDArray[np.float64]) -> bool:
         """True while no particle has moved more than ``skin / 2`` since the build."""
-        moved = _kernels.max_displacement_sq(np.asarray(positions), self.reference)
+        moved = _kernels.max_displacement_sq(
+            np.ascontiguousarray(positions, dtype=np.float64), self.reference
+        )
         return bool(moved <= self.reach_sq)
 
 

@@ -6,8 +6,8 @@ leaving compiled code: the trial points, the energy kernel and the line search's
 run in one call, and control comes back to Python only when the search ends or a trial point
 moves beyond where the Verlet list holds. Measured on the Table's case 1 (N = 4096, alpha = 2,
 the two searches alternating in one process, Intel Xeon): 0.90x the wall time for L-BFGS,
-0.93x for P-L-BFGS and 0.96-0.98x for CG, for the same iterations; L-BFGS's compiled
-iterations (:mod:`.lbfgs`) go further.
+0.93x for P-L-BFGS and 0.96-0.98x for CG, for the same iterations; the compiled iterations
+of L-BFGS and CG (:mod:`._compiled`) go further.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from .result import Problem
 
 class CompiledProblem(Problem, Protocol):
     """A :class:`Problem` that runs a line search's state machine on its own energy in compiled
-    code (:meth:`athermal.objective.Objective.search`; for L-BFGS's compiled iterations, the
+    code (:meth:`athermal.objective.Objective.search`; for the compiled iterations, the
     arguments and constants that takes), and takes back what that evaluated."""
 
     def search(
