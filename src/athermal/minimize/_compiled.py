@@ -71,10 +71,37 @@ def record(history, recorded, energy, grad, dim):  # type: ignore[no-untyped-def
 
 
 @_jit
-def swap_contents(a, b):  # type: ignore[no-untyped-def]
+def _swap_contents(a, b):  # type: ignore[no-untyped-def]
     """Exchange the values of the flat arrays ``a`` and ``b`` (same size)."""
     for p in range(a.size):
         a[p], b[p] = b[p], a[p]
+
+
+@_jit
+def accept(x, trial, grad, trial_grad, z, z_new, preconditioned):  # type: ignore[no-untyped-def]
+    """The accepted point (``trial``, ``trial_grad``, ``z_new``) becomes the iterate: the
+    buffers swap roles, nothing is copied. Returns ``x, trial, grad, trial_grad, z, z_new``;
+    without a preconditioner ``z`` is the new ``grad``."""
+    if preconditioned:
+        return trial, x, trial_grad, grad, z_new, z
+    return trial, x, trial_grad, grad, trial_grad, z_new
+
+
+@_jit
+def hand_back(x, trial, grad, trial_grad, z, z_new, preconditioned, swapped, last_in_x):  # type: ignore[no-untyped-def]
+    """At the end of a run, leave the iterate in the caller's ``x``, ``grad``, ``z`` buffers and
+    the last point evaluated in its ``trial``, ``trial_grad``: the values swap back after an
+    odd number of :func:`accept` (``swapped``), and the iterate is copied into ``trial`` when it
+    was the last point evaluated (``last_in_x``)."""
+    if swapped:
+        _swap_contents(x, trial)
+        _swap_contents(grad, trial_grad)
+        if preconditioned:
+            _swap_contents(z, z_new)
+        x, trial, grad, trial_grad = trial, x, trial_grad, grad
+    if last_in_x:
+        trial[:] = x
+        trial_grad[:] = grad
 
 
 class CompiledLoop:

@@ -34,10 +34,11 @@ from ._compiled import (
     SEARCH,
     TAIL,
     CompiledLoop,
+    accept,
+    hand_back,
     record,
     search_from,
     solve_at,
-    swap_contents,
 )
 from ._step import advance
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
@@ -146,12 +147,9 @@ def _iterate(  # type: ignore[no-untyped-def]
             fresh_y = y_new
         beta, yg = _beta(fresh_y, trial_grad, grad, yg, polak)
         step = _next(state[STEP], slope, beta, direction, fresh_y, trial_grad)
-        x, trial = trial, x  # the accepted point becomes the iterate: buffers swap, no copies
-        grad, trial_grad = trial_grad, grad
-        if solver is None:
-            y = grad
-        else:
-            y, y_new = y_new, y
+        x, trial, grad, trial_grad, y, y_new = accept(
+            x, trial, grad, trial_grad, y, y_new, solver is not None
+        )
         swapped = not swapped
         last_in_x = True
         restarted = False
@@ -162,15 +160,7 @@ def _iterate(  # type: ignore[no-untyped-def]
         if gmax <= gtol or energy <= etol:
             stop = CONVERGED
             break
-    if swapped:  # back into the caller's buffers
-        swap_contents(x, trial)
-        swap_contents(grad, trial_grad)
-        if solver is not None:
-            swap_contents(y, y_new)
-        x, trial, grad, trial_grad = trial, x, trial_grad, grad
-    if last_in_x:
-        trial[:] = x
-        trial_grad[:] = grad
+    hand_back(x, trial, grad, trial_grad, y, y_new, solver is not None, swapped, last_in_x)
     scalars[_YG], scalars[_STEP_GUESS] = yg, step
     scalars[_RESTARTED] = 1.0 if restarted else 0.0
     scalars[_SLOPE] = slope

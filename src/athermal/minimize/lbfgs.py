@@ -52,10 +52,11 @@ from ._compiled import (
     SEARCH,
     TAIL,
     CompiledLoop,
+    accept,
+    hand_back,
     record,
     search_from,
     solve_at,
-    swap_contents,
 )
 from ._step import advance
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
@@ -309,12 +310,9 @@ def _iterate(  # type: ignore[no-untyped-def]
         _store_pair(
             x, trial, grad, trial_grad, z, fresh_z, s, y, py, sy, ypy, gamma, work, rows, ring
         )
-        x, trial = trial, x  # the accepted point becomes the iterate: buffers swap, no copies
-        grad, trial_grad = trial_grad, grad
-        if solver is None:
-            z = grad
-        else:
-            z, z_new = z_new, z
+        x, trial, grad, trial_grad, z, z_new = accept(
+            x, trial, grad, trial_grad, z, z_new, solver is not None
+        )
         swapped = not swapped
         last_in_x = True
         energy = f
@@ -324,15 +322,7 @@ def _iterate(  # type: ignore[no-untyped-def]
         if gmax <= gtol or energy <= etol:
             stop = CONVERGED
             break
-    if swapped:  # back into the caller's buffers
-        swap_contents(x, trial)
-        swap_contents(grad, trial_grad)
-        if solver is not None:
-            swap_contents(z, z_new)
-        x, trial, grad, trial_grad = trial, x, trial_grad, grad
-    if last_in_x:
-        trial[:] = x
-        trial_grad[:] = grad
+    hand_back(x, trial, grad, trial_grad, z, z_new, solver is not None, swapped, last_in_x)
     counts[0], counts[2], counts[3], counts[4] = iterations, recorded, evaluations, solves
     return stop, last_energy, contacts, accepted
 
