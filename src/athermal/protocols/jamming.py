@@ -109,7 +109,9 @@ factor, for about as many iterations (1.29 and 1.31 million). With the compact s
 on average, of 0.28 ms each on a normal day: its time is set by how long the trials near
 ``phi_c`` crawl. L-BFGS's compiled iterations (:mod:`athermal.minimize.lbfgs`) run the same
 trajectories in 0.62-0.67x the time at N = 1024 (``benchmarks/results/compiled_loops_n1024.md``)
-and in 880 against 1164 s for the ten N = 4096 runs of root seed 0 (two slow days). L-BFGS
+and in 880 against 1164 s for the ten N = 4096 runs of root seed 0 (two slow days); on a faster
+day, with the row maxima four rows at a time and no copies of the accepted point, 614 against
+692 s for the code before, run beside it (34-96 s per run, 5 of 10 within 60 s). L-BFGS
 memory 6 instead of 10 (the same runs, in the same conditions: 463
 against 404 s) makes each iteration cheaper (0.25 against 0.31 ms) but the trials near phi_c
 take 41 % more."""
