@@ -389,10 +389,11 @@ def test_minimizers_converge_alike_through_either_search(method):
 @pytest.mark.parametrize("precon", ["none", "exp"])
 def test_compiled_iterations_hand_over_and_match_the_python_loop(method, precon, monkeypatch):
     """L-BFGS and CG (both variants) with whole iterations compiled against the Python loop
-    (both searching in compiled code), on a relaxation whose Verlet list and Exp preconditioner are rebuilt along
-    the way and whose compiled history fills up every 7 iterates: the same minimum, about the
-    same iterations, every iterate in the history, and each point handed back to the objective
-    as the last one evaluated has that energy and gradient."""
+    (both searching in compiled code), on a relaxation whose Verlet list and Exp
+    preconditioner are rebuilt along the way and whose compiled history fills up every 7
+    iterates: the same minimum, about the same iterations, every iterate in the history, and
+    each point handed back to the objective as the last one evaluated has that energy and
+    gradient."""
     from athermal.precon import ExpPreconditioner
 
     compiled_module = importlib.import_module("athermal.minimize._compiled")

@@ -34,7 +34,9 @@ HISTORY = 4096
 
 
 @_jit
-def search_from(state, x, direction, trial, trial_grad, energy, slope, step, c2, constants, energy_args):  # type: ignore[no-untyped-def]
+def search_from(  # type: ignore[no-untyped-def]
+    state, x, direction, trial, trial_grad, energy, slope, step, c2, constants, energy_args
+):
     """The strong-Wolfe search along ``direction`` from ``x`` (``energy``, ``slope``), from the
     first trial ``step`` capped as :meth:`~athermal.objective.Objective.step_limit` caps it,
     as :func:`~._step.advance` begins it; ``constants`` and ``energy_args`` as

@@ -248,14 +248,14 @@ def cg(
     while tracker.iterations < maxiter:
         resume, accepted = None, None  # Python's own iteration, from its start
         if compiled is not None:
-            compiled.scalars[:] = (yg, step, float(restarted), 0.0)
+            compiled.scalars[[_YG, _STEP_GUESS, _RESTARTED]] = (yg, step, float(restarted))
             stop, accepted_energy = compiled.run(x, grad, y, direction, energy, tracker)
             x, grad = compiled.x.copy(), compiled.grad.copy()
             y = compiled.z.copy() if precon is not None else grad
             direction = compiled.direction.copy()
             energy = tracker.energies[-1]
-            yg, step, restarted, slope = compiled.scalars
-            restarted = bool(restarted)
+            yg, step, slope = (float(compiled.scalars[k]) for k in (_YG, _STEP_GUESS, _SLOPE))
+            restarted = bool(compiled.scalars[_RESTARTED])
             if stop == CONVERGED:
                 return tracker.finish(x, Status.CONVERGED, "converged")
             if stop in (LIMIT, FULL):
