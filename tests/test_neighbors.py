@@ -112,3 +112,10 @@ def test_row_maxima_match_numpy(dim, rows):
     assert _kernels.step_limit(0.5, x, dim) == pytest.approx(
         0.5 / np.linalg.norm(flat, axis=1).max()
     )
+    # the search's reach test sees the very point it would evaluate (no fused multiply-add),
+    # so that the compiled and the Python reach tests agree to the bit
+    for a in rng.uniform(0.0, 2.0, 50):
+        point = (x + a * direction).reshape(rows, dim)
+        assert _farthest_sq(x, direction, a, reference) == _kernels.max_displacement_sq(
+            point, reference
+        )

@@ -344,50 +344,67 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
 
 
 @_jit_fast
-def _row_sq(u, v, a, w, p, dim, mode):  # type: ignore[no-untyped-def]
-    """``|t|^2`` of the ``dim``-vector at flat offset ``p``: ``t = u`` (``mode`` 0), ``u - w``
-    (1) or ``(u + a v) - w`` (2)."""
+def _row_norm_sq(v, p, dim):  # type: ignore[no-untyped-def]
+    """``|v_p|^2`` of the ``dim``-vector at flat offset ``p``, under the kernels' ``fastmath``
+    (the largest gradient and the step cap keep the bits they always had)."""
     s = 0.0
     for k in range(dim):
-        t = u[p + k]
-        if mode == 2:
-            t = t + a * v[p + k]
-        if mode >= 1:
-            t = t - w[p + k]
+        s += v[p + k] * v[p + k]
+    return s
+
+
+@_jit
+def _row_gap_sq(u, v, a, w, p, dim):  # type: ignore[no-untyped-def]
+    """``|(u + a v) - w|^2`` of the ``dim``-vectors at flat offset ``p``, without ``fastmath``:
+    ``u + a v`` rounds as the trial points of :func:`~athermal._wolfe.energy_search` do, so
+    that the compiled and the Python reach tests agree on the point evaluated."""
+    s = 0.0
+    for k in range(dim):
+        t = (u[p + k] + a * v[p + k]) - w[p + k]
         s += t * t
     return s
 
 
-@_jit_fast
-def _max_row_sq(u, v, a, w, dim, mode):  # type: ignore[no-untyped-def]
+@_jit
+def _row_sq(u, v, a, w, p, dim, gap):  # type: ignore[no-untyped-def]
+    """:func:`_row_gap_sq` with ``gap``, else :func:`_row_norm_sq` of ``u``."""
+    if gap:
+        return _row_gap_sq(u, v, a, w, p, dim)
+    return _row_norm_sq(u, p, dim)
+
+
+@_jit
+def _max_row_sq(u, v, a, w, dim, gap):  # type: ignore[no-untyped-def]
     """``max_i`` of :func:`_row_sq` over the ``dim``-vectors of the flat arrays, four rows at a
     time: four running maxima, where one waits on the last comparison (2.5 against 5-10 us at
-    N = 4096, 2D, Intel Xeon). Called with a literal ``dim`` and ``mode``, which the compiler
+    N = 4096, 2D, Intel Xeon). Called with a literal ``dim`` and ``gap``, which the compiler
     folds in."""
     rows = u.size // dim
     b0 = b1 = b2 = b3 = 0.0
     i = 0
     while i + 4 <= rows:
         p = i * dim
-        b0 = max(b0, _row_sq(u, v, a, w, p, dim, mode))
-        b1 = max(b1, _row_sq(u, v, a, w, p + dim, dim, mode))
-        b2 = max(b2, _row_sq(u, v, a, w, p + 2 * dim, dim, mode))
-        b3 = max(b3, _row_sq(u, v, a, w, p + 3 * dim, dim, mode))
+        b0 = max(b0, _row_sq(u, v, a, w, p, dim, gap))
+        b1 = max(b1, _row_sq(u, v, a, w, p + dim, dim, gap))
+        b2 = max(b2, _row_sq(u, v, a, w, p + 2 * dim, dim, gap))
+        b3 = max(b3, _row_sq(u, v, a, w, p + 3 * dim, dim, gap))
         i += 4
     while i < rows:
-        b0 = max(b0, _row_sq(u, v, a, w, i * dim, dim, mode))
+        b0 = max(b0, _row_sq(u, v, a, w, i * dim, dim, gap))
         i += 1
     return max(max(b0, b1), max(b2, b3))
 
 
-@_jit_fast
-def max_row_sq(u, v, a, w, dim, mode):  # type: ignore[no-untyped-def]
-    """:func:`_max_row_sq` with ``dim`` 2 and 3 as compile-time constants."""
+@_jit
+def max_row_sq(u, v, a, w, dim, gap):  # type: ignore[no-untyped-def]
+    """``max_i |(u_i + a v_i) - w_i|^2`` over the ``dim``-vectors of the flat arrays with
+    ``gap``, else ``max_i |u_i|^2`` (:func:`_max_row_sq`, with ``dim`` 2 and 3 as compile-time
+    constants)."""
     if dim == 2:
-        return _max_row_sq(u, v, a, w, 2, mode)
+        return _max_row_sq(u, v, a, w, 2, gap)
     if dim == 3:
-        return _max_row_sq(u, v, a, w, 3, mode)
-    return _max_row_sq(u, v, a, w, dim, mode)
+        return _max_row_sq(u, v, a, w, 3, gap)
+    return _max_row_sq(u, v, a, w, dim, gap)
 
 
 @_jit
@@ -395,7 +412,7 @@ def max_displacement_sq(x, reference):  # type: ignore[no-untyped-def]
     """Largest squared displacement ``max_i |x_i - reference_i|^2`` over the rows of ``x`` and
     ``reference`` ``(N, d)`` (C-contiguous)."""
     flat = x.reshape(x.size)
-    return max_row_sq(flat, flat, 0.0, reference.reshape(reference.size), x.shape[1], 1)
+    return max_row_sq(flat, flat, 0.0, reference.reshape(reference.size), x.shape[1], True)
 
 
 @_jit
@@ -411,7 +428,7 @@ def same_values(a, b):  # type: ignore[no-untyped-def]
 @_jit
 def max_row_norm(v, d):  # type: ignore[no-untyped-def]
     """``max_i |v_i|`` over the ``d``-vectors of a flat ``(N d,)`` array."""
-    return np.sqrt(max_row_sq(v, v, 0.0, v, d, 0))
+    return np.sqrt(max_row_sq(v, v, 0.0, v, d, False))
 
 
 @_jit

@@ -226,4 +226,5 @@ def evaluate(points, gradient, radii, first, second, images, shift, typeid, kmat
 def _farthest_sq(x, direction, a, reference):  # type: ignore[no-untyped-def]
     """``max_i |x_i + a direction_i - reference_i|^2`` over the ``(n, d)`` rows of
     ``reference`` (``x``, ``direction`` flat)."""
-    return max_row_sq(x, direction, a, reference.reshape(reference.size), reference.shape[1], 2)
+    flat = reference.reshape(reference.size)
+    return max_row_sq(x, direction, a, flat, reference.shape[1], True)
