@@ -116,13 +116,20 @@ def line(meta: dict[str, str]) -> str:
     )
 
 
-def save(directory: Path, name: str, data: dict[str, Any], markdown: str) -> None:
-    """Write ``directory/<name>.json`` (``data`` plus :func:`describe` under ``"machine"``) and
-    ``directory/<name>.md`` (``markdown`` plus ``Run: <line>.``), each atomically."""
-    meta = describe()
+def save(
+    directory: Path,
+    name: str,
+    data: dict[str, Any],
+    markdown: str,
+    meta: dict[str, str] | str | None = None,
+) -> None:
+    """Write ``directory/<name>.json`` (``data`` plus ``meta`` under ``"machine"``) and
+    ``directory/<name>.md`` (``markdown`` plus ``Run: <line>.``), each atomically; ``meta`` is
+    the run's machine, default this one (:func:`describe`; a string: an older result's line)."""
+    meta = describe() if meta is None else meta
     data["machine"] = meta
     text = markdown if markdown.endswith("\n") else markdown + "\n"
-    text += f"\nRun: {line(meta)}.\n"
+    text += f"\nRun: {line(meta) if isinstance(meta, dict) else meta}.\n"
     directory.mkdir(parents=True, exist_ok=True)
     write_text(directory / f"{name}.json", json.dumps(data, indent=1) + "\n")
     write_text(directory / f"{name}.md", text)

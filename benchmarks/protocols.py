@@ -11,6 +11,7 @@ experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summar
     python benchmarks/protocols.py phic --dim 3 --n 1024 --seeds 3        # ... 3D
     python benchmarks/protocols.py phic --n 4096 --solver direct          # ... exact factor
     python benchmarks/protocols.py scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
+    python benchmarks/protocols.py scaling --alpha 2 --n 1024 --refit     # ... its fits again
     python benchmarks/protocols.py iterations --n 1024 --seeds 10         # seed's iteration figure
     python benchmarks/protocols.py iterations --n 4096 --seeds 2 --steps 3  # ... larger, shorter
     python benchmarks/protocols.py timing --n 4096                        # per minimizer
@@ -62,10 +63,11 @@ from athermal.protocols import (
     finite_strain_shear,
     isostatic_z,
 )
+from athermal.protocols.compress import pooled_fit
 from athermal.protocols.jamming import isostatic_allowance
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
+from machine import describe, line, pin, save
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results" / "protocols"
@@ -212,12 +214,33 @@ def run_phic(args: argparse.Namespace) -> None:
     write(args, name, {"rows": rows}, "\n".join(lines) + "\n")
 
 
+SCALING_COLUMNS = (("p", "pressure"), ("G", "shear_modulus"), ("z", "z_excess"))
+"""The fitted quantities of ``scaling``: the results' key and the compression rows' column."""
+
+
 def run_scaling(args: argparse.Namespace) -> None:
+    name = f"scaling_n{args.n}_a{args.alpha:g}"
+    if args.refit:
+        suffix = f"_r{args.root_seed}" if args.root_seed else ""
+        stored = json.loads((args.output_dir / f"{name}{suffix}.json").read_text())
+        for k, record in enumerate(stored["per_seed"]):  # older results numbered none
+            record.setdefault("realization", k)
+            for entry in stored["agreement"]:
+                if entry["seed"] == record["seed"]:
+                    entry.setdefault("realization", k)
+        report = scaling_report(args, stored["per_seed"], stored["agreement"])
+        refitted = (
+            "\nThe pooled fits recomputed from the stored steps (`scaling --refit`): "
+            f"{line(describe())}."
+        )
+        data = {"root_seed": args.root_seed, **report[0]}
+        save(args.output_dir, name + suffix, data, report[1] + refitted, stored["machine"])
+        log(report[1])
+        return
     jam_spec = JamSpec(args.n, 2, args.alpha, dphi=GROWTH, epsilon=EPSILON)
     spec = CompressSpec(fit_lower=args.lower)
     model = jam_spec.model
     per_seed, agreement = [], []
-    pooled: dict[str, list[float]] = {"dphi": [], "pressure": [], "shear": [], "z_excess": []}
     for k, seed in enumerate(realizations(args)):
         packing, phi_c, _ = jammed(args.cache, jam_spec, seed)
         compression = compress(packing, model, phi_c, spec)
@@ -236,11 +259,6 @@ def run_scaling(args: argparse.Namespace) -> None:
                 "steps": [s.row() for s in steps],
             }
         )
-        for s in steps:
-            pooled["dphi"].append(s.delta_phi)
-            pooled["pressure"].append(s.pressure)
-            pooled["shear"].append(s.shear_modulus)
-            pooled["z_excess"].append(s.z_excess)
         for target in (1e-2, 1e-1):
             near = compression.nearest(target)
             fs = finite_strain_shear(near.packing, model)
@@ -260,13 +278,21 @@ def run_scaling(args: argparse.Namespace) -> None:
                 }
             )
         log(f"realization {k}: p {fits.pressure} G {fits.shear_modulus} z {fits.z_excess}")
-    x = pooled["dphi"]
-    p_all = fit_power_law(x, pooled["pressure"], lower=args.lower)
-    g_all = fit_power_law(x, pooled["shear"], lower=args.lower)
-    z_all = fit_power_law(x, pooled["z_excess"], lower=args.lower)
+    data, markdown = scaling_report(args, per_seed, agreement)
+    write(args, name, data, markdown)
+
+
+def scaling_report(
+    args: argparse.Namespace, per_seed: list[dict[str, Any]], agreement: list[dict[str, Any]]
+) -> tuple[dict[str, Any], str]:
+    """The results of ``scaling`` (data and markdown) from its realizations' records, the pooled
+    fits made here over all their steps (:func:`~athermal.protocols.compress.pooled_fit`)."""
+    spec = CompressSpec(fit_lower=args.lower)
+    rows = [row for r in per_seed for row in r["steps"]]
+    pooled = {key: pooled_fit(rows, column, args.lower) for key, column in SCALING_COLUMNS}
     expect = {"p": args.alpha - 1.0, "G": args.alpha - 1.5, "z": 0.5}
     lines = [
-        f"# Compression scaling: 2D, N = {args.n}, alpha = {args.alpha:g}, {args.seeds} "
+        f"# Compression scaling: 2D, N = {args.n}, alpha = {args.alpha:g}, {len(per_seed)} "
         f"realizations of root seed {args.root_seed}",
         "",
         f"Delta phi from {spec.delta_min:g} to {spec.delta_max:g} above the protocol's own phi_c "
@@ -281,7 +307,7 @@ def run_scaling(args: argparse.Namespace) -> None:
         "per-realization spread (sd) |",
         "|---|---:|---:|---|---:|",
     ]
-    for key, fit in (("p", p_all), ("G", g_all), ("z", z_all)):
+    for key, fit in pooled.items():
         values = [r[key]["exponent"] for r in per_seed if r[key]]
         seeds = ", ".join(
             f"{r[key]['exponent']:.3f} ± {r[key]['stderr']:.3f}" if r[key] else "-"
@@ -325,11 +351,11 @@ def run_scaling(args: argparse.Namespace) -> None:
         for a in agreement
     ]
     data = {
-        "pooled": {"p": asdict(p_all), "G": asdict(g_all), "z": asdict(z_all)},
+        "pooled": {key: asdict(fit) for key, fit in pooled.items()},
         "per_seed": per_seed,
         "agreement": agreement,
     }
-    write(args, f"scaling_n{args.n}_a{args.alpha:g}", data, "\n".join(lines) + "\n")
+    return data, "\n".join(lines) + "\n"
 
 
 def run_iterations(args: argparse.Namespace) -> None:
@@ -564,6 +590,11 @@ def main(argv: list[str] | None = None) -> int:
     scaling.add_argument("--alpha", type=float, default=2.0)
     scaling.add_argument("--seeds", type=int, default=5, help="realizations")
     scaling.add_argument("--lower", type=float, default=1e-6)
+    scaling.add_argument(
+        "--refit",
+        action="store_true",
+        help="recompute the fits and results from the stored steps (no relaxation)",
+    )
     iters = sub.add_parser("iterations")
     iters.add_argument("--n", type=int, default=1024)
     iters.add_argument("--seeds", type=int, default=10, help="realizations")

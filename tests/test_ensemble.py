@@ -128,13 +128,14 @@ def test_a_shear_ensemble_records_every_section_and_reads_back(tmp_path):
         stored = json.loads((tmp_path / f"realization-{r.index:04d}.json").read_text())
         assert Realization.from_json(stored) == r
     # A jammed packing stays jammed under a small compression and far above any phi_c; in
-    # between, a packing of 48 may rearrange and unjam (measured on an Intel Xeon: one of these
-    # two, jammed at 0.817, has p = 0 at Delta phi = 3e-3 and 1e-2). The pooled fit takes the
-    # rows with p > 0.
+    # between, a packing of 48 may rearrange and unjam (measured: one of these two, jammed at
+    # 0.817, unjams at Delta phi = 3e-3, with p = 0 on an Intel Xeon and p = 6e-15 from one
+    # contact of round-off on an AMD EPYC). The pooled fit takes the jammed rows.
     rows = [row for r in result.realizations for row in r.compression.rows]
     for r in result.realizations:
         assert r.compression.rows[0]["pressure"] > 0.0 and r.compression.rows[-1]["pressure"] > 0.0
+    jammed = [row for row in rows if "unjammed" not in row["events"] and row["pressure"] > 0.0]
     pooled = result.summary["pooled_exponent_p"]
-    assert pooled["points"] == sum(row["pressure"] > 0.0 for row in rows) > len(rows) / 2
+    assert pooled["points"] == len(jammed) > len(rows) / 2
     assert 0.7 < pooled["exponent"] < 1.3
     assert result.summary["plastic_events"]["n"] == 2

@@ -65,7 +65,8 @@ def test_scaling_fits_use_the_protocols_delta_phi_and_say_which_points():
     dphis = np.logspace(-7, -1, 7)
     steps = [step(d, 0.3 * d, 0.2 * d**0.5, 2.0 * d**0.5) for d in dphis]
     steps[3] = step(dphis[3], 0.3 * dphis[3], -1e-4, 2.0 * dphis[3] ** 0.5, ("unstable to shear",))
-    steps[5] = step(dphis[5], 0.0, 0.0, -4.0, ("unjammed", "pressure drop"))
+    # unjammed: every particle a rattler, a pressure of round-off (6e-15 measured at N = 48)
+    steps[5] = step(dphis[5], 6e-15, 0.0, -4.0, ("unjammed", "pressure drop"))
     fits = scaling_exponents(steps)
     assert fits.phi_c == pytest.approx(0.84)
     assert fits.pressure.exponent == pytest.approx(1.0) and fits.pressure.points == 5
@@ -78,3 +79,29 @@ def test_scaling_fits_use_the_protocols_delta_phi_and_say_which_points():
         "saddle left": 0,
         "unstable to shear": 1,
     }
+
+
+def test_pooled_fits_of_an_ensemble_leave_out_unjammed_steps():
+    """The ensemble's pooled fit takes each row as the realizations' own fits do: a step that
+    unjammed (all rattlers, a pressure of round-off) is no data point of ``p ~ Delta phi``."""
+    from athermal.ensemble import CompressionRecord, pooled_exponent
+
+    def rows(pressures, unjammed=()):
+        return tuple(
+            {
+                "delta_phi": d,
+                "pressure": p,
+                "events": "unjammed;pressure drop" if i in unjammed else "",
+            }
+            for i, (d, p) in enumerate(zip(dphis, pressures, strict=True))
+        )
+
+    dphis = np.logspace(-3, -1, 5)
+    jammed = CompressionRecord(rows(0.4 * dphis), {}, None, {})
+    unjamming = CompressionRecord(
+        rows([0.4 * d if i != 1 else 6e-15 for i, d in enumerate(dphis)], (1,)), {}, None, {}
+    )
+    pooled = pooled_exponent([jammed, unjamming], "pressure")
+    assert pooled["exponent"] == pytest.approx(1.0) and pooled["points"] == 9
+    assert pooled["delta_phi_range"] == pytest.approx([1e-3, 1e-1])
+    assert pooled_exponent([], "pressure") is None

@@ -45,11 +45,11 @@ from .experiments import (
     jam_packing,
     shear,
 )
-from .fitting import fit_power_law
 from .forces import EDGES, ForceStatistics, exponential_tail, force_statistics, histogram_density
 from .io import claim
 from .packing import POLYDISPERSITY
 from .protocols import isostatic_z
+from .protocols.compress import pooled_fit
 from .tables import Row
 
 Protocol = Literal["jam", "compress", "shear", "iterations"]
@@ -299,6 +299,23 @@ SUMMARY_FIT_LOWER = 1e-6
 this (as :func:`~athermal.protocols.scaling_exponents`)."""
 
 
+def pooled_exponent(records: list[CompressionRecord], column: str) -> dict[str, Any] | None:
+    """The power law of ``column`` (``"pressure"``, ``"shear_modulus"``, ``"z_excess"``) against
+    ``Delta phi`` fitted to all ``records``' rows pooled
+    (:func:`~athermal.protocols.compress.pooled_fit`): its exponent, standard error, the number
+    of points and their ``Delta phi`` range; None with too few points."""
+    try:
+        pooled = pooled_fit((row for c in records for row in c.rows), column, SUMMARY_FIT_LOWER)
+    except InputError:
+        return None
+    return {
+        "exponent": pooled.exponent,
+        "stderr": pooled.stderr,
+        "points": pooled.points,
+        "delta_phi_range": [pooled.x_min, pooled.x_max],
+    }
+
+
 def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, Any]:
     """Mean, standard deviation and standard error of the realizations' numbers, and fits of
     all realizations' compression steps pooled (``Delta phi`` against each one's own phi_c)."""
@@ -316,18 +333,9 @@ def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, 
         for key, column in (("p", "pressure"), ("G", "shear_modulus"), ("z", "z_excess")):
             values = [c.exponents[key] for c in compressed]
             summary[f"exponent_{key}"] = _stats([v for v in values if v is not None])
-            x = [float(row["delta_phi"]) for c in compressed for row in c.rows]
-            y = [float(row[column]) for c in compressed for row in c.rows]
-            try:
-                pooled = fit_power_law(x, y, lower=SUMMARY_FIT_LOWER)
-            except InputError:
-                continue
-            summary[f"pooled_exponent_{key}"] = {
-                "exponent": pooled.exponent,
-                "stderr": pooled.stderr,
-                "points": pooled.points,
-                "delta_phi_range": [pooled.x_min, pooled.x_max],
-            }
+            pooled = pooled_exponent(compressed, column)
+            if pooled is not None:
+                summary[f"pooled_exponent_{key}"] = pooled
     networks = [r.forces for r in realizations if r.forces is not None]
     if networks:
         counts, overflow = pooled_forces(networks)
