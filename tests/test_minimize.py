@@ -370,6 +370,34 @@ def test_compiled_line_search_takes_the_python_search_s_step(alpha, dim, scale):
     assert compiled.count_contacts(fast[1]) == Objective(packing, model).count_contacts(fast[1])
 
 
+def test_a_compiled_search_out_of_reach_leaves_the_last_point_it_evaluated():
+    """A search that extrapolates beyond the Verlet list's reach stops at the first trial point
+    out of reach, after evaluations, with ``trial`` and its gradient those of the last point it
+    evaluated (the one the objective takes back as its cached evaluation)."""
+    from athermal import _wolfe
+    from athermal.minimize.linesearch import C1, EPS
+
+    objective = Objective(random_packing(96, 0.88, seed=7), ContactModel(2.0))
+    x = objective.x0
+    energy, grad = objective(x)
+    arguments = objective.search_arguments(x)
+    reach = float(np.sqrt(arguments[-1]))
+    direction = -0.2 * reach * grad / objective.max_gradient(grad)  # a first step in reach
+    state = np.empty(_wolfe.STATE_SIZE)
+    code = _wolfe.begin(state, energy, grad @ direction, 1.0, C1, 0.9, np.inf, EPS, 0.0, 30)
+    trial, trial_grad = np.empty_like(x), np.empty_like(x)
+    code, evaluations, last, _, stale = _wolfe.energy_search(
+        state, code, x, direction, trial, trial_grad, *arguments
+    )
+    assert stale and evaluations >= 1 and code == _wolfe.GO_ON
+    moves = (state[_wolfe.TRIAL] * direction).reshape(-1, 2)
+    assert np.linalg.norm(moves, axis=1).max() > reach  # the trial point it stopped at
+    fresh = Objective(random_packing(96, 0.88, seed=7), ContactModel(2.0))
+    again = fresh(trial)
+    assert again[0] == last
+    np.testing.assert_array_equal(again[1], trial_grad)
+
+
 @pytest.mark.parametrize("method", ["lbfgs", "cg", "newton"])
 def test_minimizers_converge_alike_through_either_search(method):
     """Whole relaxations: the compiled and the Python search end at the same minimum."""

@@ -98,7 +98,7 @@ def test_row_maxima_match_numpy(dim, rows):
     """The compiled row maxima (four rows at a time, 2D and 3D specialized) against numpy, for
     row counts that leave every remainder of four."""
     from athermal import _kernels
-    from athermal._wolfe import _farthest_sq
+    from athermal._wolfe import _place_trial
 
     rng = np.random.default_rng(rows * dim)
     x, direction = rng.normal(size=(2, rows * dim))
@@ -107,15 +107,16 @@ def test_row_maxima_match_numpy(dim, rows):
     assert _kernels.max_row_norm(x, dim) == pytest.approx(np.linalg.norm(flat, axis=1).max())
     moved = ((flat - reference) ** 2).sum(axis=1).max()
     assert _kernels.max_displacement_sq(flat, reference) == pytest.approx(moved)
-    trial = ((flat + 0.3 * direction.reshape(rows, dim) - reference) ** 2).sum(axis=1).max()
-    assert _farthest_sq(x, direction, 0.3, reference) == pytest.approx(trial)
+    moved = ((flat + 0.3 * direction.reshape(rows, dim) - reference) ** 2).sum(axis=1).max()
+    trial = np.empty_like(x)
+    assert _place_trial(x, direction, 0.3, reference, trial) == pytest.approx(moved)
     assert _kernels.step_limit(0.5, x, dim) == pytest.approx(
         0.5 / np.linalg.norm(flat, axis=1).max()
     )
-    # the search's reach test sees the very point it would evaluate (no fused multiply-add),
-    # so that the compiled and the Python reach tests agree to the bit
+    # the search writes the point numpy computes (no fused multiply-add) and its reach test
+    # sees that very point, so that the compiled and the Python reach tests agree to the bit
     for a in rng.uniform(0.0, 2.0, 50):
-        point = (x + a * direction).reshape(rows, dim)
-        assert _farthest_sq(x, direction, a, reference) == _kernels.max_displacement_sq(
-            point, reference
-        )
+        point = x + a * direction
+        reach = _place_trial(x, direction, a, reference, trial)
+        assert np.array_equal(trial, point)
+        assert reach == _kernels.max_displacement_sq(point.reshape(rows, dim), reference)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._kernels import _jit, energy_gradient_2d, energy_gradient_3d, max_row_sq
+from ._kernels import PLACE, _jit, energy_gradient_2d, energy_gradient_3d, max_row_sq
 
 # The state vector's fields (float64, ``STATE_SIZE``).
 (_F0, _G0, _C1, _C2, _EPS, _NOISE, _STEP_MAX, _MAX_EVALS, EVALUATIONS, _ZOOM) = range(10)
@@ -186,7 +186,7 @@ def energy_search(  # type: ignore[no-untyped-def]
     ends or a trial point is farther than ``sqrt(reach_sq)`` from ``reference`` ``(N, d)``, the
     positions the list was built at. Returns the code, the evaluations made, the last energy
     and contact count, and whether it stopped at a trial point out of reach (not evaluated:
-    ``trial`` still holds the last point evaluated).
+    ``trial`` holds the last point evaluated here, or that point when none was).
 
     Energies and gradients are :func:`evaluate`'s, as in
     :meth:`~athermal.objective.Objective.__call__`."""
@@ -196,16 +196,18 @@ def energy_search(  # type: ignore[no-untyped-def]
     evaluations = 0
     energy = 0.0
     contacts = 0
+    last = 0.0  # the step of the last point evaluated here
     while code == GO_ON:
         a = state[TRIAL]
-        if _farthest_sq(x, direction, a, reference) > reach_sq:
+        if _place_trial(x, direction, a, reference, trial) > reach_sq:
+            if evaluations:
+                _place_trial(x, direction, last, reference, trial)
             return code, evaluations, energy, contacts, True
-        for p in range(x.size):
-            trial[p] = x[p] + a * direction[p]
         energy, contacts = evaluate(
             points, gradient, radii, first, second, images, shift, typeid, kmat, alpha
         )
         evaluations += 1
+        last = a
         code = feed(state, energy, np.dot(grad, direction))
     return code, evaluations, energy, contacts, False
 
@@ -223,8 +225,9 @@ def evaluate(points, gradient, radii, first, second, images, shift, typeid, kmat
 
 
 @_jit
-def _farthest_sq(x, direction, a, reference):  # type: ignore[no-untyped-def]
-    """``max_i |x_i + a direction_i - reference_i|^2`` over the ``(n, d)`` rows of
-    ``reference`` (``x``, ``direction`` flat)."""
+def _place_trial(x, direction, a, reference, trial):  # type: ignore[no-untyped-def]
+    """Write the trial point ``x + a direction`` into ``trial`` (all flat) and return
+    ``max_i |trial_i - reference_i|^2`` over the ``(n, d)`` rows of ``reference``: one pass
+    over the vectors for the point and its reach test, which sees the very point evaluated."""
     flat = reference.reshape(reference.size)
-    return max_row_sq(x, direction, a, flat, reference.shape[1], True)
+    return max_row_sq(x, direction, a, flat, trial, reference.shape[1], PLACE)

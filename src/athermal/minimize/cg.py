@@ -49,18 +49,20 @@ C2 = 0.1
 _POWELL = 0.1  # restart threshold on the overlap of consecutive gradients
 _YG, _STEP_GUESS, _RESTARTED, _SLOPE = range(4)
 """Fields of :func:`_iterate`'s ``scalars``: ``y.g`` of the iterate, the next first trial step,
-whether the direction is the (preconditioned) gradient, and the slope of the last search."""
+whether the direction is the (preconditioned) gradient, and the slope of the last search (at
+:data:`~._compiled.SEARCH` and :data:`~._compiled.TAIL` stops, where Python goes on with it)."""
 
 
 @_jit
 def _next(ls_step, slope, beta, direction, y_new, grad_new):  # type: ignore[no-untyped-def]
-    """The next direction ``beta direction - y_new``, written into ``direction``, and the first
-    trial step along it: Nocedal & Wright's ``a_{k-1} g_{k-1}.p_{k-1} / g_k.p_k``, or 1 after a
-    restart or where that is not a positive number."""
+    """The next direction ``beta direction - y_new``, written into ``direction``, the first
+    trial step along it (Nocedal & Wright's ``a_{k-1} g_{k-1}.p_{k-1} / g_k.p_k``, or 1 after a
+    restart or where that is not a positive number) and its slope ``g_k.p_k``."""
     for p in range(direction.size):
         direction[p] = beta * direction[p] - y_new[p]
-    step = ls_step * slope / np.dot(grad_new, direction) if beta else 1.0
-    return step if np.isfinite(step) and step > 0.0 else 1.0
+    new_slope = np.dot(grad_new, direction)
+    step = ls_step * slope / new_slope if beta else 1.0
+    return (step if np.isfinite(step) and step > 0.0 else 1.0), new_slope
 
 
 @_jit
@@ -116,11 +118,12 @@ def _iterate(  # type: ignore[no-untyped-def]
     stop = LIMIT
     swapped = False  # the buffers x, grad, y hold the caller's trial, trial_grad, y_new
     last_in_x = False  # the last point evaluated is the iterate (trial holds an older one)
+    carried = False  # the slope along the direction is known (from :func:`_next`)
     while iterations < maxiter:
         if recorded >= history.shape[1]:
             stop = FULL
             break
-        slope = np.dot(grad, direction)
+        slope = slope if carried else np.dot(grad, direction)
         if not slope < 0.0:
             for p in range(direction.size):
                 direction[p] = -y[p]
@@ -146,7 +149,8 @@ def _iterate(  # type: ignore[no-untyped-def]
             solves += 1
             fresh_y = y_new
         beta, yg = _beta(fresh_y, trial_grad, grad, yg, polak)
-        step = _next(state[STEP], slope, beta, direction, fresh_y, trial_grad)
+        step, slope = _next(state[STEP], slope, beta, direction, fresh_y, trial_grad)
+        carried = True
         x, trial, grad, trial_grad, y, y_new = accept(
             x, trial, grad, trial_grad, y, y_new, solver is not None
         )
@@ -290,7 +294,7 @@ def cg(
             precon.update(x)
         y_new = precon.solve(grad_new) if precon is not None else grad_new
         beta, yg = _beta(y_new, grad_new, grad, yg, polak)
-        step = _next(ls_step, slope, beta, direction, y_new, grad_new)
+        step = _next(ls_step, slope, beta, direction, y_new, grad_new)[0]
         grad, y, restarted = grad_new, y_new, False
         if tracker.record(energy, grad):
             return tracker.finish(x, Status.CONVERGED, "converged")
