@@ -276,3 +276,40 @@ def test_newton_leaves_a_saddle_region_for_the_minimum():
     assert res.converged, res.message
     np.testing.assert_allclose(res.x, [1.0, 0.0], atol=1e-9)
     assert res.iterations <= 12
+
+
+def test_the_factor_follows_the_contacts_that_form():
+    """A factor built with one contact network and corrected for 3 contacts formed since (one
+    of them written j, i) solves with ``H + sigma kappa I`` of the build's network plus those
+    three exactly (the 4 contacts lost stay in it); too many new contacts, or one that leaves
+    the corrected matrix indefinite, ask for a new build instead."""
+    from athermal.contact import HessianOperator
+
+    rng = np.random.default_rng(4)
+    n, d, m = 30, 2, 100
+    keys = rng.choice(n * (n - 1) // 2, size=m, replace=False)
+    pairs = np.array([(i, j) for i in range(n) for j in range(i + 1, n)])[keys]
+    sep = rng.normal(size=(m, d))
+    coef = np.column_stack([rng.uniform(1.0, 2.0, m), np.zeros(m)])  # positive blocks b b^T
+
+    def operator(rows, flip=()):
+        p = pairs[rows].copy()
+        p[list(flip)] = p[list(flip)][:, ::-1]
+        return HessianOperator(n, p, sep[rows], coef[rows])
+
+    def exact(rows):
+        shift = factor.shift * factor.scale * np.eye(n * d)
+        return np.linalg.solve(operator(rows).matrix().toarray() + shift, r)
+
+    built, moved = operator(np.arange(0, 50)), operator(np.arange(4, 53), flip=[47])
+    factor = newton_module.LaggedFactor()
+    factor.build(built)
+    r = rng.normal(size=n * d)
+    assert factor.follow(moved)
+    np.testing.assert_allclose(factor.solve(r), exact(np.arange(0, 53)), rtol=1e-9)
+    assert factor.follow(built)  # back to the build's contacts: no correction
+    np.testing.assert_allclose(factor.solve(r), exact(np.arange(0, 50)), rtol=1e-9)
+    assert factor.n_builds == 1
+    assert not factor.follow(operator(np.arange(0, 51 + newton_module.CORRECTION_MAX)))
+    softened = HessianOperator(n, pairs[:51], sep[:51], np.vstack([coef[:50], [[0.0, 50.0]]]))
+    assert not factor.follow(softened)  # a contact of stiffness -50 I: M would be indefinite

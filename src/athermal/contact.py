@@ -283,11 +283,12 @@ class HessianOperator:
         )
         return out
 
-    def contact_blocks(self) -> NDArray[np.float64]:
-        """Each contact's block ``K = a b b^T - c I`` ``(M, d, d)``."""
-        d = self.sep.shape[1]
-        outer = self.sep[:, :, None] * self.sep[:, None, :]
-        return self.coef[:, 0, None, None] * outer - self.coef[:, 1, None, None] * np.eye(d)
+    def contact_blocks(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """Each contact's block ``K = a b b^T - c I`` ``(M, d, d)``, or those of the contacts
+        ``rows`` only."""
+        sep, coef = (self.sep, self.coef) if rows is None else (self.sep[rows], self.coef[rows])
+        outer = sep[:, :, None] * sep[:, None, :]
+        return coef[:, 0, None, None] * outer - coef[:, 1, None, None] * np.eye(sep.shape[1])
 
     def lowest_block_eigenvalue(self) -> float:
         """The smallest eigenvalue of the ``d x d`` diagonal blocks of ``H`` (``>= 0`` when it

@@ -41,6 +41,23 @@ against 13, case 2 at alpha = 2.5 0.21 against 0.36-0.41 s. ``M`` is factored an
 after a direction that needed more than :data:`REFACTOR_INNER` CG iterations: while the contact
 network holds, ``H`` barely changes and CG converges in a few iterations on the lagged factor.
 
+Between builds the factor follows the contacts that form (:meth:`LaggedFactor.follow`): their
+blocks are added to ``M`` by a low-rank (Woodbury) correction, each new contact costing one
+solve with ``d`` right-hand sides instead of a factorization. Near jamming a quasi-static step
+forms and breaks a few contacts per iteration (1-3, up to tens; N = 4096, Delta phi = 1e-6), and
+each change cost CG about two more iterations on the lagged factor until a rebuild. Measured
+(AMD EPYC, one core, N = 4096, the 10 realizations of root seed 0, 3 steps each, linear-response
+starts; ``benchmarks/results/protocols/amd_epyc/iterations_n4096_linear.md`` and
+``before_follow/``): 817 / 568 / 162 / 110 ms per step at Delta phi = 1e-7 / 1e-6 / 1e-5 / 1e-4
+against 1092 / 695 / 193 / 115, at 1e-1 95 against 93, a time ratio 1e-6 / 1e-1 of 6.0 against
+7.5; the Table at alpha = 2 and 2.5 in 18 / 75 / 15 and 16 / 18 / 13 iterations against 21 / 98
+/ 25 and 20 / 21 / 20 (case 2 at alpha = 2: 232 evaluations against 510). Taking the contacts
+lost since the build out of ``M`` as well (``M`` then that of the current network) made three of
+the ten realizations crawl past the protocols' patience at 1e-7 or 1e-6, P-L-BFGS taking over
+(6140, 3527 and 9289 iterations per step, against 73-156 Newton iterations without the
+correction): ``M`` is then as soft as ``H`` along the modes those contacts held, and near a
+saddle CG's first direction ``M^-1 g`` runs far along them.
+
 Measured (2D, alpha = 2, one core, AMD EPYC; 10 realizations each,
 ``benchmarks/results/protocols/negative_curvature/iterations_n*_linear.md``): per quasi-static
 shear step of 1e-6 started from its linear-response prediction, 8 +- 7 iterations (26 ms) at
@@ -77,7 +94,7 @@ relaxation on to P-L-BFGS after :data:`~athermal.protocols._relax.NEWTON_PATIENC
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -109,6 +126,9 @@ SHIFT_RAISE = 10.0
 BLOCK_MARGIN = 2.0
 """A build starts no lower than this many times the most negative eigenvalue of a particle's
 diagonal block of ``H`` (over ``kappa``): below it ``M`` is indefinite and CHOLMOD fails."""
+CORRECTION_MAX = 32
+"""Most contacts formed since the factor's build that :meth:`LaggedFactor.follow` adds to it (a
+change of rank ``d`` each); beyond them ``H`` is factored anew."""
 INNER_MAX = 200
 """Hard cap on the CG iterations of one Newton direction."""
 ETA_MAX = 0.5
@@ -127,9 +147,28 @@ class Hessian(Protocol):
         """``H`` as a symmetric sparse matrix."""
         ...
 
-    # optional: ``lowest_block_eigenvalue() -> float``, the smallest eigenvalue of the diagonal
-    # blocks of ``H`` (one per particle), which spares :class:`LaggedFactor` factorizations
-    # bound to fail (:class:`~athermal.contact.HessianOperator` has it)
+    # optional (:class:`~athermal.contact.HessianOperator` has them): ``lowest_block_eigenvalue()
+    # -> float``, the smallest eigenvalue of the diagonal blocks of ``H`` (one per particle),
+    # which spares :class:`LaggedFactor` factorizations bound to fail; and its contacts, ``n``
+    # (particles), ``pairs`` ``(M, 2)`` and ``contact_blocks(rows) -> (m, d, d)``, which let it
+    # follow the contacts that form (:meth:`LaggedFactor.follow`)
+
+
+def _contacts(hessian: Hessian) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
+    """The keys ``lo n + hi`` of the contacts of ``hessian`` between two particles ``lo < hi``,
+    sorted, and their rows in its ``pairs``; None when it does not give its contacts or a pair
+    occurs twice (periodic images of a small cell)."""
+    pairs = getattr(hessian, "pairs", None)
+    if pairs is None:
+        return None
+    rows = np.flatnonzero(pairs[:, 0] != pairs[:, 1])
+    first, second = pairs[rows, 0], pairs[rows, 1]
+    keys = np.minimum(first, second) * hessian.n + np.maximum(first, second)  # type: ignore[attr-defined]
+    order = np.argsort(keys, kind="stable")
+    keys = keys[order]
+    if np.any(keys[1:] == keys[:-1]):
+        return None
+    return keys, rows[order]
 
 
 class SecondOrderProblem(Problem, Protocol):
@@ -145,7 +184,8 @@ class LaggedFactor:
 
     ``n_builds`` counts factorizations, ``n_failed`` the attempts that found ``M`` indefinite
     (each raises ``sigma`` tenfold); ``shift`` is the last ``sigma``, ``scale`` the last
-    ``kappa``.
+    ``kappa``. Between builds it follows the contacts that form and break
+    (:meth:`follow`).
     """
 
     name = "hessian"
@@ -157,6 +197,9 @@ class LaggedFactor:
         self._factor: Factor | None = None
         self.scale = 1.0
         self._lowered_ok = True  # the last build needed no raise: try a lower shift next
+        self._keys: NDArray[np.int64] | None = None  # the build's contacts (:func:`_contacts`)
+        self._columns: dict[int, NDArray[np.float64]] = {}  # M^-1 U_c (n d, d) by contact key
+        self._correction: tuple[Any, ...] | None = None  # (keys, lo, hi, W, C (I + X C)^-1)
 
     def build(self, hessian: Hessian) -> None:
         """Factor ``M`` at ``hessian`` (``sigma`` as the module doc says)."""
@@ -179,12 +222,84 @@ class LaggedFactor:
         self.shift = shift
         self._lowered_ok = self.n_failed == failed
         self.n_builds += 1
+        self._columns, self._correction = {}, None
+        contacts = _contacts(hessian)
+        self._keys = None if contacts is None else contacts[0]
+
+    def follow(self, hessian: Hessian) -> bool:
+        """Add to ``M`` the blocks, at ``hessian``, of the contacts formed since the build: a
+        change ``U C U^T`` of rank ``d`` per contact that :meth:`solve` applies by the Woodbury
+        identity, ``(M + U C U^T)^-1 = M^-1 - W C (I + X C)^-1 W^T`` with ``W = M^-1 U`` (kept
+        per contact until the next build) and ``X = U^T W``, so that CG meets the new contacts
+        already solved. Contacts lost since the build stay in ``M``: taken out, they leave ``M``
+        as soft as ``H`` along the modes they held, and near a saddle ``M^-1`` sends CG's first
+        direction far along those (module doc). Returns False when ``H`` is to be factored anew
+        instead: more than :data:`CORRECTION_MAX` contacts formed, or ``M + U C U^T`` not
+        positive definite (an eigenvalue of ``I + C X`` not above 0). Without contacts from
+        ``hessian``, ``M`` stays as it was built."""
+        contacts = _contacts(hessian)
+        if self._factor is None or self._keys is None or contacts is None:
+            return True
+        keys, rows = contacts
+        formed = ~np.isin(keys, self._keys, assume_unique=True)
+        count = int(formed.sum())
+        if count == 0:
+            self._correction = None
+            return True
+        if count > CORRECTION_MAX:
+            return False
+        if self._correction is not None and np.array_equal(keys[formed], self._correction[0]):
+            return True  # the same contacts as at the last iteration: M is as it was
+        blocks = hessian.contact_blocks(rows[formed])  # type: ignore[attr-defined]
+        n, d = hessian.n, blocks.shape[1]  # type: ignore[attr-defined]
+        lo, hi = keys[formed] // n, keys[formed] % n
+        self._solve_columns(keys[formed], lo, hi, n, d)
+        w = np.concatenate([self._columns[key] for key in keys[formed].tolist()], axis=1)
+        ends = w.reshape(n, d, d * count)
+        x = (ends[lo] - ends[hi]).reshape(d * count, d * count)
+        c = np.zeros((count, d, count, d))
+        c[np.arange(count), :, np.arange(count), :] = blocks
+        c = c.reshape(d * count, d * count)
+        capacitance = np.eye(d * count) + c @ (0.5 * (x + x.T))
+        if not np.linalg.eigvals(capacitance).real.min() > 0.0:
+            return False
+        self._correction = (keys[formed], lo, hi, w, np.linalg.solve(capacitance, c).T)
+        return True
+
+    def _solve_columns(
+        self,
+        keys: NDArray[np.int64],
+        lo: NDArray[np.int64],
+        hi: NDArray[np.int64],
+        n: int,
+        d: int,
+    ) -> None:
+        """``M^-1 U_c`` ``(n d, d)`` for the contacts ``keys`` (ends ``lo``, ``hi``) not yet
+        kept, in one solve; ``U_c`` is ``+I`` at ``lo``, ``-I`` at ``hi``."""
+        new = [k for k, key in enumerate(keys.tolist()) if key not in self._columns]
+        if not new:
+            return
+        u = np.zeros((n * d, d * len(new)))
+        for col, k in enumerate(new):
+            for a in range(d):
+                u[lo[k] * d + a, col * d + a] = 1.0
+                u[hi[k] * d + a, col * d + a] = -1.0
+        assert self._factor is not None
+        solved = self._factor.solve(u)
+        for col, k in enumerate(new):
+            self._columns[int(keys[k])] = solved[:, col * d : (col + 1) * d].copy()
 
     def solve(self, r: NDArray[np.float64]) -> NDArray[np.float64]:
-        """``M^-1 r`` (a scaled identity when even ``SHIFT_MAX`` left ``M`` indefinite)."""
+        """``M^-1 r``, corrected as :meth:`follow` says (a scaled identity when even
+        ``SHIFT_MAX`` left ``M`` indefinite)."""
         if self._factor is None:
             return r / (self.shift * self.scale)
-        return self._factor.solve(r[:, None])[:, 0]
+        z = self._factor.solve(r[:, None])[:, 0]
+        if self._correction is not None:
+            _, lo, hi, w, g = self._correction
+            points = z.reshape(-1, w.shape[1] // lo.size)
+            z -= w @ (g @ (points[lo] - points[hi]).ravel())
+        return z
 
 
 def newton_direction(
@@ -267,7 +382,7 @@ def newton(
     refactor = True
     while tracker.iterations < maxiter:
         hessian = problem.hessian(x)
-        if refactor:
+        if refactor or not factor.follow(hessian):
             factor.build(hessian)
         eta = min(ETA_MAX, float(np.sqrt(np.linalg.norm(grad) / start_norm)))
         direction, inner, negative = newton_direction(hessian, grad, factor, eta, INNER_MAX)
