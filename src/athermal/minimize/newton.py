@@ -48,10 +48,14 @@ forms and breaks a few contacts per iteration (1-3, up to tens; N = 4096, Delta 
 each change cost CG about two more iterations on the lagged factor until a rebuild. Measured
 (AMD EPYC, one core, N = 4096, the 10 realizations of root seed 0, 3 steps each, linear-response
 starts; ``benchmarks/results/protocols/amd_epyc/iterations_n4096_linear.md`` and
-``before_follow/``): 817 / 568 / 162 / 110 ms per step at Delta phi = 1e-7 / 1e-6 / 1e-5 / 1e-4
-against 1092 / 695 / 193 / 115, at 1e-1 95 against 93, a time ratio 1e-6 / 1e-1 of 6.0 against
-7.5; the Table at alpha = 2 and 2.5 in 18 / 75 / 15 and 16 / 18 / 13 iterations against 21 / 98
-/ 25 and 20 / 21 / 20 (case 2 at alpha = 2: 232 evaluations against 510). Taking the contacts
+``before_follow/``): 774 / 561 / 168 / 107 ms per step at Delta phi = 1e-7 / 1e-6 / 1e-5 / 1e-4
+against 1092 / 695 / 192 / 115 (medians over the realizations at 1e-6: 37 against 55 iterations,
+328 against 547 ms), at 1e-1 90 against 93: a time ratio 1e-6 / 1e-1 of 6.2 against 7.5 (of the
+medians 3.8 against 5.9). One realization's step at 1e-6 crawled through a rearrangement (CG met
+negative curvature in 261 of its 296 directions) past the protocols' patience, P-L-BFGS taking
+over (its 1e-6 mean 2267 iterations; 135 without the correction, chaos deciding). The Table at
+alpha = 2 and 2.5 in 18 / 75 / 15 and 16 / 18 / 13 iterations against 21 / 98 / 25 and 20 / 21 /
+20 (case 2 at alpha = 2: 232 evaluations against 510). Taking the contacts
 lost since the build out of ``M`` as well (``M`` then that of the current network) made three of
 the ten realizations crawl past the protocols' patience at 1e-7 or 1e-6, P-L-BFGS taking over
 (6140, 3527 and 9289 iterations per step, against 73-156 Newton iterations without the
