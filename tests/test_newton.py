@@ -313,3 +313,8 @@ def test_the_factor_follows_the_contacts_that_form():
     assert not factor.follow(operator(np.arange(0, 51 + newton_module.CORRECTION_MAX)))
     softened = HessianOperator(n, pairs[:51], sep[:51], np.vstack([coef[:50], [[0.0, 50.0]]]))
     assert not factor.follow(softened)  # a contact of stiffness -50 I: M would be indefinite
+    # among 100,000 particles the columns of a contact take 6.4 MB (twice): the budget holds 10
+    large = newton_module.LaggedFactor()
+    large.build(HessianOperator(100_000, pairs[:50], sep[:50], coef[:50]))
+    assert large.follow(HessianOperator(100_000, pairs[:60], sep[:60], coef[:60]))
+    assert not large.follow(HessianOperator(100_000, pairs[:61], sep[:61], coef[:61]))

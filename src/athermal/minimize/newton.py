@@ -133,6 +133,9 @@ diagonal block of ``H`` (over ``kappa``): below it ``M`` is indefinite and CHOLM
 CORRECTION_MAX = 32
 """Most contacts formed since the factor's build that :meth:`LaggedFactor.follow` adds to it (a
 change of rank ``d`` each); beyond them ``H`` is factored anew."""
+CORRECTION_BYTES = 2**26
+"""Memory the correction's columns ``M^-1 U`` may take (they are dense, ``N d`` by ``d`` per
+contact, and held twice): at most 32 contacts at N = 4096 in 2D, 4 at N = 262144, 1 at 10^6."""
 INNER_MAX = 200
 """Hard cap on the CG iterations of one Newton direction."""
 ETA_MAX = 0.5
@@ -238,9 +241,10 @@ class LaggedFactor:
         already solved. Contacts lost since the build stay in ``M``: taken out, they leave ``M``
         as soft as ``H`` along the modes they held, and near a saddle ``M^-1`` sends CG's first
         direction far along those (module doc). Returns False when ``H`` is to be factored anew
-        instead: more than :data:`CORRECTION_MAX` contacts formed, or ``M + U C U^T`` not
-        positive definite (an eigenvalue of ``I + C X`` not above 0). Without contacts from
-        ``hessian``, ``M`` stays as it was built."""
+        instead: more contacts formed than :data:`CORRECTION_MAX` (or than
+        :data:`CORRECTION_BYTES` hold), or ``M + U C U^T`` not positive definite (an eigenvalue
+        of ``I + C X`` not above 0). Without contacts from ``hessian``, ``M`` stays as it was
+        built."""
         contacts = _contacts(hessian)
         if self._factor is None or self._keys is None or contacts is None:
             return True
@@ -250,12 +254,15 @@ class LaggedFactor:
         if count == 0:
             self._correction = None
             return True
-        if count > CORRECTION_MAX:
+        n, d = hessian.n, hessian.shape[0] // hessian.n  # type: ignore[attr-defined]
+        if count > min(CORRECTION_MAX, CORRECTION_BYTES // (16 * n * d * d)):
             return False
         if self._correction is not None and np.array_equal(keys[formed], self._correction[0]):
             return True  # the same contacts as at the last iteration: M is as it was
+        self._columns = {
+            key: self._columns[key] for key in keys[formed].tolist() if key in self._columns
+        }
         blocks = hessian.contact_blocks(rows[formed])  # type: ignore[attr-defined]
-        n, d = hessian.n, blocks.shape[1]  # type: ignore[attr-defined]
         lo, hi = keys[formed] // n, keys[formed] % n
         self._solve_columns(keys[formed], lo, hi, n, d)
         w = np.concatenate([self._columns[key] for key in keys[formed].tolist()], axis=1)
