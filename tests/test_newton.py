@@ -281,8 +281,10 @@ def test_newton_leaves_a_saddle_region_for_the_minimum():
 def test_the_factor_follows_the_contacts_that_form():
     """A factor built with one contact network and corrected for 3 contacts formed since (one
     of them written j, i) solves with ``H + sigma kappa I`` of the build's network plus those
-    three exactly (the 4 contacts lost stay in it); too many new contacts, or one that leaves
-    the corrected matrix indefinite, ask for a new build instead."""
+    three exactly (the 4 contacts lost stay in it); with too many new contacts it solves as
+    built, and one that would leave the corrected matrix indefinite asks for a new build."""
+    from scipy.sparse.linalg import spsolve
+
     from athermal.contact import HessianOperator
 
     rng = np.random.default_rng(4)
@@ -292,29 +294,32 @@ def test_the_factor_follows_the_contacts_that_form():
     sep = rng.normal(size=(m, d))
     coef = np.column_stack([rng.uniform(1.0, 2.0, m), np.zeros(m)])  # positive blocks b b^T
 
-    def operator(rows, flip=()):
+    def operator(rows, flip=(), particles=n):
         p = pairs[rows].copy()
         p[list(flip)] = p[list(flip)][:, ::-1]
-        return HessianOperator(n, p, sep[rows], coef[rows])
+        return HessianOperator(particles, p, sep[rows], coef[rows])
 
-    def exact(rows):
-        shift = factor.shift * factor.scale * np.eye(n * d)
-        return np.linalg.solve(operator(rows).matrix().toarray() + shift, r)
+    def follows(factor, hessian, rows, particles=n):
+        """Whether ``factor`` corrected for ``hessian`` solves with the network ``rows``."""
+        assert factor.follow(hessian)
+        exact = operator(rows, particles=particles).matrix()
+        shift = factor.shift * factor.scale * sp.identity(particles * d)
+        r = np.random.default_rng(5).normal(size=particles * d)
+        expected = spsolve((exact + shift).tocsc(), r)
+        return np.allclose(factor.solve(r), expected, rtol=1e-9, atol=0.0)
 
-    built, moved = operator(np.arange(0, 50)), operator(np.arange(4, 53), flip=[47])
+    built = np.arange(0, 50)
     factor = newton_module.LaggedFactor()
-    factor.build(built)
-    r = rng.normal(size=n * d)
-    assert factor.follow(moved)
-    np.testing.assert_allclose(factor.solve(r), exact(np.arange(0, 53)), rtol=1e-9)
-    assert factor.follow(built)  # back to the build's contacts: no correction
-    np.testing.assert_allclose(factor.solve(r), exact(np.arange(0, 50)), rtol=1e-9)
-    assert factor.n_builds == 1
-    assert not factor.follow(operator(np.arange(0, 51 + newton_module.CORRECTION_MAX)))
+    factor.build(operator(built))
+    assert follows(factor, operator(np.arange(4, 53), flip=[47]), np.arange(0, 53))
+    assert follows(factor, operator(built), built)  # back to the build's contacts
+    many = np.arange(0, 51 + newton_module.CORRECTION_MAX)
+    assert follows(factor, operator(many), built)  # too many new contacts: as built
     softened = HessianOperator(n, pairs[:51], sep[:51], np.vstack([coef[:50], [[0.0, 50.0]]]))
     assert not factor.follow(softened)  # a contact of stiffness -50 I: M would be indefinite
+    assert factor.n_builds == 1
     # among 100,000 particles the columns of a contact take 6.4 MB (twice): the budget holds 10
     large = newton_module.LaggedFactor()
-    large.build(HessianOperator(100_000, pairs[:50], sep[:50], coef[:50]))
-    assert large.follow(HessianOperator(100_000, pairs[:60], sep[:60], coef[:60]))
-    assert not large.follow(HessianOperator(100_000, pairs[:61], sep[:61], coef[:61]))
+    large.build(operator(built, particles=100_000))
+    assert follows(large, operator(np.arange(60), particles=100_000), np.arange(60), 100_000)
+    assert follows(large, operator(np.arange(61), particles=100_000), built, 100_000)

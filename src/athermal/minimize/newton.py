@@ -48,19 +48,18 @@ forms and breaks a few contacts per iteration (1-3, up to tens; N = 4096, Delta 
 each change cost CG about two more iterations on the lagged factor until a rebuild. Measured
 (AMD EPYC, one core, N = 4096, the 10 realizations of root seed 0, 3 steps each, linear-response
 starts; ``benchmarks/results/protocols/amd_epyc/iterations_n4096_linear.md`` and
-``before_follow/``): 774 / 561 / 168 / 107 ms per step at Delta phi = 1e-7 / 1e-6 / 1e-5 / 1e-4
-against 1092 / 695 / 192 / 115 (medians over the realizations at 1e-6: 37 against 55 iterations,
-328 against 547 ms), at 1e-1 90 against 93: a time ratio 1e-6 / 1e-1 of 6.2 against 7.5 (of the
-medians 3.8 against 5.9). One realization's step at 1e-6 crawled through a rearrangement (CG met
-negative curvature in 261 of its 296 directions) past the protocols' patience, P-L-BFGS taking
-over (its 1e-6 mean 2267 iterations; 135 without the correction, chaos deciding). The Table at
-alpha = 2 and 2.5 in 18 / 75 / 15 and 16 / 18 / 13 iterations against 21 / 98 / 25 and 20 / 21 /
-20 (case 2 at alpha = 2: 232 evaluations against 510). Taking the contacts
-lost since the build out of ``M`` as well (``M`` then that of the current network) made three of
-the ten realizations crawl past the protocols' patience at 1e-7 or 1e-6, P-L-BFGS taking over
-(6140, 3527 and 9289 iterations per step, against 73-156 Newton iterations without the
+``before_follow/``): 82 / 54 / 17 / 14 iterations and 787 / 504 / 153 / 111 ms per step at Delta
+phi = 1e-7 / 1e-6 / 1e-5 / 1e-4 against 86 / 66 / 22 / 13 and 1092 / 695 / 192 / 115 (medians
+over the realizations at 1e-6: 37 against 55 iterations, 344 against 547 ms), at 1e-1 90 against
+93 ms: a time ratio 1e-6 / 1e-1 of 5.6 against 7.5 (of the medians 4.0 against 5.9). Taking the
+contacts lost since the build out of ``M`` as well (``M`` then that of the current network) made
+three of the ten realizations crawl past the protocols' patience at 1e-7 or 1e-6, P-L-BFGS taking
+over (6140, 3527 and 9289 iterations per step, against 73-156 Newton iterations without the
 correction): ``M`` is then as soft as ``H`` along the modes those contacts held, and near a
-saddle CG's first direction ``M^-1 g`` runs far along them.
+saddle CG's first direction ``M^-1 g`` runs far along them. With a new build also where more
+than :data:`CORRECTION_MAX` contacts had formed (the first version), one realization's step at
+1e-6 crawled through a rearrangement past the patience (CG meeting negative curvature in 261 of
+its 296 directions; chaos decides such crawls), and the time ratio was 6.2.
 
 Measured (2D, alpha = 2, one core, AMD EPYC; 10 realizations each,
 ``benchmarks/results/protocols/negative_curvature/iterations_n*_linear.md``): per quasi-static
@@ -132,7 +131,7 @@ BLOCK_MARGIN = 2.0
 diagonal block of ``H`` (over ``kappa``): below it ``M`` is indefinite and CHOLMOD fails."""
 CORRECTION_MAX = 32
 """Most contacts formed since the factor's build that :meth:`LaggedFactor.follow` adds to it (a
-change of rank ``d`` each); beyond them ``H`` is factored anew."""
+change of rank ``d`` each); beyond them the factor is used as it was built."""
 CORRECTION_BYTES = 2**26
 """Memory the correction's columns ``M^-1 U`` may take (they are dense, ``N d`` by ``d`` per
 contact, and held twice): at most 32 contacts at N = 4096 in 2D, 4 at N = 262144, 1 at 10^6."""
@@ -240,23 +239,26 @@ class LaggedFactor:
         per contact until the next build) and ``X = U^T W``, so that CG meets the new contacts
         already solved. Contacts lost since the build stay in ``M``: taken out, they leave ``M``
         as soft as ``H`` along the modes they held, and near a saddle ``M^-1`` sends CG's first
-        direction far along those (module doc). Returns False when ``H`` is to be factored anew
-        instead: more contacts formed than :data:`CORRECTION_MAX` (or than
-        :data:`CORRECTION_BYTES` hold), or ``M + U C U^T`` not positive definite (an eigenvalue
-        of ``I + C X`` not above 0). Without contacts from ``hessian``, ``M`` stays as it was
-        built."""
+        direction far along those (module doc). ``M`` stays as it was built when more contacts
+        formed than :data:`CORRECTION_MAX` (or than :data:`CORRECTION_BYTES` hold), or when
+        ``hessian`` does not give its contacts: CG's iterations then decide the next build, as
+        they always do (:data:`REFACTOR_INNER`). Returns False when ``M + U C U^T`` is not
+        positive definite (an eigenvalue of ``I + C X`` not above 0): the new contacts need a
+        larger shift, and ``H`` is to be factored anew. Measured on the Table (alpha = 2, cases
+        1 / 2 / 3) and the 3D small packing of the tests: 18 / 61 / 17 and 91 Newton
+        iterations; building anew also when too many contacts formed, 18 / 75 / 15 and 138 (22
+        builds instead of 4 in 3D, far from equilibrium); never building for the correction,
+        18 / 245 / 17 and 91."""
         contacts = _contacts(hessian)
         if self._factor is None or self._keys is None or contacts is None:
             return True
         keys, rows = contacts
         formed = ~np.isin(keys, self._keys, assume_unique=True)
         count = int(formed.sum())
-        if count == 0:
+        n, d = hessian.n, hessian.shape[0] // hessian.n  # type: ignore[attr-defined]
+        if count == 0 or count > min(CORRECTION_MAX, CORRECTION_BYTES // (16 * n * d * d)):
             self._correction = None
             return True
-        n, d = hessian.n, hessian.shape[0] // hessian.n  # type: ignore[attr-defined]
-        if count > min(CORRECTION_MAX, CORRECTION_BYTES // (16 * n * d * d)):
-            return False
         if self._correction is not None and np.array_equal(keys[formed], self._correction[0]):
             return True  # the same contacts as at the last iteration: M is as it was
         self._columns = {
@@ -273,6 +275,7 @@ class LaggedFactor:
         c = c.reshape(d * count, d * count)
         capacitance = np.eye(d * count) + c @ (0.5 * (x + x.T))
         if not np.linalg.eigvals(capacitance).real.min() > 0.0:
+            self._correction = None
             return False
         self._correction = (keys[formed], lo, hi, w, np.linalg.solve(capacitance, c).T)
         return True
