@@ -186,7 +186,7 @@ def energy_search(  # type: ignore[no-untyped-def]
     ends or a trial point is farther than ``sqrt(reach_sq)`` from ``reference`` ``(N, d)``, the
     positions the list was built at. Returns the code, the evaluations made, the last energy
     and contact count, and whether it stopped at a trial point out of reach (not evaluated:
-    ``trial`` holds the last point evaluated here, or that point when none was).
+    ``trial`` holds the last point evaluated here, or, when none was, the point out of reach).
 
     Energies and gradients are :func:`evaluate`'s, as in
     :meth:`~athermal.objective.Objective.__call__`."""

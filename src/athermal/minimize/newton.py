@@ -190,8 +190,7 @@ class LaggedFactor:
 
     ``n_builds`` counts factorizations, ``n_failed`` the attempts that found ``M`` indefinite
     (each raises ``sigma`` tenfold); ``shift`` is the last ``sigma``, ``scale`` the last
-    ``kappa``. Between builds it follows the contacts that form and break
-    (:meth:`follow`).
+    ``kappa``. Between builds it follows the contacts that form (:meth:`follow`).
     """
 
     name = "hessian"
