@@ -51,7 +51,10 @@ starts; ``benchmarks/results/protocols/amd_epyc/iterations_n4096_linear.md`` and
 ``before_follow/``): 82 / 54 / 17 / 14 iterations and 787 / 504 / 153 / 111 ms per step at Delta
 phi = 1e-7 / 1e-6 / 1e-5 / 1e-4 against 86 / 66 / 22 / 13 and 1092 / 695 / 192 / 115 (medians
 over the realizations at 1e-6: 37 against 55 iterations, 344 against 547 ms), at 1e-1 90 against
-93 ms: a time ratio 1e-6 / 1e-1 of 5.6 against 7.5 (of the medians 4.0 against 5.9). Taking the
+93 ms: a time ratio 1e-6 / 1e-1 of 5.6 against 7.5 (of the medians 4.0 against 5.9); root
+seed 1 (``_r1.md``): 383 against 570 ms per step at 1e-6, a ratio of 4.2 against 6.6, but one
+realization's steps at 1e-7 went through a rearrangement past the protocols' patience (7.4 s per
+step against 1.0 s without the correction). Taking the
 contacts lost since the build out of ``M`` as well (``M`` then that of the current network) made
 three of the ten realizations crawl past the protocols' patience at 1e-7 or 1e-6, P-L-BFGS taking
 over (6140, 3527 and 9289 iterations per step, against 73-156 Newton iterations without the
