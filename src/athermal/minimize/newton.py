@@ -261,15 +261,14 @@ class LaggedFactor:
         if count == 0 or count > min(CORRECTION_MAX, CORRECTION_BYTES // (16 * n * d * d)):
             self._correction = None
             return True
-        if self._correction is not None and np.array_equal(keys[formed], self._correction[0]):
+        new = keys[formed]
+        if self._correction is not None and np.array_equal(new, self._correction[0]):
             return True  # the same contacts as at the last iteration: M is as it was
-        self._columns = {
-            key: self._columns[key] for key in keys[formed].tolist() if key in self._columns
-        }
+        self._columns = {key: self._columns[key] for key in new.tolist() if key in self._columns}
         blocks = hessian.contact_blocks(rows[formed])  # type: ignore[attr-defined]
-        lo, hi = keys[formed] // n, keys[formed] % n
-        self._solve_columns(keys[formed], lo, hi, n, d)
-        w = np.concatenate([self._columns[key] for key in keys[formed].tolist()], axis=1)
+        lo, hi = new // n, new % n
+        self._solve_columns(new, lo, hi, n, d)
+        w = np.concatenate([self._columns[key] for key in new.tolist()], axis=1)
         ends = w.reshape(n, d, d * count)
         x = (ends[lo] - ends[hi]).reshape(d * count, d * count)
         c = np.zeros((count, d, count, d))
@@ -279,7 +278,7 @@ class LaggedFactor:
         if not np.linalg.eigvals(capacitance).real.min() > 0.0:
             self._correction = None
             return False
-        self._correction = (keys[formed], lo, hi, w, np.linalg.solve(capacitance, c).T)
+        self._correction = (new, lo, hi, w, np.linalg.solve(capacitance, c).T)
         return True
 
     def _solve_columns(
