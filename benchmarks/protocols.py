@@ -87,11 +87,22 @@ def log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
-def write(args: argparse.Namespace, name: str, data: dict[str, Any], markdown: str) -> None:
-    """Save one experiment's results (``_r<S>`` added for a root seed S other than 0)."""
-    suffix = f"_r{args.root_seed}" if args.root_seed else ""
+def result_name(args: argparse.Namespace, name: str) -> str:
+    """A result's file name: ``name``, with ``_r<S>`` for a root seed S other than 0."""
+    return name + (f"_r{args.root_seed}" if args.root_seed else "")
+
+
+def write(
+    args: argparse.Namespace,
+    name: str,
+    data: dict[str, Any],
+    markdown: str,
+    meta: dict[str, str] | str | None = None,
+) -> None:
+    """Save one experiment's results (:func:`result_name`), run on ``meta``'s machine (default
+    this one)."""
     data = {"root_seed": args.root_seed, **data}
-    save(args.output_dir, name + suffix, data, markdown)
+    save(args.output_dir, result_name(args, name), data, markdown, meta)
     log(markdown)
 
 
@@ -221,8 +232,7 @@ SCALING_COLUMNS = (("p", "pressure"), ("G", "shear_modulus"), ("z", "z_excess"))
 def run_scaling(args: argparse.Namespace) -> None:
     name = f"scaling_n{args.n}_a{args.alpha:g}"
     if args.refit:
-        suffix = f"_r{args.root_seed}" if args.root_seed else ""
-        stored = json.loads((args.output_dir / f"{name}{suffix}.json").read_text())
+        stored = json.loads((args.output_dir / f"{result_name(args, name)}.json").read_text())
         for k, record in enumerate(stored["per_seed"]):  # older results numbered none
             record.setdefault("realization", k)
             for entry in stored["agreement"]:
@@ -233,9 +243,7 @@ def run_scaling(args: argparse.Namespace) -> None:
             "\nThe pooled fits recomputed from the stored steps (`scaling --refit`): "
             f"{line(describe())}."
         )
-        data = {"root_seed": args.root_seed, **report[0]}
-        save(args.output_dir, name + suffix, data, report[1] + refitted, stored["machine"])
-        log(report[1])
+        write(args, name, report[0], report[1] + refitted, stored["machine"])
         return
     jam_spec = JamSpec(args.n, 2, args.alpha, dphi=GROWTH, epsilon=EPSILON)
     spec = CompressSpec(fit_lower=args.lower)
@@ -493,7 +501,6 @@ def fits(
 
 def run_timing(args: argparse.Namespace) -> None:
     seed = child_seeds(args.root_seed, args.seed + 1)[args.seed]
-    suffix = f"_r{args.root_seed}" if args.root_seed else ""
     name = f"timing_n{args.n}_s{args.seed}"
     order = [m.name for m in TIMING_METHODS]
     rows: list[dict[str, Any]] = []
@@ -529,7 +536,7 @@ def run_timing(args: argparse.Namespace) -> None:
             }
         )
         log(f"{label}: {rows[-1]}")
-    previous = args.output_dir / f"{name}{suffix}.json"  # keep the rows of methods not rerun
+    previous = args.output_dir / f"{result_name(args, name)}.json"  # keep rows not rerun
     if previous.exists():
         rerun = {r["method"] for r in rows}
         kept = [
