@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .._kernels import _jit
+from .._kernels import _jit, _jit_fast
 from .._validate import choice
 from .._wolfe import ACCEPTED, STEP
 from ._compiled import (
@@ -53,28 +53,34 @@ whether the direction is the (preconditioned) gradient, and the slope of the las
 :data:`~._compiled.SEARCH` and :data:`~._compiled.TAIL` stops, where Python goes on with it)."""
 
 
-@_jit
+@_jit_fast
 def _next(ls_step, slope, beta, direction, y_new, grad_new):  # type: ignore[no-untyped-def]
     """The next direction ``beta direction - y_new``, written into ``direction``, the first
     trial step along it (Nocedal & Wright's ``a_{k-1} g_{k-1}.p_{k-1} / g_k.p_k``, or 1 after a
-    restart or where that is not a positive number) and its slope ``g_k.p_k``."""
+    restart or where that is not a positive number) and its slope ``g_k.p_k``, in one pass."""
+    new_slope = 0.0
     for p in range(direction.size):
-        direction[p] = beta * direction[p] - y_new[p]
-    new_slope = np.dot(grad_new, direction)
+        value = beta * direction[p] - y_new[p]
+        direction[p] = value
+        new_slope += grad_new[p] * value
     step = ls_step * slope / new_slope if beta else 1.0
     return (step if np.isfinite(step) and step > 0.0 else 1.0), new_slope
 
 
-@_jit
+@_jit_fast
 def _beta(y_new, grad_new, grad, yg, polak):  # type: ignore[no-untyped-def]
     """``(beta, y_new.grad_new)``: zero by Powell's restart test, else Fletcher-Reeves or, with
-    ``polak``, Polak-Ribiere+."""
-    yg_new = np.dot(y_new, grad_new)
-    if abs(np.dot(y_new, grad)) >= _POWELL * yg_new:
+    ``polak``, Polak-Ribiere+; the three products in one pass."""
+    yg_new = overlap = change = 0.0
+    for p in range(y_new.size):
+        yg_new += y_new[p] * grad_new[p]
+        overlap += y_new[p] * grad[p]
+        change += y_new[p] * (grad_new[p] - grad[p])
+    if abs(overlap) >= _POWELL * yg_new:
         return 0.0, yg_new
     if not polak:
         return yg_new / yg, yg_new
-    return max(0.0, np.dot(y_new, grad_new - grad) / yg), yg_new
+    return max(0.0, change / yg), yg_new
 
 
 @_jit
