@@ -286,20 +286,20 @@ class HessianOperator:
     def contact_blocks(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
         """Each contact's block ``K = a b b^T - c I`` ``(M, d, d)``, or those of the contacts
         ``rows`` only."""
-        sep, coef = (self.sep, self.coef) if rows is None else (self.sep[rows], self.coef[rows])
-        outer = sep[:, :, None] * sep[:, None, :]
-        return coef[:, 0, None, None] * outer - coef[:, 1, None, None] * np.eye(sep.shape[1])
+        if rows is None:
+            rows = np.arange(self.pairs.shape[0])
+        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        out = np.empty((rows.size, self.sep.shape[1], self.sep.shape[1]))
+        _kernels.pair_blocks(self.sep, self.coef, rows, out)
+        return out
 
     def lowest_block_eigenvalue(self) -> float:
         """The smallest eigenvalue of the ``d x d`` diagonal blocks of ``H`` (``>= 0`` when it
         has none): ``H`` is indefinite where it is negative (its value is then an upper bound on
         the smallest eigenvalue of ``H``)."""
-        own = self.pairs[:, 0] != self.pairs[:, 1]  # a self-image pair adds nothing
-        blocks, pairs = self.contact_blocks()[own], self.pairs[own]
         d = self.sep.shape[1]
-        diagonal = np.zeros((self.n, d, d))
-        np.add.at(diagonal, pairs[:, 0], blocks)
-        np.add.at(diagonal, pairs[:, 1], blocks)
+        diagonal = np.empty((self.n, d, d))
+        _kernels.diagonal_blocks(self.pairs, self.sep, self.coef, diagonal)
         return float(np.linalg.eigvalsh(diagonal)[:, 0].min()) if self.n else 0.0
 
     def matrix(self) -> sp.csr_matrix:

@@ -180,6 +180,14 @@ def _contacts(hessian: Hessian) -> tuple[NDArray[np.int64], NDArray[np.int64]] |
     return keys, rows[order]
 
 
+def _members(keys: NDArray[np.int64], sorted_keys: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Which of ``keys`` occur in ``sorted_keys`` (ascending): ``np.isin`` by binary search."""
+    if sorted_keys.size == 0:
+        return np.zeros(keys.shape, dtype=bool)
+    at = np.minimum(np.searchsorted(sorted_keys, keys), sorted_keys.size - 1)
+    return sorted_keys[at] == keys
+
+
 class SecondOrderProblem(Problem, Protocol):
     """A :class:`Problem` that also gives its Hessian."""
 
@@ -255,7 +263,7 @@ class LaggedFactor:
         if self._factor is None or self._keys is None or contacts is None:
             return True
         keys, rows = contacts
-        formed = ~np.isin(keys, self._keys, assume_unique=True)
+        formed = ~_members(keys, self._keys)
         count = int(formed.sum())
         n, d = hessian.n, hessian.shape[0] // hessian.n  # type: ignore[attr-defined]
         if count == 0 or count > min(CORRECTION_MAX, CORRECTION_BYTES // (16 * n * d * d)):
