@@ -419,9 +419,10 @@ def test_compiled_iterations_hand_over_and_match_the_python_loop(method, precon,
     """L-BFGS and CG (both variants) with whole iterations compiled against the Python loop
     (both searching in compiled code), on a relaxation whose Verlet list and Exp
     preconditioner are rebuilt along the way and whose compiled history fills up every 7
-    iterates: the same minimum, about the same iterations, every iterate in the history, and
-    each point handed back to the objective as the last one evaluated has that energy and
-    gradient."""
+    iterates: the same iterations and minimum bit for bit (both form each product in the same
+    compiled function; CG's slope formed anew by NumPy in the Python loop made it diverge),
+    every iterate in the history, and each point handed back to the objective as the last one
+    evaluated has that energy and gradient."""
     from athermal.precon import ExpPreconditioner
 
     compiled_module = importlib.import_module("athermal.minimize._compiled")
@@ -463,8 +464,7 @@ def test_compiled_iterations_hand_over_and_match_the_python_loop(method, precon,
         assert energy == res.energy and obj.max_gradient(grad) == res.max_gradient
         out.append(res)
     assert len(handed) > 20 and all(handed)
-    assert out[0].energy == pytest.approx(out[1].energy, rel=1e-9)
-    assert abs(out[0].iterations - out[1].iterations) <= 0.15 * out[1].iterations
+    assert out[0].iterations == out[1].iterations and out[0].energy == out[1].energy
 
 
 @pytest.mark.parametrize("method", [lbfgs, cg])

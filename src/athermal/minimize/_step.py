@@ -78,6 +78,7 @@ def advance(
     step: float,
     c2: float,
     resume: NDArray[np.float64] | None = None,
+    slope: float | None = None,
 ) -> tuple[LineSearchResult, NDArray[np.float64], float, NDArray[np.float64]]:
     """Strong-Wolfe search along ``direction`` from ``x`` from the first trial ``step``, capped
     at :meth:`Problem.step_limit` (for an :class:`~athermal.objective.Objective`: no particle
@@ -86,11 +87,12 @@ def advance(
     search failed). A :class:`CompiledProblem` evaluates the trial points in compiled code.
     ``resume`` is the state of a search along ``direction`` from ``x`` that compiled code
     began and left at a trial point it could not evaluate, or ended without a step (``step``
-    and ``c2`` are then its own)."""
+    and ``c2`` are then its own). ``slope`` is ``grad.direction`` where the caller has formed it
+    (CG, as its compiled loop does: the two then search from the same value)."""
     if resume is None:
         state, code = started(
             energy,
-            float(grad @ direction),
+            float(grad @ direction) if slope is None else slope,
             step,
             C1,
             c2,

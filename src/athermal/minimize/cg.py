@@ -24,7 +24,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
-from .._kernels import _jit, _jit_fast
+from .._kernels import _jit
 from .._validate import choice
 from .._wolfe import ACCEPTED, STEP
 from ._compiled import (
@@ -49,33 +49,72 @@ C2 = 0.1
 _POWELL = 0.1  # restart threshold on the overlap of consecutive gradients
 _YG, _STEP_GUESS, _RESTARTED, _SLOPE = range(4)
 """Fields of :func:`_iterate`'s ``scalars``: ``y.g`` of the iterate, the next first trial step,
-whether the direction is the (preconditioned) gradient, and the slope of the last search (at
-:data:`~._compiled.SEARCH` and :data:`~._compiled.TAIL` stops, where Python goes on with it)."""
+whether the direction is the (preconditioned) gradient, and the slope ``g.p`` along the
+direction (the one :func:`_next` formed, or ``-y.g`` for the preconditioned gradient): the
+compiled and the Python loop take it from there and never form it again, so that the two go
+the same way bit for bit."""
 
 
-@_jit_fast
+@_jit
 def _next(ls_step, slope, beta, direction, y_new, grad_new):  # type: ignore[no-untyped-def]
     """The next direction ``beta direction - y_new``, written into ``direction``, the first
     trial step along it (Nocedal & Wright's ``a_{k-1} g_{k-1}.p_{k-1} / g_k.p_k``, or 1 after a
-    restart or where that is not a positive number) and its slope ``g_k.p_k``, in one pass."""
-    new_slope = 0.0
-    for p in range(direction.size):
-        value = beta * direction[p] - y_new[p]
-        direction[p] = value
-        new_slope += grad_new[p] * value
+    restart or where that is not a positive number) and its slope ``g_k.p_k``, in one pass
+    (four partial sums, :func:`_beta`'s order)."""
+    n = direction.size
+    s0 = s1 = s2 = s3 = 0.0
+    p = 0
+    while p + 4 <= n:
+        v0 = beta * direction[p] - y_new[p]
+        v1 = beta * direction[p + 1] - y_new[p + 1]
+        v2 = beta * direction[p + 2] - y_new[p + 2]
+        v3 = beta * direction[p + 3] - y_new[p + 3]
+        direction[p], direction[p + 1], direction[p + 2], direction[p + 3] = v0, v1, v2, v3
+        s0 += grad_new[p] * v0
+        s1 += grad_new[p + 1] * v1
+        s2 += grad_new[p + 2] * v2
+        s3 += grad_new[p + 3] * v3
+        p += 4
+    while p < n:
+        v0 = beta * direction[p] - y_new[p]
+        direction[p] = v0
+        s0 += grad_new[p] * v0
+        p += 1
+    new_slope = (s0 + s1) + (s2 + s3)
     step = ls_step * slope / new_slope if beta else 1.0
     return (step if np.isfinite(step) and step > 0.0 else 1.0), new_slope
 
 
-@_jit_fast
+@_jit
 def _beta(y_new, grad_new, grad, yg, polak):  # type: ignore[no-untyped-def]
     """``(beta, y_new.grad_new)``: zero by Powell's restart test, else Fletcher-Reeves or, with
-    ``polak``, Polak-Ribiere+; the three products in one pass."""
-    yg_new = overlap = change = 0.0
-    for p in range(y_new.size):
-        yg_new += y_new[p] * grad_new[p]
-        overlap += y_new[p] * grad[p]
-        change += y_new[p] * (grad_new[p] - grad[p])
+    ``polak``, Polak-Ribiere+. The three products in one pass, each as four partial sums in a
+    fixed order: the same bits whether the compiled loop inlines this or Python calls it (a
+    reduction the compiler may reorder, ``fastmath``'s, differs between the two)."""
+    n = y_new.size
+    a0 = a1 = a2 = a3 = b0 = b1 = b2 = b3 = c0 = c1 = c2 = c3 = 0.0
+    p = 0
+    while p + 4 <= n:
+        y0, y1, y2, y3 = y_new[p], y_new[p + 1], y_new[p + 2], y_new[p + 3]
+        a0 += y0 * grad_new[p]
+        a1 += y1 * grad_new[p + 1]
+        a2 += y2 * grad_new[p + 2]
+        a3 += y3 * grad_new[p + 3]
+        b0 += y0 * grad[p]
+        b1 += y1 * grad[p + 1]
+        b2 += y2 * grad[p + 2]
+        b3 += y3 * grad[p + 3]
+        c0 += y0 * (grad_new[p] - grad[p])
+        c1 += y1 * (grad_new[p + 1] - grad[p + 1])
+        c2 += y2 * (grad_new[p + 2] - grad[p + 2])
+        c3 += y3 * (grad_new[p + 3] - grad[p + 3])
+        p += 4
+    while p < n:
+        a0 += y_new[p] * grad_new[p]
+        b0 += y_new[p] * grad[p]
+        c0 += y_new[p] * (grad_new[p] - grad[p])
+        p += 1
+    yg_new, overlap, change = (a0 + a1) + (a2 + a3), (b0 + b1) + (b2 + b3), (c0 + c1) + (c2 + c3)
     if abs(overlap) >= _POWELL * yg_new:
         return 0.0, yg_new
     if not polak:
@@ -124,12 +163,10 @@ def _iterate(  # type: ignore[no-untyped-def]
     stop = LIMIT
     swapped = False  # the buffers x, grad, y hold the caller's trial, trial_grad, y_new
     last_in_x = False  # the last point evaluated is the iterate (trial holds an older one)
-    carried = False  # the slope along the direction is known (from :func:`_next`)
     while iterations < maxiter:
         if recorded >= history.shape[1]:
             stop = FULL
             break
-        slope = slope if carried else np.dot(grad, direction)
         if not slope < 0.0:
             for p in range(direction.size):
                 direction[p] = -y[p]
@@ -156,7 +193,6 @@ def _iterate(  # type: ignore[no-untyped-def]
             fresh_y = y_new
         beta, yg = _beta(fresh_y, trial_grad, grad, yg, polak)
         step, slope = _next(state[STEP], slope, beta, direction, fresh_y, trial_grad)
-        carried = True
         x, trial, grad, trial_grad, y, y_new = accept(
             x, trial, grad, trial_grad, y, y_new, solver is not None
         )
@@ -249,6 +285,7 @@ def cg(
     y = precon.solve(grad) if precon is not None else grad
     direction = -y
     yg = float(y @ grad)
+    slope = -yg
     step = 1.0
     restarted = True
     polak = variant == "pr+"
@@ -258,7 +295,7 @@ def cg(
     while tracker.iterations < maxiter:
         resume, accepted = None, None  # Python's own iteration, from its start
         if compiled is not None:
-            compiled.scalars[[_YG, _STEP_GUESS, _RESTARTED]] = (yg, step, float(restarted))
+            compiled.scalars[:] = (yg, step, float(restarted), slope)
             stop, accepted_energy = compiled.run(x, grad, y, direction, energy, tracker)
             x, grad = compiled.x.copy(), compiled.grad.copy()
             y = compiled.z.copy() if precon is not None else grad
@@ -278,17 +315,15 @@ def cg(
         if accepted is not None:
             x_new, energy_new, grad_new = accepted
         else:
-            if resume is None:
-                slope = float(grad @ direction)
-                if not slope < 0.0:
-                    direction, slope, restarted = -y, -yg, True
+            if resume is None and not slope < 0.0:
+                direction, slope, restarted = -y, -yg, True
             ls, x_new, energy_new, grad_new = advance(
-                problem, x, energy, grad, direction, step, C2, resume=resume
+                problem, x, energy, grad, direction, step, C2, resume=resume, slope=slope
             )
             if not ls.ok and not restarted:
                 direction, slope, restarted = -y, -yg, True
                 ls, x_new, energy_new, grad_new = advance(
-                    problem, x, energy, grad, direction, 1.0, C2
+                    problem, x, energy, grad, direction, 1.0, C2, slope=slope
                 )
             if not ls.ok:
                 return tracker.finish(
@@ -300,7 +335,7 @@ def cg(
             precon.update(x)
         y_new = precon.solve(grad_new) if precon is not None else grad_new
         beta, yg = _beta(y_new, grad_new, grad, yg, polak)
-        step = _next(ls_step, slope, beta, direction, y_new, grad_new)[0]
+        step, slope = _next(ls_step, slope, beta, direction, y_new, grad_new)
         grad, y, restarted = grad_new, y_new, False
         if tracker.record(energy, grad):
             return tracker.finish(x, Status.CONVERGED, "converged")
