@@ -419,9 +419,9 @@ def test_compiled_iterations_hand_over_and_match_the_python_loop(method, precon,
     """L-BFGS and CG (both variants) with whole iterations compiled against the Python loop
     (both searching in compiled code), on a relaxation whose Verlet list and Exp
     preconditioner are rebuilt along the way and whose compiled history fills up every 7
-    iterates: the same iterations and minimum bit for bit (both form each product in the same
-    compiled function; CG's slope formed anew by NumPy in the Python loop made it diverge),
-    every iterate in the history, and each point handed back to the objective as the last one
+    iterates: the same iterations and minimum bit for bit (both form every product by the same
+    compiled functions, and CG hands its slope ``g.p`` on instead of forming it again), every
+    iterate in the history, and each point handed back to the objective as the last one
     evaluated has that energy and gradient."""
     from athermal.precon import ExpPreconditioner
 

@@ -672,38 +672,38 @@ def hessian_product(pairs, sep, coef, v, out):  # type: ignore[no-untyped-def]
 
 
 @_jit
+def _block_entry(sep, coef, p, x, y):  # type: ignore[no-untyped-def]
+    """Entry ``(x, y)`` of pair ``p``'s block ``K = a b b^T - c I`` (:func:`hessian_terms`):
+    ``a (b_x b_y) - c delta_xy``, as NumPy's broadcast forms it."""
+    return coef[p, 0] * (sep[p, x] * sep[p, y]) - coef[p, 1] * (1.0 if x == y else 0.0)
+
+
+@_jit
 def pair_blocks(sep, coef, rows, out):  # type: ignore[no-untyped-def]
-    """The blocks ``K = a b b^T - c I`` of :func:`hessian_terms`'s pairs ``rows`` into ``out``
-    ``(len(rows), d, d)``, each entry ``a (b_x b_y) - c delta_xy`` as NumPy's broadcast forms
-    it."""
+    """The blocks of the pairs ``rows`` into ``out`` ``(len(rows), d, d)``."""
     d = sep.shape[1]
     for q in range(rows.size):
-        p = rows[q]
         for x in range(d):
             for y in range(d):
-                out[q, x, y] = coef[p, 0] * (sep[p, x] * sep[p, y]) - coef[p, 1] * (
-                    1.0 if x == y else 0.0
-                )
+                out[q, x, y] = _block_entry(sep, coef, rows[q], x, y)
 
 
 @_jit
 def diagonal_blocks(pairs, sep, coef, out):  # type: ignore[no-untyped-def]
-    """``out`` ``(N, d, d)`` = each particle's diagonal block of ``H``: the sum of the blocks of
-    :func:`pair_blocks` over its pairs (a pair with its own image adds nothing), first over
-    the pairs where it is the first particle, then where it is the second, each in pair order
-    (the sums ``np.add.at`` forms)."""
+    """``out`` ``(N, d, d)`` = each particle's diagonal block of ``H``: the sum of its pairs'
+    blocks (a pair with its own image adds nothing), first over the pairs where it is the
+    first particle, then where it is the second, each in pair order (the sums ``np.add.at``
+    forms)."""
     d = sep.shape[1]
     out[:] = 0.0
     for end in range(2):
         for p in range(pairs.shape[0]):
-            i = pairs[p, end]
             if pairs[p, 0] == pairs[p, 1]:
                 continue
+            i = pairs[p, end]
             for x in range(d):
                 for y in range(d):
-                    out[i, x, y] += coef[p, 0] * (sep[p, x] * sep[p, y]) - coef[p, 1] * (
-                        1.0 if x == y else 0.0
-                    )
+                    out[i, x, y] += _block_entry(sep, coef, p, x, y)
 
 
 @_jit
