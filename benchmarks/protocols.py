@@ -448,7 +448,7 @@ def run_iterations(args: argparse.Namespace) -> None:
     }
     write(args, result, data, "\n".join(lines) + "\n")
     iterations_png(
-        args.output_dir / f"{result}.json",
+        args.output_dir / f"{result_name(args, result)}.json",
         f"N = {args.n}: {args.seeds} realizations x {len(spec.strains)} steps, {spec.start} start",
     )
 
