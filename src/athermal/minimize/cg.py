@@ -295,7 +295,12 @@ def cg(
     while tracker.iterations < maxiter:
         resume, accepted = None, None  # Python's own iteration, from its start
         if compiled is not None:
-            compiled.scalars[:] = (yg, step, float(restarted), slope)
+            compiled.scalars[[_YG, _STEP_GUESS, _RESTARTED, _SLOPE]] = (
+                yg,
+                step,
+                float(restarted),
+                slope,
+            )
             stop, accepted_energy = compiled.run(x, grad, y, direction, energy, tracker)
             x, grad = compiled.x.copy(), compiled.grad.copy()
             y = compiled.z.copy() if precon is not None else grad
