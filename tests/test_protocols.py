@@ -25,7 +25,8 @@ from athermal.protocols import (
     scaling_exponents,
     shear_steps,
 )
-from athermal.protocols._relax import energy_scale
+from athermal.protocols._relax import energy_scale, force_tolerance
+from athermal.protocols.compress import UNJAMMED_FORCE, is_unjammed
 from athermal.protocols.jamming import JammingCheck, _next_trial, isostatic_allowance
 
 
@@ -390,6 +391,22 @@ def test_compression_refuses_an_unjammed_start():
     loose = minimize(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing
     with pytest.raises(InputError, match="not jammed"):
         next(compression_steps(loose, model))
+
+
+def test_a_packing_whose_forces_are_within_its_tolerance_bears_no_load(jammed_256):
+    """Unjammed: no pressure, no rigid backbone, or contact forces no larger than the residual
+    its relaxation's tolerance allows (a p = 1.5e-12 left by a compression step that rearranged
+    an N = 1024 packing into a looser one counted as jammed before)."""
+    model = ContactModel(2.0)
+    packing = jammed_256.packing
+    obs = measure(packing, model)
+    gtol = force_tolerance(packing, model, 1e-9)
+    assert obs.pressure > 0.0 and obs.n_rattlers < obs.n
+    assert not is_unjammed(obs, gtol)
+    assert is_unjammed(obs, obs.mean_contact_force / UNJAMMED_FORCE)
+    assert not is_unjammed(obs, 0.5 * obs.mean_contact_force / UNJAMMED_FORCE)
+    assert is_unjammed(dataclasses.replace(obs, pressure=0.0), gtol)
+    assert is_unjammed(dataclasses.replace(obs, n_rattlers=obs.n), gtol)
 
 
 def test_compression_reports_its_events_and_pressure_rises_between_them(jammed_256):
