@@ -174,9 +174,20 @@ def checks_passed(infos: list[dict[str, Any]], n: int, dim: int) -> str:
     )
 
 
+def finite(values: list[float]) -> list[float]:
+    """``values`` without NaN (a realization unjammed at that Delta phi, ``IterationCounts``)."""
+    return [v for v in values if np.isfinite(v)]
+
+
 def mean_sd(values: list[float], digits: int = 5) -> str:
-    sd = statistics.stdev(values) if len(values) > 1 else 0.0
-    return f"{statistics.fmean(values):.{digits}f} ± {sd:.{digits}f}"
+    """``mean ± sd`` of the finite ``values``, with ``(n of m)`` when some are not; ``-`` when
+    none is."""
+    kept = finite(values)
+    if not kept:
+        return "-"
+    sd = statistics.stdev(kept) if len(kept) > 1 else 0.0
+    count = "" if len(kept) == len(values) else f" ({len(kept)} of {len(values)})"
+    return f"{statistics.fmean(kept):.{digits}f} ± {sd:.{digits}f}{count}"
 
 
 def run_phic(args: argparse.Namespace) -> None:
@@ -487,8 +498,9 @@ def fits(
     ]
     keys = [f"{d:.0e}" for d in deltas]
     for name, per in iterations.items():
-        means = [statistics.fmean(v) for v in per]
-        times = dict(zip(keys, (statistics.fmean(v) for v in seconds[name]), strict=True))
+        means = [statistics.fmean(finite(v)) if finite(v) else 0.0 for v in per]
+        spent = zip(keys, seconds[name], strict=True)
+        times = {k: statistics.fmean(finite(v)) for k, v in spent if finite(v)}
         ratio = times["1e-06"] / times["1e-01"] if {"1e-06", "1e-01"} <= times.keys() else None
         shown = f"{ratio:.1f}" if ratio is not None else "-"
         if sum(m > 0.0 for m in means) < 3:  # e.g. no iteration at all from the linear start

@@ -201,6 +201,10 @@ def test_iterations_error_kinds(tmp_path: Path) -> None:
     with pytest.raises(InputError, match="error"):
         plot.iterations_figure([1e-4], {"a": [[1.0]]}, error="var")
     _png(fig, tmp_path / "iterations.png")
+    # a realization unjammed at a Delta phi (NaN) is left out of that point
+    unjammed = {"lbfgs": [[10.0, 12.0, np.nan, 14.0], [30.0, 34.0, 38.0, 42.0]]}
+    line = plot.iterations_figure([1e-4, 1e-2], unjammed).axes[0].lines[0]
+    assert line.get_ydata()[0] == pytest.approx(12.0)
 
 
 def test_shear_grid_single_legend(tmp_path: Path) -> None:

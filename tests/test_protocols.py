@@ -409,6 +409,29 @@ def test_a_packing_whose_forces_are_within_its_tolerance_bears_no_load(jammed_25
     assert is_unjammed(dataclasses.replace(obs, n_rattlers=obs.n), gtol)
 
 
+def test_iteration_counts_leave_a_state_the_compression_unjammed_out(jammed_256, monkeypatch):
+    """Such a state is not Delta phi above jamming: it is not sheared and counts NaN."""
+    from athermal import experiments
+
+    real = experiments.compression_steps
+
+    def second_unjammed(*args, **kwargs):
+        for k, state in enumerate(real(*args, **kwargs)):
+            yield dataclasses.replace(state, events=("unjammed",)) if k == 1 else state
+
+    monkeypatch.setattr(experiments, "compression_steps", second_unjammed)
+    spec = experiments.IterationSpec(
+        delta_phis=(1e-4, 1e-3, 1e-2), methods=(Minimizer("lbfgs"),), strains=(1e-6, 2e-6)
+    )
+    counts = experiments.iteration_counts(
+        jammed_256.packing, ContactModel(2.0), jammed_256.phi_c, spec
+    )
+    name = spec.methods[0].name
+    assert np.isnan(counts.iterations[name][1]) and np.isnan(counts.seconds[name][1])
+    assert counts.iterations[name][0] > 0 and counts.iterations[name][2] > 0
+    assert len(counts.delta_phi) == 3
+
+
 def test_compression_reports_its_events_and_pressure_rises_between_them(jammed_256):
     """Every drop of p is an event, never silent; between events p rises; G < 0 is flagged."""
     model = ContactModel(2.0)

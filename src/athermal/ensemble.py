@@ -356,8 +356,8 @@ def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, 
     if counted:
         summary["delta_phi"] = list(counted[0].delta_phi)
         summary["iterations_per_step"] = {
-            name: [
-                _stats([c.iterations[name][k] for c in counted])
+            name: [  # a realization unjammed there (NaN) is left out
+                _stats([v for c in counted if np.isfinite(v := c.iterations[name][k])])
                 for k in range(len(counted[0].delta_phi))
             ]
             for name in counted[0].iterations

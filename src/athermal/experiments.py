@@ -250,7 +250,9 @@ class IterationSpec:
 @dataclass(frozen=True)
 class IterationCounts:
     """Per method name: mean iterations and mean seconds per shear step at each
-    ``delta_phi`` (the states actually reached, nearest the spec's)."""
+    ``delta_phi`` (the states actually reached, nearest the spec's); NaN at a state the
+    compression left unjammed (its ``"unjammed"`` event), which is not ``Delta phi`` above
+    jamming and is not sheared."""
 
     delta_phi: tuple[float, ...]
     iterations: dict[str, tuple[float, ...]]
@@ -268,6 +270,11 @@ def iteration_counts(
     reached = []
     for state in compression_steps(jammed, model, phi_c=phi_c, delta_phis=spec.delta_phis):
         reached.append(state.delta_phi)
+        if "unjammed" in state.events:
+            for name in names:
+                iterations[name].append(float("nan"))
+                seconds[name].append(float("nan"))
+            continue
         for name, method in zip(names, spec.methods, strict=True):
             t0 = time.perf_counter()
             fs = finite_strain_shear(

@@ -364,7 +364,8 @@ def iterations_figure(
     error: str = "sd",
 ) -> Figure:
     """Mean iteration count against ``delta_phi``, one series per method;
-    ``counts[label][k]`` are the realizations at ``delta_phi[k]``. Error bars: the sample
+    ``counts[label][k]`` are the realizations at ``delta_phi[k]`` (NaN ones, unjammed there, left
+    out). Error bars: the sample
     standard deviation (``error="sd"``) or the standard error of the mean (``"stderr"``),
     named in the y label and legend title. Tick labels are plain integers."""
     if error not in ("sd", "stderr"):
@@ -378,6 +379,7 @@ def iterations_figure(
         means, bars = [], []
         for v in per_point:
             data = np.asarray(v, dtype=np.float64)
+            data = data[np.isfinite(data)]
             sd = float(np.std(data, ddof=1)) if data.size > 1 else 0.0
             means.append(float(np.mean(data)) if data.size else np.nan)
             bars.append(sd / np.sqrt(data.size) if error == "stderr" and data.size else sd)
