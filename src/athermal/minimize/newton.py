@@ -52,17 +52,18 @@ starts; ``benchmarks/results/protocols/amd_epyc/iterations_n4096_linear.md`` and
 phi = 1e-7 / 1e-6 / 1e-5 / 1e-4 against 86 / 66 / 22 / 13 and 1092 / 695 / 192 / 115 (medians
 over the realizations at 1e-6: 37 against 55 iterations, 344 against 547 ms), at 1e-1 90 against
 93 ms: a time ratio 1e-6 / 1e-1 of 5.6 against 7.5 (of the medians 4.0 against 5.9); root
-seed 1 (``_r1.md``): 383 against 570 ms per step at 1e-6, a ratio of 4.2 against 6.6, but one
-realization's steps at 1e-7 went through a rearrangement past the protocols' patience (7.4 s per
-step against 1.0 s without the correction). Taking the
-contacts lost since the build out of ``M`` as well (``M`` then that of the current network) made
-three of the ten realizations crawl past the protocols' patience at 1e-7 or 1e-6, P-L-BFGS taking
-over (6140, 3527 and 9289 iterations per step, against 73-156 Newton iterations without the
-correction): ``M`` is then as soft as ``H`` along the modes those contacts held, and near a
-saddle CG's first direction ``M^-1 g`` runs far along them. With a new build also where more
-than :data:`CORRECTION_MAX` contacts had formed (the first version), one realization's step at
-1e-6 crawled through a rearrangement past the patience (CG meeting negative curvature in 261 of
-its 296 directions; chaos decides such crawls), and the time ratio was 6.2.
+seed 1 (``_r1.md`` as first run; its rerun, the same iterations: 358 ms, 4.4): 383 against 570
+ms per step at 1e-6, a ratio of 4.2 against 6.6, but one realization's steps at 1e-7 went
+through a rearrangement past the protocols' patience (7.4 s per step against 1.0 s without the
+correction). Taking the contacts lost since the build out of ``M`` as well (``M`` then that
+of the current network) made three of the ten realizations crawl past the protocols' patience
+at 1e-7 or 1e-6, P-L-BFGS taking over (6140, 3527 and 9289 iterations per step, against 73-156
+Newton iterations without the correction): ``M`` is then as soft as ``H`` along the modes those
+contacts held, and near a saddle CG's first direction ``M^-1 g`` runs far along them. With a
+new build also where more than :data:`CORRECTION_MAX` contacts had formed (the first version),
+one realization's step at 1e-6 crawled through a rearrangement past the patience (CG meeting
+negative curvature in 261 of its 296 directions; chaos decides such crawls), and the time ratio
+was 6.2.
 
 Measured (2D, alpha = 2, one core, AMD EPYC; 10 realizations each,
 ``benchmarks/results/protocols/negative_curvature/iterations_n*_linear.md``): per quasi-static
