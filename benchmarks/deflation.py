@@ -22,7 +22,6 @@ The modes here come from a dense eigendecomposition (seconds at N = 1024, out of
 
 from __future__ import annotations
 
-import argparse
 import sys
 from pathlib import Path
 from typing import Any
@@ -33,7 +32,6 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from athermal.cell import simple_shear
-from athermal.experiments import JamSpec, child_seeds, compression_steps
 from athermal.fitting import fit_power_law
 from athermal.minimize import minimize
 from athermal.objective import Objective
@@ -41,9 +39,8 @@ from athermal.precon import ExpPreconditioner
 from athermal.protocols._relax import force_tolerance
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-from protocols import EPSILON, GROWTH, RESULTS, jammed
-from spectrum import DELTA_PHIS, ZERO, hessian
+from machine import save
+from spectrum import DELTA_PHIS, MODEL, ZERO, arguments, compressed_states, hessian
 
 MODES = (0, 10, 40, 100)
 """Numbers ``k`` of soft modes deflated."""
@@ -105,31 +102,19 @@ def step_iterations(state_packing: Any, model: Any) -> dict[int, int | None]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--n", type=int, default=1024)
-    parser.add_argument("--seeds", type=int, default=10, help="realizations of root seed 0")
-    parser.add_argument("--core", type=int, default=None)
-    parser.add_argument("--cache", type=Path, default=Path(__file__).parent / "cache")
-    parser.add_argument("--output-dir", type=Path, default=RESULTS)
-    args = parser.parse_args(argv)
-    pin(args.core)
-    spec = JamSpec(args.n, 2, 2.0, dphi=GROWTH, epsilon=EPSILON)
-    model = spec.model
+    args = arguments(__doc__, argv)
     rows: list[dict[str, Any]] = []
-    for r, seed in enumerate(child_seeds(0, args.seeds)):
-        packing, phi_c, _ = jammed(args.cache, spec, seed)
-        for state in compression_steps(packing, model, phi_c=phi_c, delta_phis=DELTA_PHIS):
-            if "unjammed" in state.events:
-                print(f"realization {r} delta phi {state.delta_phi:.0e}: unjammed", file=sys.stderr)
-                continue
-            counts = step_iterations(state.packing, model)
-            rows.append({"realization": r, "delta_phi": state.delta_phi, "iterations": counts})
-            print(
-                f"realization {r} delta phi {state.delta_phi:.0e}: "
-                + ", ".join(f"k = {k}: {v}" for k, v in counts.items()),
-                file=sys.stderr,
-                flush=True,
-            )
+    for r, state in compressed_states(args):
+        if "unjammed" in state.events:
+            continue
+        counts = step_iterations(state.packing, MODEL)
+        rows.append({"realization": r, "delta_phi": state.delta_phi, "iterations": counts})
+        print(
+            f"realization {r} delta phi {state.delta_phi:.0e}: "
+            + ", ".join(f"k = {k}: {v}" for k, v in counts.items()),
+            file=sys.stderr,
+            flush=True,
+        )
     medians: dict[int, list[float]] = {k: [] for k in MODES}
     for delta in DELTA_PHIS:
         at = [row for row in rows if abs(np.log(row["delta_phi"] / delta)) < 0.5]

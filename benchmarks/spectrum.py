@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -51,11 +52,14 @@ from athermal.observables import rattlers
 from athermal.packing import Packing
 from athermal.precon import ContactPreconditioner, ExpPreconditioner
 from athermal.protocols._relax import force_tolerance
+from athermal.protocols.compress import CompressionStep
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import pin, save
 from protocols import EPSILON, GROWTH, RESULTS, jammed
 
+MODEL = ContactModel(2.0)
+"""The contact law of the packings (harmonic)."""
 DELTA_PHIS = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 PRECONDITIONERS = ("none", "exp", "contact")
 LABELS = {"none": "P = I (L-BFGS)", "exp": "Exp (P-L-BFGS)", "contact": "contact"}
@@ -216,61 +220,74 @@ def figure(data: dict[str, Any], path: Path) -> None:
     plot.save(fig, path, dpi=110)
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def arguments(doc: str, argv: list[str] | None) -> argparse.Namespace:
+    """The command line of this script and of ``deflation.py`` (pins the process)."""
+    parser = argparse.ArgumentParser(description=doc.split("\n")[0])
     parser.add_argument("--n", type=int, default=1024)
-    parser.add_argument("--seeds", type=int, default=3, help="realizations of root seed 0")
+    parser.add_argument("--seeds", type=int, default=10, help="realizations of root seed 0")
     parser.add_argument("--core", type=int, default=None)
     parser.add_argument("--cache", type=Path, default=Path(__file__).parent / "cache")
     parser.add_argument("--output-dir", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     pin(args.core)
-    spec = JamSpec(args.n, 2, 2.0, dphi=GROWTH, epsilon=EPSILON)
-    model = spec.model
-    kappa: dict[str, list[list[float]]] = {name: [] for name in PRECONDITIONERS}
-    rows: list[dict[str, Any]] = []
-    spectra: dict[str, dict[str, list[float]]] = {name: {} for name in PRECONDITIONERS}
+    return args
+
+
+def compressed_states(args: argparse.Namespace) -> Iterator[tuple[int, CompressionStep]]:
+    """``(realization, state)``: the jammed packings of ``args`` (N, realizations of root seed
+    0, from the cache) compressed to each of :data:`DELTA_PHIS`; an unjammed state is said on
+    stderr."""
+    spec = JamSpec(args.n, 2, MODEL.alpha, dphi=GROWTH, epsilon=EPSILON)
     for k, seed in enumerate(child_seeds(0, args.seeds)):
         packing, phi_c, _ = jammed(args.cache, spec, seed)
-        per = {name: [] for name in PRECONDITIONERS}
-        for state in compression_steps(packing, model, phi_c=phi_c, delta_phis=DELTA_PHIS):
-            obj, h = hessian(state.packing, model)
-            rattling = n_rattlers(state.packing, model)
-            row: dict[str, Any] = {"realization": k, "delta_phi": state.delta_phi}
-            row["unjammed"] = "unjammed" in state.events
-            rows.append(row)
-            if row["unjammed"]:
-                for name in PRECONDITIONERS:
-                    per[name].append(float("nan"))
+        for state in compression_steps(packing, MODEL, phi_c=phi_c, delta_phis=DELTA_PHIS):
+            if "unjammed" in state.events:
                 print(f"realization {k} delta phi {state.delta_phi:.0e}: unjammed", file=sys.stderr)
-                continue
-            row["expected_zeros"] = obj.dim * (rattling + 1)  # translations and rattlers
+            yield k, state
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = arguments(__doc__, argv)
+    kappa: dict[str, list[list[float]]] = {
+        name: [[] for _ in range(args.seeds)] for name in PRECONDITIONERS
+    }
+    rows: list[dict[str, Any]] = []
+    spectra: dict[str, dict[str, list[float]]] = {name: {} for name in PRECONDITIONERS}
+    for k, state in compressed_states(args):
+        row: dict[str, Any] = {"realization": k, "delta_phi": state.delta_phi}
+        row["unjammed"] = "unjammed" in state.events
+        rows.append(row)
+        if row["unjammed"]:
             for name in PRECONDITIONERS:
-                result = spectrum(h, preconditioner(name, obj))
-                values = result.pop("values")
-                if k == 0:
-                    spectra[name][f"{state.delta_phi:.0e}"] = values
-                row[name] = result
-                per[name].append(result["kappa"])
-            row["participation"] = softest_participation(
-                h, row["none"]["zeros"], obj.n - rattling, obj.dim
-            )
-            row["steps"] = [step_outliers(state.packing, model, g) for g in STEPS]
-            print(
-                f"realization {k} delta phi {state.delta_phi:.0e}: "
-                + ", ".join(f"{n} kappa {row[n]['kappa']:.3g}" for n in PRECONDITIONERS)
-                + f", softest mode's participation {row['participation']:.3f}"
-                + "; "
-                + ", ".join(
-                    f"step {s['gamma']:g}: {s['changed']} changed, {s['outliers']} outliers"
-                    for s in row["steps"]
-                    if s is not None
-                ),
-                file=sys.stderr,
-                flush=True,
-            )
+                kappa[name][k].append(float("nan"))
+            continue
+        obj, h = hessian(state.packing, MODEL)
+        rattling = n_rattlers(state.packing, MODEL)
+        row["expected_zeros"] = obj.dim * (rattling + 1)  # translations and rattlers
         for name in PRECONDITIONERS:
-            kappa[name].append(per[name])
+            result = spectrum(h, preconditioner(name, obj))
+            values = result.pop("values")
+            if k == 0:
+                spectra[name][f"{state.delta_phi:.0e}"] = values
+            row[name] = result
+            kappa[name][k].append(result["kappa"])
+        row["participation"] = softest_participation(
+            h, row["none"]["zeros"], obj.n - rattling, obj.dim
+        )
+        row["steps"] = [step_outliers(state.packing, MODEL, g) for g in STEPS]
+        print(
+            f"realization {k} delta phi {state.delta_phi:.0e}: "
+            + ", ".join(f"{n} kappa {row[n]['kappa']:.3g}" for n in PRECONDITIONERS)
+            + f", softest mode's participation {row['participation']:.3f}"
+            + "; "
+            + ", ".join(
+                f"step {s['gamma']:g}: {s['changed']} changed, {s['outliers']} outliers"
+                for s in row["steps"]
+                if s is not None
+            ),
+            file=sys.stderr,
+            flush=True,
+        )
     jammed_rows = [r for r in rows if not r["unjammed"]]
     fits = {}
     for name in PRECONDITIONERS:
