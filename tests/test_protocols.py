@@ -407,6 +407,11 @@ def test_a_packing_whose_forces_are_within_its_tolerance_bears_no_load(jammed_25
     assert not is_unjammed(obs, 0.5 * obs.mean_contact_force / UNJAMMED_FORCE)
     assert is_unjammed(dataclasses.replace(obs, pressure=0.0), gtol)
     assert is_unjammed(dataclasses.replace(obs, n_rattlers=obs.n), gtol)
+    # relaxed to 1e-3 of its forces: jammed, unless those forces had fallen from a 1e6 x larger
+    # start (rtol = 1e-9)
+    loose = 1e-3 * obs.mean_contact_force
+    assert not is_unjammed(obs, loose, rtol=1e-3)
+    assert is_unjammed(obs, loose, rtol=1e-9)
 
 
 def test_iteration_counts_leave_a_state_the_compression_unjammed_out(jammed_256, monkeypatch):

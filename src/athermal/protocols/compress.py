@@ -56,6 +56,11 @@ load. Seen (N = 1024, alpha = 2, realization 2 of root seed 0 compressed from 1e
 substeps stopped at p = 1.5e-12, its mean contact force 4.8e-14 only 6.7 times the tolerance of
 its last substep, and was reported jammed with a pressure drop (a shear step of 1e-6 then
 relaxed it to zero energy); the jammed steps of that compression carried 5e6-7e8 times theirs."""
+UNJAMMED_DROP = 1e-3
+"""With a loose ``rtol`` a jammed step's forces are only ``~1 / rtol`` times its tolerance, so the
+factor :data:`UNJAMMED_FORCE` is capped at ``UNJAMMED_DROP / rtol``: an unjammed step's forces
+must also have fallen this far below those it started from (``rtol`` = 1e-3: to the tolerance
+itself)."""
 FIT_LOWER = 1e-6
 """Smallest ``Delta phi`` fitted by default: the jamming protocol's default ``epsilon``, below
 which ``Delta phi`` is not known to better than itself."""
@@ -246,7 +251,7 @@ def compression_steps(
         moduli = linear_response(current, model)
         n_live = obs.n - obs.n_rattlers
         events = []
-        if is_unjammed(obs, result.gtol):
+        if is_unjammed(obs, result.gtol, rtol):
             events.append("unjammed")
         if obs.pressure < p_prev and p_prev > 0.0 and "unjammed" not in events:
             events.append("pressure drop")
@@ -278,14 +283,13 @@ def compression_steps(
         p_prev = obs.pressure
 
 
-def is_unjammed(obs: Observables, gtol: float) -> bool:
-    """Whether a packing measured as ``obs`` and relaxed to ``max_i |grad_i| <= gtol`` bears no
-    load: no pressure, every particle a rattler, or a mean contact force within
-    :data:`UNJAMMED_FORCE` x ``gtol``."""
+def is_unjammed(obs: Observables, gtol: float, rtol: float = RTOL) -> bool:
+    """Whether a packing measured as ``obs`` and relaxed to ``max_i |grad_i| <= gtol`` (``rtol``
+    of its starting forces, floored) bears no load: no pressure, every particle a rattler, or a
+    mean contact force within ``min(UNJAMMED_FORCE, UNJAMMED_DROP / rtol) x gtol``."""
+    factor = min(UNJAMMED_FORCE, UNJAMMED_DROP / rtol)
     return not (
-        obs.pressure > 0.0
-        and obs.n_rattlers < obs.n
-        and obs.mean_contact_force > UNJAMMED_FORCE * gtol
+        obs.pressure > 0.0 and obs.n_rattlers < obs.n and obs.mean_contact_force > factor * gtol
     )
 
 
