@@ -39,6 +39,7 @@ import numpy as np
 import scipy.linalg
 import scipy.sparse as sp
 from matplotlib.figure import Figure
+from numpy.typing import NDArray
 
 from athermal import plot
 from athermal.cell import simple_shear
@@ -66,8 +67,11 @@ LABELS = {"none": "P = I (L-BFGS)", "exp": "Exp (P-L-BFGS)", "contact": "contact
 STEPS = (1e-6, 1e-8)
 OUTLIER = 2.0
 """Eigenvalues of ``M^-1 H(end)`` beyond this factor from 1 count as outliers."""
-LOWEST = 200
-"""The smallest kept eigenvalues (over the largest) each state keeps in the results."""
+LOWEST = 100
+"""The smallest kept eigenvalues (over the largest) each state keeps in the results (at most 50
+lie below the 1e-1 floor here)."""
+CURVE_POINTS = 200
+"""Points of each cumulative spectrum kept for the figure (log-spaced in rank)."""
 ZERO = 1e-11
 """Generalized eigenvalues within this fraction of the largest are zero modes (translations,
 rattlers): round-off leaves them below 1e-14 of it here, the softest physical mode is above
@@ -118,8 +122,18 @@ def spectrum(h: np.ndarray, p: np.ndarray) -> dict[str, Any]:
         "kappa": top / float(kept[0]),
         "largest_dropped": float(np.abs(values[zero]).max()) / top if zero.any() else 0.0,
         "smallest_kept": float(kept[0]) / top,
-        "values": (kept / top).tolist(),
+        "values": kept / top,
         "lowest": (kept[:LOWEST] / top).tolist(),
+    }
+
+
+def cumulative(values: NDArray[np.float64]) -> dict[str, list[float]]:
+    """The fraction of ``values`` (ascending) at or below each of :data:`CURVE_POINTS` of them,
+    log-spaced in rank: the curve of the figure, 4 significant digits."""
+    ranks = np.unique(np.geomspace(1, values.size, CURVE_POINTS).round().astype(int))
+    return {
+        "value": [float(f"{v:.4g}") for v in values[ranks - 1]],
+        "fraction": [float(f"{f:.4g}") for f in ranks / values.size],
     }
 
 
@@ -159,18 +173,16 @@ def step_outliers(packing: Packing, model: ContactModel, gamma: float) -> dict[s
     }
 
 
-def soft_modes(rows: list[dict[str, Any]], name: str, delta: float) -> list[int]:
-    """Per realization with a jammed state at ``delta`` and at 1e-1: how many of the state's
-    smallest eigenvalues under ``name`` (over the largest) lie below the smallest at 1e-1."""
-    counts = []
+def count_soft_modes(rows: list[dict[str, Any]]) -> None:
+    """Replace each jammed row's ``lowest`` eigenvalues under each preconditioner by
+    ``soft_modes``: how many lie below the smallest of the same realization at 1e-1 (None
+    without a jammed state there)."""
     for row in rows:
-        if abs(np.log(row["delta_phi"] / delta)) >= 0.5:
-            continue
         top = [r for r in rows if r["realization"] == row["realization"] and r["delta_phi"] > 0.05]
-        if top:
-            floor = top[0][name]["smallest_kept"]
-            counts.append(int(np.sum(np.array(row[name]["lowest"]) < floor)))
-    return counts
+        for name in PRECONDITIONERS:
+            lowest = np.array(row[name].pop("lowest"))
+            floor = top[0][name]["smallest_kept"] if top else None
+            row[name]["soft_modes"] = None if floor is None else int(np.sum(lowest < floor))
 
 
 def geometric_mean(values: list[float]) -> float:
@@ -205,10 +217,10 @@ def figure(data: dict[str, Any], path: Path) -> None:
         for delta, style in styles.items():
             if f"{delta:.0e}" not in data["spectra"][name]:  # unjammed there
                 continue
-            values = np.array(data["spectra"][name][f"{delta:.0e}"])
+            curve = data["spectra"][name][f"{delta:.0e}"]
             right.loglog(
-                values,
-                np.arange(1, values.size + 1) / values.size,
+                curve["value"],
+                curve["fraction"],
                 style,
                 color=colors[name],
                 label=f"{name}, {delta:.0e}",
@@ -252,7 +264,7 @@ def main(argv: list[str] | None = None) -> int:
         name: [[] for _ in range(args.seeds)] for name in PRECONDITIONERS
     }
     rows: list[dict[str, Any]] = []
-    spectra: dict[str, dict[str, list[float]]] = {name: {} for name in PRECONDITIONERS}
+    spectra: dict[str, dict[str, dict[str, list[float]]]] = {n: {} for n in PRECONDITIONERS}
     for k, state in compressed_states(args):
         row: dict[str, Any] = {"realization": k, "delta_phi": state.delta_phi}
         row["unjammed"] = "unjammed" in state.events
@@ -268,7 +280,7 @@ def main(argv: list[str] | None = None) -> int:
             result = spectrum(h, preconditioner(name, obj))
             values = result.pop("values")
             if k == 0:
-                spectra[name][f"{state.delta_phi:.0e}"] = values
+                spectra[name][f"{state.delta_phi:.0e}"] = cumulative(values)
             row[name] = result
             kappa[name][k].append(result["kappa"])
         row["participation"] = softest_participation(
@@ -289,6 +301,7 @@ def main(argv: list[str] | None = None) -> int:
             flush=True,
         )
     jammed_rows = [r for r in rows if not r["unjammed"]]
+    count_soft_modes(jammed_rows)
     fits = {}
     for name in PRECONDITIONERS:
         means = [geometric_mean(list(col)) for col in zip(*kappa[name], strict=True)]
@@ -358,7 +371,11 @@ def main(argv: list[str] | None = None) -> int:
     for delta in DELTA_PHIS:
         cells = []
         for name in PRECONDITIONERS:
-            counts = soft_modes(jammed_rows, name, delta)
+            counts = [
+                r[name]["soft_modes"]
+                for r in jammed_rows
+                if abs(np.log(r["delta_phi"] / delta)) < 0.5 and r[name]["soft_modes"] is not None
+            ]
             cells.append(f"{np.mean(counts):.1f} ({min(counts)}-{max(counts)})" if counts else "-")
         lines.append(f"| {delta:.0e} | " + " | ".join(cells) + " |")
     unjammed_steps = sum(step is None for r in jammed_rows for step in r["steps"])
