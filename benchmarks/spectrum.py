@@ -68,8 +68,8 @@ STEPS = (1e-6, 1e-8)
 OUTLIER = 2.0
 """Eigenvalues of ``M^-1 H(end)`` beyond this factor from 1 count as outliers."""
 LOWEST = 100
-"""The smallest kept eigenvalues (over the largest) each state keeps in the results (at most 50
-lie below the 1e-1 floor here)."""
+"""The smallest kept eigenvalues (over the largest) a state holds for its soft-mode count (at
+most 50 lie below the 1e-1 floor here)."""
 CURVE_POINTS = 200
 """Points of each cumulative spectrum kept for the figure (log-spaced in rank)."""
 ZERO = 1e-11
@@ -84,6 +84,7 @@ def n_rattlers(packing: Packing, model: ContactModel) -> int:
 
 
 def pair_set(packing: Packing, model: ContactModel) -> set[tuple[int, int]]:
+    """The contacts of ``packing`` as ``(i, j)`` pairs."""
     contacts = find_contacts(packing, model)
     return set(zip(contacts.i.tolist(), contacts.j.tolist(), strict=True))
 
