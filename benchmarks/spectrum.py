@@ -57,6 +57,7 @@ from athermal.protocols.compress import CompressionStep
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from machine import pin, save
+from newton_diagnostics import pair_set
 from protocols import EPSILON, GROWTH, RESULTS, jammed
 
 MODEL = ContactModel(2.0)
@@ -81,12 +82,6 @@ rattlers): round-off leaves them below 1e-14 of it here, the softest physical mo
 def n_rattlers(packing: Packing, model: ContactModel) -> int:
     """The rattlers of ``packing`` (:func:`~athermal.observables.rattlers`)."""
     return int(rattlers(find_contacts(packing, model), packing.n, packing.dim).sum())
-
-
-def pair_set(packing: Packing, model: ContactModel) -> set[tuple[int, int]]:
-    """The contacts of ``packing`` as ``(i, j)`` pairs."""
-    contacts = find_contacts(packing, model)
-    return set(zip(contacts.i.tolist(), contacts.j.tolist(), strict=True))
 
 
 def hessian(packing: Packing, model: ContactModel) -> tuple[Objective, np.ndarray]:
