@@ -66,28 +66,41 @@ def _step(index, phase, origin, phi, jammed, low, high):
     )
 
 
-def test_next_trial_follows_the_scheme():
-    """The plan is a function of the history: growth by dphi, bisection from the last state,
-    a check of the unjammed state at phi_high, the final, and the reopened growth by
-    RESTART epsilon doubling up to dphi."""
+@pytest.mark.parametrize("protocol", ["seed", "ohern"])
+def test_next_trial_follows_the_scheme(protocol):
+    """The plan is a function of the history: growth by dphi, bisection (from the last unjammed
+    state for ``seed``, from the last state for ``ohern``), a check of the unjammed state at
+    phi_high, the final, and the reopened growth by RESTART epsilon doubling up to dphi."""
     inf, eps = np.inf, 1e-6
+
+    def plan(h):
+        return _next_trial(h, 1e-3, eps, protocol)
+
     h = [_step(0, "start", -1, 0.8, False, 0.8, inf)]
-    assert _next_trial(h, 1e-3, eps) == ("increment", pytest.approx(0.801), 0)
+    assert plan(h) == ("increment", pytest.approx(0.801), 0)
     h.append(_step(1, "increment", 0, 0.801, True, 0.8, 0.801))
-    assert _next_trial(h, 1e-3, eps) == ("bisection", pytest.approx(0.8005), 1)
+    # the first bisection trial grows the start (seed) or decompresses the jammed state (ohern)
+    assert plan(h) == ("bisection", pytest.approx(0.8005), 0 if protocol == "seed" else 1)
     # a bracket of 1e-6 whose jammed top came from step 1, not from the unjammed bottom
     low = 0.801 - 0.9 * eps
     h.append(_step(2, "bisection", 1, low, False, low, 0.801))
-    assert _next_trial(h, 1e-3, eps) == ("bisection", 0.801, 2)
+    assert plan(h) == ("bisection", 0.801, 2)
     h.append(_step(3, "bisection", 2, 0.801, True, low, 0.801))
-    assert _next_trial(h, 1e-3, eps) == ("final", 0.801, 3)
+    assert plan(h) == ("final", 0.801, 3)
     h.append(_step(4, "final", 3, 0.801, True, low, 0.801))
-    assert _next_trial(h, 1e-3, eps) is None
+    assert plan(h) is None
     # the check at the top unjams instead: the bracket reopens and growth restarts small
     h[3:] = [_step(3, "bisection", 2, 0.801, False, 0.801, inf)]
-    assert _next_trial(h, 1e-3, eps) == ("increment", pytest.approx(0.801 + 4 * eps), 3)
+    assert plan(h) == ("increment", pytest.approx(0.801 + 4 * eps), 3)
     h.append(_step(4, "increment", 3, 0.801 + 4 * eps, False, 0.801 + 4 * eps, inf))
-    assert _next_trial(h, 1e-3, eps) == ("increment", pytest.approx(0.801 + 12 * eps), 4)
+    assert plan(h) == ("increment", pytest.approx(0.801 + 12 * eps), 4)
+    # a jammed trial leaves the seed's C_ref where it was
+    h = [
+        _step(0, "start", -1, 0.8, False, 0.8, inf),
+        _step(1, "increment", 0, 0.801, True, 0.8, 0.801),
+        _step(2, "bisection", 0, 0.8005, True, 0.8, 0.8005),
+    ]
+    assert plan(h) == ("bisection", pytest.approx(0.80025), 0 if protocol == "seed" else 2)
 
 
 def test_jam_checks_its_packing_as_a_referee_would(jammed_256):

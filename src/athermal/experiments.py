@@ -25,11 +25,13 @@ from .minimize import RTOL, Minimizer, relax
 from .objective import Objective
 from .packing import POLYDISPERSITY, Packing, SizeDistribution, check_width, random_packing
 from .protocols import (
+    JAM_PROTOCOL,
     JAMMING_MINIMIZER,
     PHI_INIT,
     CompressionStep,
     JammingResult,
     JammingStep,
+    JamProtocol,
     ScalingExponents,
     ShearMode,
     ShearStep,
@@ -95,6 +97,7 @@ class JamSpec:
     phi_init: float | None = None
     dphi: float = 1e-3
     epsilon: float = 1e-6
+    protocol: JamProtocol = JAM_PROTOCOL
     minimizer: Minimizer = JAMMING_MINIMIZER
 
     def __post_init__(self) -> None:
@@ -139,6 +142,7 @@ def jam_packing(
         spec.model,
         dphi=spec.dphi,
         epsilon=spec.epsilon,
+        protocol=spec.protocol,
         minimizer=spec.minimizer,
         resume=resume,
         on_step=on_step,

@@ -1,38 +1,47 @@
-"""Jamming by growth and bisection on one configuration (the seed's Algorithm 1, read with
-O'Hern et al. 2003).
+"""Jamming by growth and bisection (the seed's Algorithm 1, and O'Hern et al. 2003).
 
 **The scheme.** From a start packing at ``phi_init`` the radii grow by ``dphi`` (in packing
 fraction) and the packing is relaxed, until a relaxed state is jammed. The jamming point is then
-bisected: each trial is relaxed from the previous trial's relaxed configuration, jammed or not
-(O'Hern et al.'s compression and decompression of one configuration), so a trial below a jammed
-state decompresses that state's own basin. The run ends only when the jammed packing at
-``phi_high`` is the relaxation of the unjammed configuration at ``phi_low``, grown by at most
-``epsilon``: the seed's ``C_jam`` one ``epsilon`` above its ``C_ref``. When the bracket is that
-narrow but the jammed state came from another configuration, the unjammed one is grown to
-``phi_high`` (one more trial); if it stays unjammed, the jammed bound belonged to another basin:
-the bracket reopens there and growth goes on from the unjammed state with a small increment
-(``RESTART`` x ``epsilon``, doubled after every unjammed step, at most ``dphi``), then bisection.
-The jammed trial that closes the bracket is relaxed once more to force balance (``final``); if it
-unjams then, the bracket reopens the same way. Radii are always ``r0 (phi / phi_init)^(1/d)``
-from the start radii, and every step builds its own objective and preconditioner from its start
-configuration, and what a step does is a function of the steps before it (:func:`_next_trial`):
-an interrupted run resumes bit for bit (``resume``).
+bisected. Two protocols differ in the configuration a bisection trial starts from:
 
-**Jammed** means: the relaxed energy per particle exceeds ``energy_tol`` x ``k <r>^alpha`` and
-the pressure is positive. A trial relaxation stops as soon as the energy falls to that threshold
-(the packing is unjammed) or when ``max_i |grad_i|`` is below ``rtol`` (1e-6) times the mean
-contact force at its start, but never above a tenth of the force of an overlap that holds the
-threshold energy, so that a packing far from balance cannot stop there with an energy above the
-threshold. The ``final`` step relaxes to ``max_i |grad_i| <= final_rtol`` (1e-10) x the
-packing's own mean contact force, or to the round-off floor
-(:func:`~athermal.protocols._relax.round_off_floor`) where that is larger.
+- ``seed`` (the seed's Algorithm 1): every trial grows the last unjammed configuration
+  ``C_ref`` (the relaxed state at ``phi_low``); a jammed verdict leaves ``C_ref`` as it is.
+- ``ohern`` (O'Hern et al.'s compression and decompression of one configuration): every trial
+  starts from the previous trial's relaxed configuration, jammed or not, so a trial below a
+  jammed state decompresses that state's own basin.
 
-A packing jammed by ``Delta phi`` has overlaps ``delta ~ <r> Delta phi / (d phi)`` and
-``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``, so the default threshold
-``(epsilon / (10 d))^alpha`` separates states jammed by more than ~``epsilon / 10`` from
-unjammed ones (2.5e-15 for ``alpha = 2`` and ``epsilon = 1e-6``) while sparing the slowest part
-of relaxing an unjammed packing near ``phi_c``, its last orders of magnitude of energy. Both stay
-far above round-off (energies ~1e-12 relative, forces ~1e-14 of the force scale at N = 4096).
+The run ends only when the jammed packing at ``phi_high`` is the relaxation of the unjammed
+configuration at ``phi_low``, grown by at most ``epsilon``: the seed's ``C_jam`` one ``epsilon``
+above its ``C_ref``. When the bracket is that narrow but the jammed state came from another
+configuration, the unjammed one is grown to ``phi_high`` (one more trial); if it stays unjammed,
+the jammed bound belonged to another basin: the bracket reopens there and growth goes on from
+the unjammed state with a small increment (``RESTART`` x ``epsilon``, doubled after every
+unjammed step, at most ``dphi``), then bisection. The jammed trial that closes the bracket is
+relaxed once more to force balance (``final``); if it unjams then, the bracket reopens the same
+way. Radii are always ``r0 (phi / phi_init)^(1/d)`` from the start radii, every step builds its
+own objective and preconditioner from its start configuration, and what a step does is a
+function of the steps before it (:func:`_next_trial`): an interrupted run resumes bit for bit
+(``resume``).
+
+**The verdict does not depend on epsilon.** A trial relaxation ends in one of two states,
+told apart by the configuration's own scales:
+
+- *unjammed*: the energy per particle falls to ``ENERGY_TOL`` x ``k <r>^alpha``, the energy
+  of a packing ``~RESOLUTION / 10`` above jamming (``RESOLUTION`` is the smallest ``epsilon``
+  accepted);
+- *jammed*: ``max_i |grad_i| <= rtol`` (1e-6) x the packing's own mean contact force, or the
+  round-off floor (:func:`~athermal.protocols._relax.round_off_floor`) where that is larger,
+  with a positive pressure. A relaxation that meets its tolerance relative to its start's
+  forces, but not to its own (forces that fell on the way down, as an unjammed packing's do),
+  relaxes on. An unjammed packing cannot balance its contact forces (it has no state of
+  self-stress), so it reaches the energy threshold instead.
+
+Neither the threshold nor the tolerance depends on ``epsilon``, so runs from the same start
+with the same ``dphi`` and protocol follow the same trials until the coarser one stops: the
+jamming point of a smaller ``epsilon`` lies inside the bracket of a larger one, unless the
+coarser run's last check reopens its bracket (measured in ``docs/jamming.md``). The ``final``
+step relaxes to ``max_i |grad_i| <= final_rtol`` (1e-10) x the packing's own mean contact force,
+or to the round-off floor where that is larger.
 
 **Checked** (:func:`check_jammed`, run by :func:`jam`): decompressed by ``DECOMPRESSION`` x
 ``epsilon`` and relaxed the packing unjams; its contacts among non-rattlers are isostatic,
@@ -49,7 +58,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -69,7 +78,7 @@ from ..observables import (
     stress,
 )
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, energy_scale, force_scale, round_off_floor
+from ._relax import Minimizer, Relaxer, energy_scale, force_tolerance, round_off_floor
 
 JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
 """Default minimizer of the jamming protocol, P-L-BFGS. Measured (2D, alpha = 2, one core):
@@ -115,8 +124,20 @@ day, with the row maxima four rows at a time and no copies of the accepted point
 memory 6 instead of 10 (the same runs, in the same conditions: 463
 against 404 s) makes each iteration cheaper (0.25 against 0.31 ms) but the trials near phi_c
 take 41 % more."""
-JAMMING_SCHEME = 2
-"""Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused)."""
+JAMMING_SCHEME = 3
+"""Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused).
+3: the verdict independent of ``epsilon``, and the protocol chosen (``seed`` or ``ohern``)."""
+JamProtocol = Literal["seed", "ohern"]
+JAM_PROTOCOLS: tuple[JamProtocol, ...] = ("seed", "ohern")
+"""The bisection protocols (module docstring): trials from the last unjammed configuration
+(``seed``), or from the previous trial (``ohern``)."""
+JAM_PROTOCOL: JamProtocol = "seed"
+"""The default protocol: the one whose brackets nest more often over ``epsilon``
+(``docs/jamming.md``)."""
+RESOLUTION = 1e-9
+"""The smallest ``epsilon`` (packing fraction) the protocol accepts: the jamming threshold
+(:func:`energy_threshold`) is the energy of a packing ``RESOLUTION / 10`` above jamming, whose
+forces stay above the round-off floor of float64 coordinates at N <= 10^5."""
 PHI_INIT = {2: 0.8, 3: 0.6}
 """Default start fraction by dimension: unjammed after relaxation (phi_c ~ 0.84 in 2D and
 ~0.64 in 3D for the bidisperse 1:1, 1.4 mixture)."""
@@ -150,6 +171,33 @@ OVERLAP_SLACK = 2.0
 :func:`check_jammed` accepts."""
 
 Phase = Literal["start", "increment", "bisection", "final"]
+
+
+def energy_threshold(dim: int, alpha: float) -> float:
+    """The jamming threshold on ``E / N`` in units of ``k <r>^alpha``:
+    ``(RESOLUTION / (10 d))^alpha``. A packing jammed by ``Delta phi`` has overlaps
+    ``delta ~ <r> Delta phi / (d phi)`` and ``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``,
+    so states jammed by more than ~``RESOLUTION / 10`` lie above it."""
+    return float((RESOLUTION / (10.0 * dim)) ** alpha)
+
+
+def check_protocol(protocol: str) -> JamProtocol:
+    """``protocol`` if it is one of :data:`JAM_PROTOCOLS`; :class:`InputError` naming them
+    otherwise."""
+    if protocol not in JAM_PROTOCOLS:
+        raise InputError(f"protocol: must be one of {', '.join(JAM_PROTOCOLS)}, got {protocol!r}")
+    return protocol  # type: ignore[return-value]
+
+
+def check_epsilon(epsilon: float) -> float:
+    """``epsilon`` if it is at least :data:`RESOLUTION`; :class:`InputError` otherwise."""
+    epsilon = positive_scalar(epsilon, "epsilon")
+    if epsilon < RESOLUTION:
+        raise InputError(
+            f"epsilon: must be >= {RESOLUTION:g} (the resolution of the jammed/unjammed "
+            f"verdict), got {epsilon:g}"
+        )
+    return epsilon
 
 
 @dataclass(frozen=True, eq=False)
@@ -333,22 +381,26 @@ class _Trials:
         contacts = find_contacts(grown, self.model)
         floor = round_off_floor(contacts, self.start.cell)
         f0 = float(contacts.force_magnitude.mean()) if contacts.i.size else 0.0
-        if tight:
-            tol = max(self.final_rtol * f0, floor)
-        else:
-            # a tenth of the force of one overlap holding the threshold energy per particle
-            alpha = self.model.alpha
-            f_cap = (
-                0.1 * force_scale(radii, self.model) * (alpha * self.energy_tol) ** (1 - 1 / alpha)
-            )
-            tol = max(min(self.rtol * f0, f_cap), floor)
         relaxer = Relaxer(objective, self.minimizer)
         if tight:  # the packing the protocol reports: a minimum, not a saddle
+            tol = max(self.final_rtol * f0, floor)
             result, saddles = relaxer.relax_to_minimum(
                 objective.x0, gtol=tol, etol=e_min, what=what
             )
         else:
+            tol = max(self.rtol * f0, floor)
             result, saddles = relaxer.relax(objective.x0, gtol=tol, etol=e_min, what=what), 0
+            # balanced relative to its own forces, not to its start's (module docstring)
+            while result.energy > e_min:
+                own = force_tolerance(result.packing, self.model, self.rtol)
+                if result.max_gradient <= own:
+                    break
+                more = relaxer.relax(result.x, gtol=own, etol=e_min, what=what)
+                result = replace(
+                    more,
+                    iterations=result.iterations + more.iterations,
+                    evaluations=result.evaluations + more.evaluations,
+                )
         contacts = find_contacts(result.packing, self.model)
         p = pressure(stress(contacts, self.start.cell))
         return _Outcome(
@@ -364,9 +416,9 @@ class _Trials:
 
 
 def _next_trial(
-    history: Sequence[JammingStep], dphi: float, epsilon: float
+    history: Sequence[JammingStep], dphi: float, epsilon: float, protocol: JamProtocol
 ) -> tuple[Phase, float, int] | None:
-    """What the protocol does after ``history``: ``(phase, phi, origin index)``, or None when the
+    """What ``protocol`` does after ``history``: ``(phase, phi, origin index)``, or None when the
     last step is the jammed ``final`` one (module docstring)."""
     last = history[-1]
     if last.phase == "final" and last.jammed:
@@ -387,7 +439,8 @@ def _next_trial(
     low_step = next(s for s in reversed(history) if not s.jammed and s.phi == low)
     high_step = next(s for s in reversed(history) if s.jammed and s.phi == high)
     if high - low > epsilon:
-        return "bisection", 0.5 * (low + high), last.index
+        origin = low_step.index if protocol == "seed" else last.index
+        return "bisection", 0.5 * (low + high), origin
     if high_step.origin == low_step.index:
         return "final", high, high_step.index
     return "bisection", high, low_step.index
@@ -399,6 +452,7 @@ def jamming_steps(
     *,
     dphi: float = 1e-3,
     epsilon: float = 1e-6,
+    protocol: JamProtocol = JAM_PROTOCOL,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
     rtol: float = TRIAL_RTOL,
@@ -416,12 +470,14 @@ def jamming_steps(
     start : packing at ``phi_init`` (below jamming; e.g. :func:`~athermal.random_packing`).
     model : contact law.
     dphi : growth increment in packing fraction (> 0).
-    epsilon : the bracket the run ends on is at most this wide (> 0).
+    epsilon : the bracket the run ends on is at most this wide (>= :data:`RESOLUTION`).
+    protocol : ``seed`` (each bisection trial from the last unjammed configuration) or
+        ``ohern`` (from the previous trial); module docstring.
     minimizer : how each step is relaxed (default :data:`JAMMING_MINIMIZER`, P-L-BFGS).
     energy_tol : jamming threshold on ``E / N`` in units of ``k <r>^alpha``; default
-        ``(epsilon / (10 d))^alpha`` (module docstring).
-    rtol : force tolerance of the trial steps, relative to the mean contact force at the
-        step's start (module docstring).
+        :func:`energy_threshold` (module docstring).
+    rtol : force tolerance of the trial steps, relative to the packing's own mean contact
+        force (module docstring).
     final_rtol : force tolerance of the final step, relative to the packing's own mean contact
         force (floored at round-off).
     resume : the steps already done by an interrupted run with the same arguments (as read
@@ -435,9 +491,10 @@ def jamming_steps(
     ConvergenceError : a relaxation reached its iteration limit, or no jamming below phi = 1.
     """
     dphi = positive_scalar(dphi, "dphi")
-    epsilon = positive_scalar(epsilon, "epsilon")
+    epsilon = check_epsilon(epsilon)
+    protocol = check_protocol(protocol)
     if energy_tol is None:
-        energy_tol = (epsilon / (10.0 * start.dim)) ** model.alpha
+        energy_tol = energy_threshold(start.dim, model.alpha)
     trials = _Trials(
         start,
         model,
@@ -485,7 +542,7 @@ def jamming_steps(
             )
         history.append(first)
         yield first
-    while (trial := _next_trial(history, dphi, epsilon)) is not None:
+    while (trial := _next_trial(history, dphi, epsilon, protocol)) is not None:
         phase, phi, origin = trial
         if phi >= 1.0:
             raise ConvergenceError(f"no jammed state found below phi = 1 (last {phi:.6g})")
@@ -534,9 +591,9 @@ def check_jammed(
 
     ``energy_tol`` is the jamming threshold (default as in :func:`jamming_steps`).
     """
-    epsilon = positive_scalar(epsilon, "epsilon")
+    epsilon = check_epsilon(epsilon)
     if energy_tol is None:
-        energy_tol = (epsilon / (10.0 * packing.dim)) ** model.alpha
+        energy_tol = energy_threshold(packing.dim, model.alpha)
     trials = _Trials(
         packing, model, minimizer or JAMMING_MINIMIZER, energy_tol, TRIAL_RTOL, FINAL_RTOL
     )
@@ -565,6 +622,7 @@ def jam(
     *,
     dphi: float = 1e-3,
     epsilon: float = 1e-6,
+    protocol: JamProtocol = JAM_PROTOCOL,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
     rtol: float = TRIAL_RTOL,
@@ -593,6 +651,7 @@ def jam(
         model,
         dphi=dphi,
         epsilon=epsilon,
+        protocol=protocol,
         minimizer=minimizer,
         energy_tol=energy_tol,
         rtol=rtol,
