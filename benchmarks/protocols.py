@@ -307,8 +307,8 @@ def scaling_report(
     """The results of ``scaling`` (data and markdown) from its realizations' records, the pooled
     fits made here over all their steps (:func:`~athermal.protocols.compress.pooled_fit`)."""
     spec = CompressSpec(fit_lower=args.lower)
-    rows = [row for r in per_seed for row in r["steps"]]
-    pooled = {key: pooled_fit(rows, column, args.lower) for key, column in SCALING_COLUMNS}
+    compressions = [r["steps"] for r in per_seed]
+    pooled = {key: pooled_fit(compressions, column, args.lower) for key, column in SCALING_COLUMNS}
     expect = {"p": args.alpha - 1.0, "G": args.alpha - 1.5, "z": 0.5}
     lines = [
         f"# Compression scaling: 2D, N = {args.n}, alpha = {args.alpha:g}, {len(per_seed)} "

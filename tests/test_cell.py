@@ -97,3 +97,19 @@ def test_cell_is_immutable():
     cell = Cell.box([1.0, 1.0])
     with pytest.raises(ValueError):
         cell.h[0, 0] = 2.0
+
+
+@pytest.mark.parametrize(
+    "h", [[[1.0, 7.0], [0.0, 1.0]], [[1.0, -3.0, 2.0], [0.0, 1.0, 5.0], [0.0, 0.0, 1.0]]]
+)
+def test_narrowest_width_is_the_lattice_s_whatever_its_basis(h):
+    """A sheared copy of the unit cell (the same lattice) is as wide as the unit cell, though
+    the faces of its ``h`` lie closer: a particle that fits one fits the other."""
+    from athermal.packing import Packing
+
+    sheared = Cell(np.array(h))
+    assert sheared.widths.min() < 0.2
+    assert sheared.narrowest_width == pytest.approx(1.0, abs=1e-15)
+    Packing(np.zeros((1, sheared.dim)), np.array([0.45]), sheared)  # diameter 0.9 fits
+    with pytest.raises(InputError, match="does not fit in the cell"):
+        Packing(np.zeros((1, sheared.dim)), np.array([0.5]), sheared)

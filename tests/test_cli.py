@@ -318,7 +318,9 @@ def test_progress_goes_to_a_terminal_stderr_only_and_json_stays_clean(tmp_path, 
         assert "step 0 start phi" in terminal and "bisection" in terminal
 
 
-def test_compress_refuses_an_unjammed_file_and_warns_on_one_far_above_its_phi_c(tmp_path, capsys):
+def test_compress_refuses_a_start_not_at_its_jamming_point_unless_asked(tmp_path, capsys):
+    """Unjammed, unrelaxed or far above its phi_c: exit 2, one line, nothing written; with
+    --from-unjammed the compression runs with one warning that says why."""
     from athermal.contact import ContactModel
     from athermal.minimize import minimize
     from athermal.objective import Objective
@@ -326,15 +328,26 @@ def test_compress_refuses_an_unjammed_file_and_warns_on_one_far_above_its_phi_c(
     model = ContactModel(2.0)
     loose = tmp_path / "loose.gsd"
     write_gsd(loose, minimize(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing)
-    code, out, err = run(capsys, "compress", str(loose), "-o", str(tmp_path / "a.gsd"))
-    assert code == 2 and out == "" and "not jammed" in err and err.count("\n") == 1
-    assert not (tmp_path / "a.gsd").exists()
-
+    raw = tmp_path / "raw.gsd"
+    write_gsd(raw, random_packing(64, 0.88, seed=1), model=model)
     dense = tmp_path / "dense.gsd"
     packing = minimize(Objective(random_packing(64, 0.88, seed=1), model), rtol=1e-10).packing
     write_gsd(dense, packing, model=model)
+    cases = [
+        (loose, [], "rattlers"),
+        (raw, [], "not relaxed"),
+        (dense, ["--phi-c", str(packing.phi)], "above its jamming point"),
+    ]
+    for start, extra, why in cases:
+        before = sorted(tmp_path.iterdir())
+        code, out, err = run(capsys, "compress", str(start), "-o", str(tmp_path / "a.gsd"), *extra)
+        assert code == 2 and out == "" and err.count("\n") == 1
+        assert "not jammed" in err and why in err and "--from-unjammed" in err
+        assert sorted(tmp_path.iterdir()) == before
+
     argv = ["compress", str(dense), "-o", str(tmp_path / "b.gsd"), "--phi-c", str(packing.phi)]
-    code, out, err = run(capsys, *argv, "--from", "1e-3", "--per-decade", "1", "--json")
+    argv += ["--from", "1e-3", "--per-decade", "1", "--json", "--from-unjammed"]
+    code, out, err = run(capsys, *argv)
     assert code == 0 and set(json.loads(out)) >= {"exponents", "events", "phi_c"}
     warning = [line for line in err.splitlines() if "warning" in line]
     assert len(warning) == 1 and warning[0].startswith("athermal compress: warning: ")
@@ -416,6 +429,97 @@ def test_plain_output_is_rounded_and_has_no_python_reprs(compression_file, tmp_p
                 assert len(mantissa.replace(".", "").lstrip("0")) <= digits, line
 
 
+def test_measure_of_a_sheared_copy_of_the_unit_cell_equals_the_unit_cell_s(tmp_path, capsys):
+    """Cell ``[[1, 7], [0, 1]]`` is the unit square's lattice: the same observables, whether
+    the file is athermal's (exact float64 state) or a plain HOOMD one (box tilt xy = 7)."""
+    import gsd.hoomd
+
+    from athermal.cell import Cell
+    from athermal.packing import Packing
+
+    square = random_packing(64, 0.86, seed=4)
+    sheared = Packing(square.positions, square.radii, Cell(np.array([[1.0, 7.0], [0.0, 1.0]])))
+    write_gsd(tmp_path / "square.gsd", square)
+    write_gsd(tmp_path / "sheared.gsd", sheared)
+    frame = gsd.hoomd.Frame()
+    frame.configuration.dimensions = 2
+    frame.configuration.box = [1.0, 1.0, 1.0, 7.0, 0.0, 0.0]
+    frame.particles.N = square.n
+    frame.particles.position = np.zeros((square.n, 3), dtype=np.float32)
+    frame.particles.position[:, :2] = sheared.cell.wrap(sheared.positions)
+    frame.particles.diameter = (2.0 * square.radii).astype(np.float32)
+    with gsd.hoomd.open(str(tmp_path / "hoomd.gsd"), "w") as traj:
+        traj.append(frame)
+    measured = {}
+    for name in ("square", "sheared", "hoomd"):
+        code, out, err = run(capsys, "measure", str(tmp_path / f"{name}.gsd"), "--json")
+        assert code == 0, err
+        measured[name] = json.loads(out)
+    want = measured["square"]
+    assert want["contacts"] > 0 and want["pressure"] > 0.0
+    for name, rel in (("sheared", 1e-12), ("hoomd", 1e-5)):  # HOOMD chunks are float32
+        got = measured[name]
+        assert (got["contacts"], got["n_rattlers"]) == (want["contacts"], want["n_rattlers"])
+        for key in ("phi", "pressure", "energy", "z"):
+            assert got[key] == pytest.approx(want[key], rel=rel), (name, key)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["bench", "--alphas", "1.5"], "--alphas: must be >= 2, got 1.5"),
+        (["bench", "--alphas", "2", "1.5", "--quick"], "--alphas: must be >= 2, got 1.5"),
+        (["bench", "--alphas", "nan"], "--alphas: must be >= 2, got nan"),
+        (["bench", "--alphas", "3"], "--alphas: the Table has start configurations"),
+        (["bench", "--quick", "--alphas", "2.5"], "--alphas: --quick sets its own"),
+        (["bench", "--quick", "--repeats", "2"], "--repeats: --quick sets its own"),
+        (["random", "--polydispersity", "-1", "-o", "{tmp}/x.gsd"], "--polydispersity: must"),
+        (["random", "--seed", str(2**64), "-o", "{tmp}/x.gsd"], "--seed: must be an integer"),
+        (["random", "--seed", "1" + "0" * 400, "-o", "{tmp}/x.gsd"], "--seed: must be"),
+    ],
+)
+def test_list_valued_and_odd_numeric_options_are_checked_at_the_door(
+    tmp_path, capsys, monkeypatch, argv, message
+):
+    """Refused in one line naming the flag, before any work (the Table never starts)."""
+    from athermal import bench
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("the Table ran")
+
+    monkeypatch.setattr(bench, "table1", no_work)
+    code, out, err = run(capsys, *[a.format(tmp=tmp_path) for a in argv])
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and f"error: {message}" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_misspelt_option_is_named_before_a_missing_required_one(capsys):
+    """``--ouput`` for ``-o``: argparse's unknown-option message, not "-o required"."""
+    with pytest.raises(SystemExit) as stop:
+        main(["jam", "--n", "64", "--ouput", "x.gsd"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and err.count("\n") == 1
+    assert err.startswith("athermal jam: error: unrecognized arguments: --ouput x.gsd")
+    with pytest.raises(SystemExit) as stop:  # nothing unknown: the missing one is named
+        main(["jam", "--n", "64"])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and "required: -o/--output" in err
+
+
+def test_ensemble_with_an_unreachable_scheduler_leaves_nothing_behind(
+    tmp_path, capsys, monkeypatch
+):
+    pytest.importorskip("dask.distributed")
+    monkeypatch.setattr("athermal.ensemble.CONNECT_TIMEOUT", 0.5)
+    out = tmp_path / "E"
+    argv = ["ensemble", "jam", "--realizations", "2", "--scheduler", "tcp://127.0.0.1:1"]
+    code, stdout, err = run(capsys, *argv, "-o", str(out), "--quiet")
+    assert code == 2 and stdout == "" and err.count("\n") == 1
+    assert "error: --scheduler: cannot reach tcp://127.0.0.1:1" in err
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_unknown_option_is_named_by_its_subcommand(capsys):
     with pytest.raises(SystemExit) as stop:
         main(["jam", "-o", "x.gsd", "--no-such-option"])
@@ -446,7 +550,7 @@ def test_jam_a_polydisperse_packing_and_resume_only_the_same_sizes(tmp_path, cap
     code, text, _ = run(capsys, *argv, "--polydispersity", "0.3", "--json")
     assert code == 0
     made = json.loads(text)
-    assert made["checks_passed"] and made["excess_contacts"] >= 0
+    assert made["checks_passed"] and made["jamming_check"]["excess_contacts"] >= 0
     radii = read_gsd(out).packing.radii
     assert np.unique(radii).size == n
     assert 0.15 < radii.std() / radii.mean() < 0.45  # N draws of width 0.3

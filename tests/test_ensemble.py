@@ -139,3 +139,18 @@ def test_a_shear_ensemble_records_every_section_and_reads_back(tmp_path):
     assert pooled["points"] == len(jammed) > len(rows) / 2
     assert 0.7 < pooled["exponent"] < 1.3
     assert result.summary["plastic_events"]["n"] == 2
+
+
+def test_a_scheduler_that_does_not_answer_leaves_nothing_behind(tmp_path, monkeypatch):
+    """Reached before the directory is touched: a new one is not created, an existing one
+    keeps exactly what it held."""
+    import athermal.ensemble
+
+    monkeypatch.setattr(athermal.ensemble, "CONNECT_TIMEOUT", 0.5)
+    new, kept = tmp_path / "new", tmp_path / "kept"
+    kept.mkdir()
+    (kept / "notes.txt").write_text("mine\n")
+    for directory in (new, kept):
+        with pytest.raises(InputError, match=r"--scheduler: cannot reach tcp://127\.0\.0\.1:1"):
+            run_ensemble(SPEC, directory, 2, seed=11, scheduler="tcp://127.0.0.1:1")
+    assert not new.exists() and [p.name for p in kept.iterdir()] == ["notes.txt"]

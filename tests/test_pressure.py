@@ -90,6 +90,14 @@ def test_jam_pressure_writes_the_packing_at_that_pressure(tmp_path, capsys):
     assert frame.packing.phi == pytest.approx(report["phi"], rel=1e-12)
     assert main(["measure", str(out), "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["pressure"] == pytest.approx(report["pressure"])
+    # the jamming check's numbers are labelled as the jammed packing's, at phi_c, not at P
+    check = report["jamming_check"]
+    assert check["phi"] == pytest.approx(report["phi_c"], abs=1e-12) and check["passed"]
+    assert check["pressure"] < 1e-4 * report["pressure"] and check["z"] < report["z"]
+    assert report["written"].startswith("the packing at pressure 0.002")
+    for key in ("energy", "pressure", "z", "contacts", "excess_contacts"):
+        assert float(frame.log[f"jamming_check_{key}"]) == check[key]
+    assert float(frame.log["z"]) == report["z"]
 
 
 def test_a_pressure_drop_on_the_way_is_counted(jammed_2d):

@@ -74,10 +74,21 @@ class Row:
     converged: bool
 
 
+def check_alphas(alphas: Sequence[float]) -> list[float]:
+    """``alphas`` as floats if the Table has a start configuration for each (:data:`ALPHAS`)."""
+    out = [float(alpha) for alpha in alphas]
+    for alpha in out:
+        if alpha not in ALPHAS:
+            have = " and ".join(f"{a:g}" for a in ALPHAS)
+            raise InputError(
+                f"alphas: the Table has start configurations for alpha {have}, not {alpha:g}"
+            )
+    return out
+
+
 def reference_packing(alpha: float) -> Packing:
     """The relaxed N = 4096 start configuration for ``alpha`` (2 or 2.5)."""
-    if alpha not in ALPHAS:
-        raise InputError(f"alpha: the Table has start configurations for {ALPHAS}, not {alpha}")
+    (alpha,) = check_alphas([alpha])
     name = f"table1_N4096_alpha{alpha:g}.npz"
     with resources.files("athermal.data").joinpath(name).open("rb") as handle:
         ref = np.load(handle)
@@ -165,6 +176,7 @@ def table1(
         raise InputError(f"methods: unknown {sorted(unknown)}; choose from {list(LABELS)}")
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
+    alphas = check_alphas(alphas)
     by_label: dict[str, Minimizer | None] = {m.name: m for m in METHODS}
     by_label[SCIPY] = None
     chosen = [label for label in LABELS if labels is None or label in labels]

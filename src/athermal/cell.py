@@ -99,6 +99,17 @@ class Cell:
         w.setflags(write=False)
         return w
 
+    @cached_property
+    def narrowest_width(self) -> float:
+        """The lattice's narrowest width: the smallest of the :attr:`widths` of the
+        :meth:`reduced` cell.
+
+        Unlike :attr:`widths` (the faces of ``h`` as written), it is a property of the lattice,
+        the same for each of its upper-triangular bases: ``[[1, 7], [0, 1]]`` gives 1, as the
+        unit square does. Sizes that must fit in the periodic cell are checked against it.
+        """
+        return float(self.reduced().widths.min())
+
     def fractional(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Fractional coordinates ``h^-1 x`` of positions or vectors ``(N, d)``."""
         return np.asarray(x) @ self.inverse.T

@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 from ._validate import choice
 from .atomic import write_text
 from .checkpoint import Trajectory, jamming_step, run_id
-from .errors import InputError
+from .errors import InputError, one_line
 from .experiments import (
     Compression,
     CompressSpec,
@@ -55,6 +55,8 @@ from .tables import Row
 Protocol = Literal["jam", "compress", "shear", "iterations"]
 PROTOCOLS: tuple[str, ...] = ("jam", "compress", "shear", "iterations")
 INSTALL_HINT = 'the dask extra is not installed (pip install "athermal[dask]")'
+CONNECT_TIMEOUT = 5.0
+"""Seconds an existing scheduler (``scheduler``, ``--scheduler``) has to answer."""
 
 
 @dataclass(frozen=True)
@@ -305,7 +307,7 @@ def pooled_exponent(records: list[CompressionRecord], column: str) -> dict[str, 
     (:func:`~athermal.protocols.compress.pooled_fit`): its exponent, standard error, the number
     of points and their ``Delta phi`` range; None with too few points."""
     try:
-        pooled = pooled_fit((row for c in records for row in c.rows), column, SUMMARY_FIT_LOWER)
+        pooled = pooled_fit((c.rows for c in records), column, SUMMARY_FIT_LOWER)
     except InputError:
         return None
     return {
@@ -391,7 +393,9 @@ def run_ensemble(
         realizations are skipped; it must hold realizations of the same spec and seed).
     realizations : how many (realization ``k`` uses the ``k``-th child seed).
     workers : worker processes of the local cluster (default: the cores available).
-    scheduler : address of an existing Dask scheduler (``tcp://host:8786``) instead.
+    scheduler : address of an existing Dask scheduler (``tcp://host:8786``) instead; it is
+        reached (within :data:`CONNECT_TIMEOUT`) before ``directory`` is touched, so a
+        scheduler that does not answer leaves nothing behind.
     retries : how often Dask retries a realization whose worker failed.
     progress : called with a line of text as realizations finish.
     """
@@ -412,8 +416,14 @@ def run_ensemble(
         seed,
     ):
         raise InputError(f"{out} holds an ensemble with another spec or seed; use a new directory")
-    out.mkdir(parents=True, exist_ok=True)
-    lock = claim(manifest)  # one run per directory at a time
+    client = None if scheduler is None else _connect(scheduler)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        lock = claim(manifest)  # one run per directory at a time
+    except BaseException:
+        if client is not None:
+            client.close()
+        raise
     try:
         if stored is None:
             _write_json(manifest, identity)
@@ -435,10 +445,12 @@ def run_ensemble(
         if todo:
             prefix = f"athermal-{int(spec.identity())}-{seed}"
             engine = _compute(
-                spec, out, todo, seeds, workers, scheduler, retries, results, say, prefix
+                spec, out, todo, seeds, workers, client, retries, results, say, prefix
             )
     finally:
         lock.close()
+        if client is not None:
+            client.close()
     ordered = [results[k] for k in range(realizations)]
     summary = summarize(spec, ordered)
     _write_json(out / "summary.json", summary)
@@ -537,32 +549,45 @@ def _read_json(path: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) else None
 
 
+def _connect(scheduler: str) -> Any:
+    """A Dask client of the scheduler at ``scheduler``; :class:`InputError` in one line when
+    dask is not installed or the scheduler does not answer within :data:`CONNECT_TIMEOUT`."""
+    try:
+        from dask.distributed import Client
+    except ImportError:
+        raise InputError(f"--scheduler: {INSTALL_HINT}") from None
+    try:
+        return Client(scheduler, timeout=CONNECT_TIMEOUT)
+    except (OSError, ValueError, TypeError) as exc:  # timeout / refused; a malformed address
+        raise InputError(f"--scheduler: cannot reach {scheduler}: {one_line(exc)}") from None
+
+
 def _compute(
     spec: EnsembleSpec,
     out: Path,
     todo: list[int],
     seeds: list[int],
     workers: int | None,
-    scheduler: str | None,
+    client: Any,
     retries: int,
     results: dict[int, Realization],
     say: Callable[[str], None],
     prefix: str,
 ) -> str:
+    """Run the realizations ``todo`` on ``client`` (a connected scheduler's; it stays open), on
+    a local cluster started here when None, or one after another without dask; the engine's
+    name."""
     try:
         from dask.distributed import Client, LocalCluster, as_completed
     except ImportError:
-        if scheduler is not None:
-            raise InputError(f"--scheduler: {INSTALL_HINT}") from None
         warnings.warn(f"{INSTALL_HINT}: running the realizations one after another", stacklevel=3)
         for k in todo:
             results[k] = run_realization(spec, k, seeds[k], str(out))
             say(f"realization {k} done (phi_c {results[k].phi_c:.7f})")
         return "sequential"
-    if scheduler is not None:
-        client = Client(scheduler)
-        engine = f"dask scheduler {scheduler}"
-        cluster = None
+    cluster = None
+    if client is not None:
+        engine = f"dask scheduler {client.scheduler.address}"
     else:
         available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else 1
         count = workers or available
@@ -594,7 +619,7 @@ def _compute(
             results[result.index] = result
             say(f"realization {result.index} done (phi_c {result.phi_c:.7f})")
     finally:
-        client.close()
         if cluster is not None:
+            client.close()
             cluster.close()
     return engine

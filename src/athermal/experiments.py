@@ -44,6 +44,7 @@ from .protocols import (
 )
 from .protocols.compress import FIT_LOWER
 from .protocols.finite_strain import DEFAULT_STRAINS, StepStart
+from .protocols.jamming import check_epsilon, check_protocol
 
 ITERATION_METHODS = (
     Minimizer("lbfgs"),
@@ -83,8 +84,8 @@ class JamSpec:
     (or radii from the continuous distribution ``sizes`` of width ``polydispersity``, see
     :func:`~athermal.packing.random_packing`), contact exponent ``alpha`` and stiffness
     ``stiffness``, placed at ``phi_init`` (default
-    :data:`PHI_INIT`), grown by ``dphi`` and bisected to ``epsilon`` (packing fraction),
-    relaxed by ``minimizer``.
+    :data:`PHI_INIT`), grown by ``dphi`` and bisected to ``epsilon`` (packing fraction) by the
+    bisection ``protocol`` (``seed`` or ``ohern``), relaxed by ``minimizer``.
     """
 
     n: int = 1024
@@ -107,6 +108,8 @@ class JamSpec:
             raise InputError(f"dim: must be 2 or 3, got {self.dim!r}")
         if self.sizes != "bidisperse":
             check_width(self.sizes, self.polydispersity)
+        check_protocol(self.protocol)
+        check_epsilon(self.epsilon)
         self.model  # noqa: B018  # validates alpha and stiffness
 
     @property

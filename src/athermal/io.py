@@ -36,6 +36,9 @@ from .packing import Packing
 
 PathLike = str | os.PathLike[str]
 
+SEED_BOUND = 2**64
+"""Seeds lie in ``[0, SEED_BOUND)``: a file stores its seed as uint64."""
+
 _LOG = "athermal/"
 _STATE = ("position", "radius", "cell")
 _RESERVED = (*_STATE, "alpha", "stiffness", "seed")
@@ -287,7 +290,7 @@ def _hoomd_frame(
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
             raise InputError(f"seed: expected an integer, got {seed!r}")
-        if not 0 <= int(seed) < 2**64:
+        if not 0 <= int(seed) < SEED_BOUND:
             raise InputError(f"seed: must lie in [0, 2**64), got {seed}")
         log[_LOG + "seed"] = np.array([int(seed)], dtype=np.uint64)
     for name, value in (observables or {}).items():

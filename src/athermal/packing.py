@@ -44,10 +44,10 @@ class Packing:
             raise InputError("positions: a packing needs at least one particle")
         if np.any(r <= 0.0):
             raise InputError(f"radii: must be > 0 (found {int(np.sum(r <= 0.0))} that are not)")
-        if 2.0 * r.max() >= self.cell.widths.min():
+        if 2.0 * r.max() >= self.cell.narrowest_width:
             raise InputError(
                 f"radii: largest diameter {2 * r.max():.6g} does not fit in the cell "
-                f"(narrowest width {self.cell.widths.min():.6g})"
+                f"(narrowest width {self.cell.narrowest_width:.6g})"
             )
         object.__setattr__(self, "positions", x)
         object.__setattr__(self, "radii", r)

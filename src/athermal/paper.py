@@ -28,6 +28,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from . import bench, plot
 from .atomic import write_text
@@ -48,6 +49,7 @@ from .experiments import (
 )
 from .fitting import PowerLaw
 from .minimize import RTOL
+from .protocols.compress import FIT_LAWS
 
 SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
 """The exponents the seed reports (approximately) for alpha = 2 and 2.5."""
@@ -106,7 +108,7 @@ class PaperResult:
 
     figures: dict[str, str]
     report: str
-    exponents: dict[str, dict[str, dict[str, float]]]
+    exponents: dict[str, dict[str, dict[str, Any]]]
     phi_c: float
     seconds: float
 
@@ -179,7 +181,7 @@ def reproduce(
         "line); the legend gives each method's iterations.",
     )
 
-    exponents: dict[str, dict[str, dict[str, float]]] = {}
+    exponents: dict[str, dict[str, dict[str, Any]]] = {}
     series: dict[str, dict[str, list[float]]] = {key: {} for key in QUANTITIES}
     dphis: dict[str, list[float]] = {}
     fits: dict[str, dict[str, PowerLaw | None]] = {key: {} for key in QUANTITIES}
@@ -198,6 +200,7 @@ def reproduce(
             "G": compression.fits.shear_modulus,
             "z": compression.fits.z_excess,
         }
+        columns = dict(zip(laws, FIT_LAWS, strict=True))
         series["p"][label] = [s.pressure for s in compression.steps]
         series["G"][label] = [s.shear_modulus for s in compression.steps]
         series["z"][label] = [s.z_excess for s in compression.steps]
@@ -217,6 +220,7 @@ def reproduce(
                 "points": fit.points,
                 "delta_phi_min": fit.x_min,
                 "delta_phi_max": fit.x_max,
+                "left_out": compression.fits.left_out[columns[key]],
                 "seed": SEED_EXPONENTS[key][alpha],
             }
         events = {k: v for k, v in compression.fits.events.items() if v}
@@ -238,9 +242,12 @@ def reproduce(
                 phi_c_note=f"$\\phi_c$ = {phi_c:.6f} of the jamming protocol",
             ),
             f"The {what} against phi - phi_c, phi_c = {phi_c:.7f} from the jamming protocol "
-            f"(not fitted), for alpha = 2 and 2.5. Filled markers are the fitted points "
-            f"(Delta phi >= {compress_spec.fit_lower:g}), open ones lie outside the fit; solid "
-            "lines are the fits, dotted ones the seed's slopes.",
+            f"(not fitted), for alpha = 2 and 2.5. Filled markers lie in the fitted range, open "
+            "ones outside it: the fits take Delta phi >= "
+            f"{compress_spec.fit_lower:g}, p and G where Delta phi N^2 >= 1 (a finite packing's "
+            "scaling regime), z - z_iso where it counts at least 10 contacts, and no step from "
+            "the first unjammed one on (the report lists what each fit left out); solid lines "
+            "are the fits, dotted ones the seed's slopes.",
         )
 
     say("iteration experiment")
@@ -329,7 +336,7 @@ def _report(
     out: Path,
     settings: Settings,
     phi_c: float,
-    exponents: dict[str, dict[str, dict[str, float]]],
+    exponents: dict[str, dict[str, dict[str, Any]]],
     figures: dict[str, str],
     captions: dict[str, str],
     warnings_: list[str],
@@ -350,17 +357,21 @@ def _report(
     lines += [
         "## Scaling exponents",
         "",
-        "Fits of y = a (phi - phi_c)^b against the jamming protocol's phi_c.",
+        "Fits of y = a (phi - phi_c)^b against the jamming protocol's phi_c, each over the "
+        "steps its rules take (`athermal.protocols.compress.fit_points`); the last column says "
+        "how many steps each left out, and why.",
         "",
-        "| alpha | quantity | fitted ± stderr | points | Delta phi range | seed |",
-        "|---:|---|---:|---:|---|---:|",
+        "| alpha | quantity | fitted ± stderr | points | Delta phi range | seed | left out |",
+        "|---:|---|---:|---:|---|---:|---|",
     ]
     for alpha, per in exponents.items():
         for key, fit in per.items():
             lines.append(
                 f"| {alpha} | {key} | {fit['exponent']:.3f} ± {fit['stderr']:.3f} | "
                 f"{fit['points']:.0f} | {fit['delta_phi_min']:.1e} ... {fit['delta_phi_max']:.1e} "
-                f"| {fit['seed']:g} |"
+                f"| {fit['seed']:g} | "
+                + ("; ".join(f"{n} {why}" for why, n in fit["left_out"].items()) or "none")
+                + " |"
             )
     lines += ["", "## Figures", ""]
     for name, figure in figures.items():

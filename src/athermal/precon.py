@@ -153,7 +153,7 @@ class _PairPreconditioner(ABC):
             raise InputError(f"A: must be a finite number >= 0, got {A!r}")
         rc = R_CUT_FACTOR * float(objective.radii.max()) if r_cut is None else r_cut
         self.r_cut = positive_scalar(rc, "r_cut")
-        half_width = 0.5 * float(objective.cell.widths.min())
+        half_width = 0.5 * objective.cell.narrowest_width
         if self.r_cut >= half_width:
             raise InputError(
                 f"r_cut: {self.r_cut:.6g} must be below half the narrowest cell width "

@@ -8,7 +8,8 @@ import argparse
 import os
 import sys
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 
 from ..errors import ConvergenceError, InputError
 from . import analysis, basic, protocols, studies
@@ -50,12 +51,36 @@ def _one_line_warning(command: str) -> Callable[..., None]:
 
 
 def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
-    """The parsed arguments; an unknown option is reported by its subcommand's parser."""
+    """The parsed arguments; an unknown option is reported first, by its subcommand's parser.
+
+    argparse stops at a missing required argument before it names the unknown ones, so a
+    misspelt ``--ouput`` would read as "-o required": a first pass with nothing required
+    collects the unknown options, the second one parses with every rule.
+    """
     parser = build()
-    args, unknown = parser.parse_known_args(argv)
+    with _nothing_required(parser):
+        args, unknown = parser.parse_known_args(argv)
     if unknown:
-        subparser(parser, args.command).error(f"unrecognized arguments: {' '.join(unknown)}")
-    return args
+        where = parser if args.command is None else subparser(parser, args.command)
+        where.error(f"unrecognized arguments: {' '.join(unknown)}")
+    return parser.parse_args(argv)
+
+
+@contextmanager
+def _nothing_required(parser: argparse.ArgumentParser) -> Iterator[None]:
+    """Every argument of ``parser`` and of its subcommands optional while inside."""
+    actions = list(parser._actions)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            actions += [a for sub in action.choices.values() for a in sub._actions]
+    required = [a for a in actions if a.required]
+    for action in required:
+        action.required = False
+    try:
+        yield
+    finally:
+        for action in required:
+            action.required = True
 
 
 def _interrupted(args: argparse.Namespace) -> int:

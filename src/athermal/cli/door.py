@@ -14,10 +14,12 @@ import stat
 from collections.abc import Callable
 from pathlib import Path
 
+from ..bench import check_alphas
 from ..enthalpy import ENTHALPY_METHODS
 from ..errors import InputError
+from ..io import SEED_BOUND
 from ..packing import check_width
-from ..protocols import PHI_INIT
+from ..protocols import PHI_INIT, RESOLUTION
 
 BYTES_PER_PARTICLE = 2000
 """Memory one particle costs a protocol run, an upper estimate (positions, radii, Verlet list of
@@ -36,27 +38,38 @@ FLAGS = {"dphi_min": "--from", "dphi_max": "--to"}
 """Options whose flag is not their attribute's name."""
 
 
-def _number(name: str, value: float | None, ok: Callable[[float], bool], rule: str) -> None:
+def _number(
+    name: str, value: float | list[float] | None, ok: Callable[[float], bool], rule: str
+) -> None:
+    """Refuse ``value`` (one number, or each of a list-valued option's) outside its range."""
     if value is None:
         return
-    if not (math.isfinite(value) and ok(value)):
-        flag = FLAGS.get(name, "--" + name.replace("_", "-"))
-        raise InputError(f"{flag}: must be {rule}, got {value!r}")
+    for each in value if isinstance(value, list) else [value]:
+        if not ((isinstance(each, int) or math.isfinite(each)) and ok(each)):
+            flag = FLAGS.get(name, "--" + name.replace("_", "-"))
+            raise InputError(f"{flag}: must be {rule}, got {each!r}")
 
 
 def _options(args: argparse.Namespace) -> None:
-    """The numeric options every command may carry, each with its range."""
+    """The numeric options every command may carry, each with its range (a list-valued
+    option's, such as ``--alphas``, for each of its values)."""
+    alpha = (lambda v: v >= 2, ">= 2")
     rules: dict[str, tuple[Callable[[float], bool], str]] = {
         "n": (lambda v: v >= 2, "an integer >= 2"),
-        "seed": (lambda v: v >= 0, "an integer >= 0"),
+        "seed": (lambda v: 0 <= v < SEED_BOUND, "an integer in [0, 2**64)"),
         "phi": (lambda v: 0 < v < 1, "in (0, 1)"),
         "phi_init": (lambda v: 0 < v < 1, "in (0, 1)"),
         "phi_c": (lambda v: 0 < v < 1, "in (0, 1)"),
         "size_ratio": (lambda v: v >= 1, ">= 1"),
-        "alpha": (lambda v: v >= 2, ">= 2"),
+        "polydispersity": (lambda v: v > 0, "> 0"),
+        "alpha": alpha,
+        "alphas": alpha,
         "stiffness": (lambda v: v > 0, "> 0"),
         "dphi": (lambda v: v > 0, "> 0"),
-        "epsilon": (lambda v: v >= 1e-13, ">= 1e-13 (the resolution of phi in float64)"),
+        "epsilon": (
+            lambda v: v >= RESOLUTION,
+            f">= {RESOLUTION:g} (the resolution of the jammed/unjammed verdict)",
+        ),
         "rtol": (lambda v: v > 0, "> 0"),
         "gtol": (lambda v: v > 0, "> 0"),
         "maxiter": (lambda v: v >= 1, "an integer >= 1"),
@@ -125,6 +138,8 @@ def _work(args: argparse.Namespace) -> None:
             )
         if args.precon not in (None, "none", "exp"):
             raise InputError("--precon: --pressure takes none or exp (extended to the cell)")
+    if args.command == "bench":
+        _bench(args)
     if args.command == "modes":
         if Path(args.output).suffix != ".npz":
             raise InputError(f"--output: {args.output}: the modes go to an .npz file")
@@ -139,6 +154,22 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError(
                 f"--step: {args.strain / args.step:.2g} strain steps (at most {MAX_STEPS})"
             )
+
+
+def _bench(args: argparse.Namespace) -> None:
+    """``--alphas`` the Table has start configurations for; no option that ``--quick`` would
+    replace (it runs its own cases, alpha, methods and repeats)."""
+    try:
+        check_alphas(args.alphas)
+    except InputError as exc:
+        raise InputError(f"--{exc}") from None
+    if args.quick:
+        from .parser import build, subparser
+
+        bench = subparser(build(), "bench")
+        for dest in ("cases", "alphas", "methods", "repeats"):
+            if getattr(args, dest) != bench.get_default(dest):
+                raise InputError(f"--{dest}: --quick sets its own; drop --quick or --{dest}")
 
 
 def _largest_radius(args: argparse.Namespace, phi: float) -> float:

@@ -13,7 +13,7 @@ from .. import bench
 from ..linalg import SOLVERS
 from ..minimize import METHODS, PRECONDITIONERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
-from ..protocols import SHEAR_MODES
+from ..protocols import JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
 
 
 class _Help(argparse.HelpFormatter):
@@ -113,6 +113,26 @@ def _minimizer(
         help="linear solver of the preconditioner (ic0: incomplete Cholesky)",
     )
     parser.add_argument("--maxiter", type=int, default=maxiter, help="iteration limit")
+
+
+def _jamming(parser: argparse.ArgumentParser, prefix: str) -> None:
+    """The jamming protocol's options (their help starting with ``prefix``)."""
+    parser.add_argument("--dphi", type=float, default=1e-3, help=f"{prefix}growth increment of phi")
+    parser.add_argument(
+        "--epsilon",
+        type=float,
+        default=1e-6,
+        help=f"{prefix}bisection accuracy of phi_c (>= {RESOLUTION:g})",
+    )
+    parser.add_argument(
+        "--protocol",
+        dest="bisection",
+        default=JAM_PROTOCOL,
+        choices=JAM_PROTOCOLS,
+        help=f"{prefix}where each bisection trial starts: seed = the last unjammed configuration "
+        "(the seed's Algorithm 1), ohern = the previous trial (O'Hern et al.'s compression and "
+        f"decompression of one configuration); default {JAM_PROTOCOL}",
+    )
 
 
 def _protocol_outputs(parser: argparse.ArgumentParser) -> None:
@@ -329,8 +349,7 @@ def build() -> argparse.ArgumentParser:
         default=None,
         help="start packing fraction (default: 0.8 in 2D, 0.6 in 3D)",
     )
-    jam.add_argument("--dphi", type=float, default=1e-3, help="growth increment of phi")
-    jam.add_argument("--epsilon", type=float, default=1e-6, help="bisection accuracy of phi_c")
+    _jamming(jam, "")
     jam.add_argument(
         "--pressure",
         type=float,
@@ -377,6 +396,12 @@ def build() -> argparse.ArgumentParser:
         default=None,
         help="jamming fraction (default: the frame's logged phi_c, else its phi)",
     )
+    com.add_argument(
+        "--from-unjammed",
+        action="store_true",
+        help="compress a start that is not a relaxed packing at its jamming point all the same "
+        "(a warning says what is wrong with it; refused without this flag)",
+    )
     _compression_range(com)
     _quasi_static(com)
 
@@ -418,8 +443,7 @@ def build() -> argparse.ArgumentParser:
     ens.add_argument("-o", "--output", required=True, help="directory of the ensemble")
     _packing(ens)
     ens.add_argument("--alpha", type=float, default=2.0, help="contact exponent")
-    ens.add_argument("--dphi", type=float, default=1e-3, help="jamming: growth increment")
-    ens.add_argument("--epsilon", type=float, default=1e-6, help="jamming: bisection accuracy")
+    _jamming(ens, "jamming: ")
     ens.add_argument(
         "--method", default="lbfgs", choices=METHODS, help="jamming: minimizer of every step"
     )

@@ -95,6 +95,8 @@ def lines(summary: Mapping[str, Any], indent: str = "") -> list[str]:
         elif _is_table(value):
             out.append(f"{indent}{key}")
             out += _table(value, indent + "  ")
+        elif isinstance(value, dict | list) and not value:
+            out.append(f"{indent}{key:<{width}}  none")
         else:
             text = number(value, _digits(key)) if isinstance(value, float) else _cell(value)
             out.append(f"{indent}{key:<{width}}  {text}")

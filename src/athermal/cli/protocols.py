@@ -136,6 +136,7 @@ def jam(args: argparse.Namespace) -> None:
         phi_init=phi_init,
         dphi=args.dphi,
         epsilon=args.epsilon,
+        protocol=args.bisection,
         minimizer=minimizer_from(args),
     )
     trajectory_path = args.trajectory or str(Path(args.output).with_suffix(".steps.gsd"))
@@ -152,6 +153,7 @@ def jam(args: argparse.Namespace) -> None:
         phi_init=phi_init,
         dphi=args.dphi,
         epsilon=args.epsilon,
+        bisection=args.bisection,
         scheme=JAMMING_SCHEME,
         # continuous sizes only: the identity of a bidisperse run is the one it always had
         **({} if args.sizes == "bidisperse" else {"sizes": [args.sizes, args.polydispersity]}),
@@ -169,6 +171,23 @@ def jam(args: argparse.Namespace) -> None:
     result = jam_packing(spec, args.seed, resume=done, on_step=record)
     record.close()
     obs, check, final = result.observables, result.check, result.packing
+    jammed = result.observables
+    # the jamming check belongs to the jammed packing at phi_c, whatever packing is written
+    jamming_check = {
+        "phi": jammed.phi,
+        "energy": jammed.energy,
+        "pressure": jammed.pressure,
+        "z": jammed.z,
+        "contacts": jammed.contacts,
+        "n_rattlers": jammed.n_rattlers,
+        "excess_contacts": check.excess_contacts,
+        "allowed_excess": round(check.allowed_excess, 2),
+        "unjams_when_decompressed": check.unjams,
+        "decompression": check.decompression,
+        "stable": check.stable,
+        "passed": check.passed,
+    }
+    written = "the jammed packing at phi_c"
     at_pressure: dict[str, Any] = {}
     if args.pressure is not None:
         found = pressure_search(
@@ -182,6 +201,7 @@ def jam(args: argparse.Namespace) -> None:
         )
         warn_if_near_jamming(found, args.epsilon)
         obs, final = found.observables, found.packing
+        written = f"the packing at pressure {found.target:g} (phi = {found.phi:.9f})"
         at_pressure = {
             "target_pressure": found.target,
             "phi": found.phi,
@@ -201,6 +221,11 @@ def jam(args: argparse.Namespace) -> None:
             "phi_low": result.phi_low,
             "phi_high": result.phi_c,
             **{k: v for k, v in at_pressure.items() if k in ("target_pressure", "delta_phi")},
+            **{
+                f"jamming_check_{k}": float(v)
+                for k, v in jamming_check.items()
+                if k in ("energy", "pressure", "z", "contacts", "excess_contacts")
+            },
         },
     )
     bracket = result.phi_c - result.phi_low
@@ -222,18 +247,16 @@ def jam(args: argparse.Namespace) -> None:
             "phi_c": result.phi_c if args.json else phi_text,
             "phi_low": bound(result.phi_low),
             "phi_high": bound(result.phi_c),
+            "protocol": args.bisection,
+            "written": written,
             "energy": obs.energy,
             "pressure": obs.pressure,
             "z": obs.z,
             "n_rattlers": obs.n_rattlers,
             "contacts": obs.contacts,
-            "excess_contacts": check.excess_contacts,
-            "allowed_excess": round(check.allowed_excess, 2),
-            "unjams_when_decompressed": check.unjams,
-            "decompression": check.decompression,
-            "stable": check.stable,
-            "checks_passed": check.passed,
             **at_pressure,
+            "jamming_check": jamming_check,
+            "checks_passed": check.passed,
             "steps": result.steps,
             "resumed_steps": len(done),
             "iterations": result.iterations,
@@ -314,6 +337,7 @@ def compress(args: argparse.Namespace) -> None:
             minimizer=minimizer_from(args),
             rtol=args.rtol,
             resume=done,
+            from_unjammed=args.from_unjammed,
         )
     )
     fits = scaling_exponents(steps)
@@ -330,6 +354,7 @@ def compress(args: argparse.Namespace) -> None:
             "stderr": fit.stderr,
             "points": fit.points,
             "delta_phi_range": [fit.x_min, fit.x_max],
+            "left_out": fits.left_out[name],
         }
         for name, fit in laws.items()
     }
@@ -340,6 +365,7 @@ def compress(args: argparse.Namespace) -> None:
             "phi_c": fits.phi_c,
             "phi_c_fitted": fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None,
             "events": fits.events,
+            "left_basin_at_delta_phi": fits.left_basin,
             "frame": index,
             "steps": len(steps),
             "resumed_steps": len(done),

@@ -43,6 +43,7 @@ def ensemble(args: argparse.Namespace) -> None:
             **sizes_from(args),
             dphi=args.dphi,
             epsilon=args.epsilon,
+            protocol=args.bisection,
             minimizer=Minimizer(args.method, precon_from(args)),  # type: ignore[arg-type]
         ),
         compress=CompressSpec(

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Collection, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -64,9 +64,23 @@ itself)."""
 FIT_LOWER = 1e-6
 """Smallest ``Delta phi`` fitted by default: the jamming protocol's default ``epsilon``, below
 which ``Delta phi`` is not known to better than itself."""
+RESOLVED_CONTACTS = 10
+"""``z - z_iso`` is fitted only where the non-rattlers have at least this many contacts beyond
+isostatic, ``N' (z - z_iso) / 2``: below, it counts a handful of contacts and its exponent is set
+by their discreteness (``docs/jamming.md``)."""
+FINITE_SIZE = 1.0
+"""``p`` and ``G`` are fitted only where ``Delta phi N^2`` is at least this: closer to jamming a
+packing of N particles leaves the scaling regime of the large system (Goodrich, Liu & Nagel,
+PRL 109, 095704 (2012): the crossover at ``p N^2 ~ 1`` for harmonic disks, ``p ~ Delta phi``)."""
+FIT_LAWS = ("pressure", "shear_modulus", "z_excess")
+"""The columns :func:`scaling_exponents` fits against ``Delta phi``."""
 FAR_ABOVE = 10.0
-""":func:`compression_steps` warns when the start's overlaps (:func:`overlap_distance`) put it
+""":func:`compression_steps` refuses a start whose overlaps (:func:`overlap_distance`) put it
 more than this many times ``max(phi - phi_c, first Delta phi)`` above its jamming point."""
+START_BALANCE = 1e-3
+""":func:`compression_steps` refuses a start whose largest net force ``max_i |grad_i|`` exceeds
+this many times its mean contact force: not a relaxed packing (the protocols relax to 1e-9 or
+the round-off floor, ~1e-6 of the mean force at jamming; a random placement has ~1)."""
 
 
 def log_spaced(start: float = 1e-7, stop: float = 1e-1, per_decade: int = 4) -> NDArray[np.float64]:
@@ -122,6 +136,7 @@ class CompressionStep:
         """The step's numbers (no packing), for tables."""
         return {
             "index": self.index,
+            "n": self.packing.n,
             "delta_phi": self.delta_phi,
             "phi": self.phi,
             "energy": self.energy,
@@ -151,15 +166,17 @@ def compression_steps(
     minimizer: Minimizer | None = None,
     rtol: float = RTOL,
     resume: Sequence[CompressionStep] = (),
+    from_unjammed: bool = False,
 ) -> Iterator[CompressionStep]:
     """Compress ``jammed`` quasi-statically, yielding each relaxed step.
 
     Parameters
     ----------
-    jammed : a jammed packing (e.g. :func:`~athermal.protocols.jam`'s), the first start;
-        refused when it has no energy, pressure or rigid backbone (every particle a rattler),
-        and a ``UserWarning`` when its overlaps put
-        it far above ``phi_c`` (:data:`FAR_ABOVE`).
+    jammed : a packing at its jamming point (e.g. :func:`~athermal.protocols.jam`'s), the first
+        start; refused (:class:`~athermal.errors.InputError`) when it has no energy, pressure
+        or rigid backbone (every particle a rattler), when it is not relaxed
+        (:data:`START_BALANCE`), or when its overlaps put it far above ``phi_c``
+        (:data:`FAR_ABOVE`), unless ``from_unjammed``.
     model : contact law.
     phi_c : jamming fraction ``Delta phi`` is measured from; default ``jammed.phi``.
     delta_phis : increasing ``Delta phi > 0`` ``(k,)``; default :func:`log_spaced`.
@@ -170,6 +187,8 @@ def compression_steps(
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one. Each step builds its objective from the previous step's
         packing alone, so the continued run matches an uninterrupted one bit for bit.
+    from_unjammed : compress a start that is not a packing at its jamming point all the same,
+        with a ``UserWarning`` that names what is wrong with it.
     """
     targets = float_array(log_spaced() if delta_phis is None else delta_phis, "delta_phis", (None,))
     if targets.size == 0 or np.any(targets <= 0.0) or np.any(np.diff(targets) <= 0.0):
@@ -180,17 +199,15 @@ def compression_steps(
     if phi_ref + targets[-1] >= 1.0:
         raise InputError(f"delta_phis: phi_c + {targets[-1]:g} reaches 1")
     start = measure(jammed, model)
-    if not (start.energy > 0.0 and start.pressure > 0.0 and start.n_rattlers < start.n):
+    problem = _not_at_jamming(jammed, model, start, phi_ref, float(targets[0]))
+    if problem and not from_unjammed:
         raise InputError(
-            f"jammed: the start packing is not jammed (E = {start.energy:.3e}, p = "
-            f"{start.pressure:.3e}, {start.n_rattlers} of {start.n} particles rattlers: no rigid "
-            "backbone); jam it first (athermal jam)"
+            f"jammed: the start packing is not jammed: {problem}; jam it first (athermal jam), "
+            "or compress it all the same with from_unjammed (--from-unjammed)"
         )
-    above = overlap_distance(find_contacts(jammed, model), jammed)
-    if above > FAR_ABOVE * max(jammed.phi - phi_ref, float(targets[0])):
+    if problem:
         warnings.warn(
-            f"compression: the start's overlaps are those of a packing ~{above:.1e} above its "
-            f"jamming point, but phi - phi_c = {jammed.phi - phi_ref:.1e}: Delta phi is not "
+            f"compression: the start packing is not jammed: {problem}; Delta phi is not "
             "measured from its own jamming point",
             UserWarning,
             stacklevel=2,
@@ -283,6 +300,33 @@ def compression_steps(
         p_prev = obs.pressure
 
 
+def _not_at_jamming(
+    packing: Packing, model: ContactModel, obs: Observables, phi_c: float, first: float
+) -> str:
+    """What makes ``packing`` (measured as ``obs``) no packing at its jamming point ``phi_c``,
+    for a compression whose first step is ``first``; empty when nothing does."""
+    if not (obs.energy > 0.0 and obs.pressure > 0.0 and obs.n_rattlers < obs.n):
+        return (
+            f"E = {obs.energy:.3e}, p = {obs.pressure:.3e}, {obs.n_rattlers} of {obs.n} "
+            "particles rattlers (no rigid backbone)"
+        )
+    objective = Objective(packing, model)
+    gradient = objective(objective.x0)[1].reshape(-1, packing.dim)
+    net = float(np.sqrt((gradient**2).sum(axis=1)).max())
+    if net > START_BALANCE * obs.mean_contact_force:
+        return (
+            f"not relaxed (max_i |grad_i| = {net / obs.mean_contact_force:.2g} x the mean "
+            "contact force)"
+        )
+    above = overlap_distance(find_contacts(packing, model), packing)
+    if above > FAR_ABOVE * max(packing.phi - phi_c, first):
+        return (
+            f"its overlaps are those of a packing ~{above:.1e} above its jamming point, but "
+            f"phi - phi_c = {packing.phi - phi_c:.1e}"
+        )
+    return ""
+
+
 def is_unjammed(obs: Observables, gtol: float, rtol: float = RTOL) -> bool:
     """Whether a packing measured as ``obs`` and relaxed to ``max_i |grad_i| <= gtol`` (``rtol``
     of its starting forces, floored) bears no load: no pressure, every particle a rattler, or a
@@ -293,25 +337,71 @@ def is_unjammed(obs: Observables, gtol: float, rtol: float = RTOL) -> bool:
     )
 
 
-def fitted_value(column: str, value: float, events: Collection[str]) -> float:
-    """The value of a compression step's ``column`` (a :meth:`CompressionStep.row` key) that the
-    scaling fits use: an unjammed step's pressure counts as zero, whatever its round-off contacts
-    leave (measured: 6e-15 with one contact of N = 48 on an AMD EPYC, exactly 0 on an Intel Xeon
-    for the same step), so that only jammed steps enter a fit of ``p``."""
-    return 0.0 if column == "pressure" and "unjammed" in events else value
+def left_out(row: Mapping[str, Any], column: str, lower: float, upper: float) -> str | None:
+    """Why a compression step (its :meth:`CompressionStep.row`) is no point of the fit of
+    ``column`` (one of :data:`FIT_LAWS`) over ``[lower, upper]``, or None when it is one.
+
+    Left out: a ``Delta phi`` outside the window; an unjammed step (whatever pressure its
+    round-off contacts leave: 6e-15 measured with one contact of N = 48 on an AMD EPYC, exactly 0
+    on an Intel Xeon); a negative ``G`` (unstable to shear); ``z - z_iso`` of fewer than
+    :data:`RESOLVED_CONTACTS` contacts; ``p`` and ``G`` with ``Delta phi N^2`` below
+    :data:`FINITE_SIZE`; a value that is not positive.
+    """
+    dphi, value = float(row["delta_phi"]), float(row[column])
+    events = str(row["events"]).split(";")
+    if not lower <= dphi <= upper:
+        return "outside the fitted range"
+    if "unjammed" in events:
+        return "unjammed"
+    if column == "shear_modulus" and value < 0.0:
+        return "unstable to shear (G < 0)"
+    live = int(row["n"]) - int(row["n_rattlers"])
+    if column == "z_excess" and live * value / 2.0 < RESOLVED_CONTACTS - 0.5:
+        return f"fewer than {RESOLVED_CONTACTS} contacts beyond isostatic"
+    if column != "z_excess" and dphi * int(row["n"]) ** 2 < FINITE_SIZE:
+        return f"finite size (Delta phi N^2 < {FINITE_SIZE:g})"
+    if not value > 0.0:
+        return "not positive"
+    return None
+
+
+def fit_points(
+    rows: Sequence[Mapping[str, Any]], column: str, lower: float = FIT_LOWER, upper: float = np.inf
+) -> tuple[list[float], list[float], dict[str, int]]:
+    """The points ``(Delta phi, value)`` of one compression's ``rows`` (in order) that the fit of
+    ``column`` uses, and how many steps were left out for each reason (:func:`left_out`). The
+    steps after the first unjammed one are left out too: the packing has left the basin of the
+    jamming point ``Delta phi`` is measured from."""
+    xs: list[float] = []
+    ys: list[float] = []
+    dropped: dict[str, int] = {}
+    left_basin = False
+    for row in rows:
+        reason = "after the packing left its basin" if left_basin else None
+        reason = reason or left_out(row, column, lower, upper)
+        left_basin = left_basin or "unjammed" in str(row["events"]).split(";")
+        if reason is None:
+            xs.append(float(row["delta_phi"]))
+            ys.append(float(row[column]))
+        else:
+            dropped[reason] = dropped.get(reason, 0) + 1
+    return xs, ys, dropped
 
 
 def pooled_fit(
-    rows: Iterable[Mapping[str, Any]], column: str, lower: float = FIT_LOWER
+    compressions: Iterable[Sequence[Mapping[str, Any]]], column: str, lower: float = FIT_LOWER
 ) -> PowerLaw:
-    """``column`` against ``delta_phi`` fitted over ``rows`` (:meth:`CompressionStep.row`
-    dicts, of any number of compressions pooled), each value as :func:`fitted_value` takes it,
-    from ``lower`` up; raises :class:`~athermal.errors.InputError` with fewer than 3 points."""
-    rows = list(rows)
-    values = [
-        fitted_value(column, float(row[column]), str(row["events"]).split(";")) for row in rows
-    ]
-    return fit_power_law([float(row["delta_phi"]) for row in rows], values, lower=lower)
+    """``column`` against ``delta_phi`` fitted over the points of any number of compressions
+    (each a sequence of :meth:`CompressionStep.row` dicts, in order), each taken as
+    :func:`fit_points` takes it, from ``lower`` up; raises :class:`~athermal.errors.InputError`
+    with fewer than 3 points."""
+    xs: list[float] = []
+    ys: list[float] = []
+    for rows in compressions:
+        x, y, _ = fit_points(rows, column, lower)
+        xs += x
+        ys += y
+    return fit_power_law(xs, ys)
 
 
 @dataclass(frozen=True)
@@ -320,9 +410,12 @@ class ScalingExponents:
     protocol's ``Delta phi``; ``None`` where fewer than 3 usable points fell in the window.
 
     ``phi_c`` is the protocol's jamming point, the one the fits use. ``phi_c_fitted`` is a
-    diagnostic: the jamming point of ``p = a (phi - phi_c)^b`` with ``phi_c`` free (NaN with
-    fewer than 4 points); a value far from ``phi_c`` says the start was not at its jamming
-    point. ``events`` counts the steps with each event (:data:`EVENTS`).
+    diagnostic: the jamming point of ``p = a (phi - phi_c)^b`` with ``phi_c`` free, over the
+    points of the fit of ``p`` (NaN with fewer than 4); a value far from ``phi_c`` says the start
+    was not at its jamming point. ``events`` counts the steps with each event (:data:`EVENTS`);
+    ``left_out`` says, for each law of :data:`FIT_LAWS`, how many steps were no point of its fit
+    and why (:func:`fit_points`); ``left_basin`` is the ``Delta phi`` of the first unjammed step
+    (None when the packing stayed jammed), after which no step is fitted.
     """
 
     pressure: PowerLaw | None
@@ -331,6 +424,8 @@ class ScalingExponents:
     phi_c: float
     phi_c_fitted: float
     events: dict[str, int]
+    left_out: dict[str, dict[str, int]]
+    left_basin: float | None
 
 
 def scaling_exponents(
@@ -340,31 +435,32 @@ def scaling_exponents(
     upper: float = np.inf,
 ) -> ScalingExponents:
     """Fit the three power laws to ``steps`` against their ``Delta phi`` within
-    ``[lower, upper]``.
-
-    Each fit uses the steps with a positive value in the window (a step unstable to shear has
-    ``G < 0``; an unjammed one counts no pressure, its round-off contacts aside, and has
-    ``z - z_iso < 0``); the fit records how many points and which ``Delta phi`` range it used.
+    ``[lower, upper]``, each over the points :func:`fit_points` takes; each fit records how many
+    points and which ``Delta phi`` range it used, and ``left_out`` the steps it did not use.
     """
-    dphi = np.array([s.delta_phi for s in steps])
+    rows = [s.row() for s in steps]
     phi_c = float(steps[0].phi - steps[0].delta_phi) if steps else np.nan
-
-    def fit(values: list[float]) -> PowerLaw | None:
+    fits: dict[str, PowerLaw | None] = {}
+    dropped: dict[str, dict[str, int]] = {}
+    for column in FIT_LAWS:
+        xs, ys, dropped[column] = fit_points(rows, column, lower, upper)
         try:
-            return fit_power_law(dphi, values, lower=lower, upper=upper)
+            fits[column] = fit_power_law(xs, ys)
         except InputError:
-            return None
-
-    pressures = [fitted_value("pressure", s.pressure, s.events) for s in steps]
-    try:
-        phi_c_fitted = fit_jamming_point([s.phi for s in steps], pressures)[0]
-    except InputError:
-        phi_c_fitted = np.nan
+            fits[column] = None
+        if column == "pressure":
+            try:
+                phi_c_fitted = fit_jamming_point([phi_c + x for x in xs], ys)[0]
+            except InputError:
+                phi_c_fitted = np.nan
+    unjammed = [s.delta_phi for s in steps if "unjammed" in s.events]
     return ScalingExponents(
-        pressure=fit(pressures),
-        shear_modulus=fit([s.shear_modulus for s in steps]),
-        z_excess=fit([s.z_excess for s in steps]),
+        pressure=fits["pressure"],
+        shear_modulus=fits["shear_modulus"],
+        z_excess=fits["z_excess"],
         phi_c=phi_c,
         phi_c_fitted=float(phi_c_fitted),
         events={name: sum(name in s.events for s in steps) for name in EVENTS},
+        left_out=dropped,
+        left_basin=unjammed[0] if unjammed else None,
     )

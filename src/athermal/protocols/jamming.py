@@ -59,7 +59,7 @@ import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
-from typing import Literal
+from typing import Literal, cast
 
 import numpy as np
 
@@ -81,49 +81,8 @@ from ..packing import Packing
 from ._relax import Minimizer, Relaxer, energy_scale, force_tolerance, round_off_floor
 
 JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
-"""Default minimizer of the jamming protocol, P-L-BFGS. Measured (2D, alpha = 2, one core):
-N = 1024, seeds 0-3, 9.3 / 16.7 / 9.1 / 9.0 s against L-BFGS's 4.4 / 10.0 / 19.8 / 9.1 s and
-FIRE's 11.9 / 11.8 / 13.2 / 6.8 s (a tie over the four); N = 4096, seed 0, 104-148 s (two runs)
-against FIRE's > 15 minutes (stopped), and with the earlier engine 109 s against L-BFGS's
-712 s. The trials near phi_c dominate: 8-18k iterations each, whatever the minimizer. Newton-CG
-(N = 1024, realization 0, ``benchmarks/results/protocols/timing_n1024_s0.md``) took 28.3 s
-against P-L-BFGS's 10.9 s: 7316 iterations instead of 54301, but each costs a CG solve on a
-lagged factor, and the long rearrangements near phi_c keep it far from its quadratic regime.
-
-Where an N = 4096 run's time goes (per-step traces, realizations 0 and 8 of root seed 0, AMD
-EPYC): unjammed trials below a jammed state take 0-100 iterations; jammed trials 2k-26k, most of
-them spent within 1-7 % of their final energy; and a trial within ~1e-5 of phi_c can crawl down
-a long, nearly flat channel for 50k-156k iterations (20-71 s), which decides the run's time.
-Tried there and dropped: stopping a trial once its energy has settled (replayed on recorded
-histories it kept every verdict and cut realization 8's bisection from 77k to 15k-26k
-iterations, but live runs moved the crawl into the final step, one of them past 300 s against 55
-s; stopping only above 1e4 x the threshold, realizations 0-3 and 8 took 383 s against the
-committed runs' 380 s); and handing a settled relaxation to Newton-CG (realization 8: 25.8
-against 36.4 s, Newton taking 100-1300 iterations of 4-7 ms per step; realization 0: its steps
-at 0.840 and 0.841 took 53 and 32 s); and capping the growth steps before the first jammed
-bound at 10,000 iterations, a capped step counted jammed when its energy was above 1e4 x the
-threshold (relaxed on otherwise). The step that first jams lands a random distance above phi_c
-and can crawl (realization 0: 89k of its 172k iterations), but from the capped state the
-bisection finds another basin, whose trials crawl as long: realizations 0-8 of root seed 0 took
--29, +1, -45, +39, +83, -11, 0, -21 and +84 % iterations against the committed runs, 1.83
-against 1.82 million in all (Intel Xeon; every check passed).
-
-Its Exp preconditioner is factored incompletely below N = 200,000 (``solver="auto"``,
-:data:`~athermal.linalg.AUTO_IC0_MAX_N`). Realizations 0-9 at N = 4096 (Intel Xeon, the two
-solvers side by side on its two cores, with the two-loop L-BFGS step of that time,
-``benchmarks/results/protocols/phic_2d_n4096_a2_two_loop.md`` and ``_direct.md``): 392 s in
-all (median 36 s, 9 of 10 within 60 s) against 582 s (median 53 s, 6 of 10) with the exact
-factor, for about as many iterations (1.29 and 1.31 million). With the compact step
-(``phic_2d_n4096_a2.md``, ``_r1.md``: 20 realizations) a run takes 106k-321k iterations, 172k
-on average, of 0.28 ms each on a normal day: its time is set by how long the trials near
-``phi_c`` crawl. L-BFGS's compiled iterations (:mod:`athermal.minimize.lbfgs`) run the same
-trajectories in 0.62-0.67x the time at N = 1024 (``benchmarks/results/compiled_loops_n1024.md``)
-and in 880 against 1164 s for the ten N = 4096 runs of root seed 0 (two slow days); on a faster
-day, with the row maxima four rows at a time and no copies of the accepted point, 614 against
-692 s for the code before, run beside it (34-96 s per run, 5 of 10 within 60 s). L-BFGS
-memory 6 instead of 10 (the same runs, in the same conditions: 463
-against 404 s) makes each iteration cheaper (0.25 against 0.31 ms) but the trials near phi_c
-take 41 % more."""
+"""Default minimizer of the jamming protocol: P-L-BFGS, its Exp preconditioner factored
+incompletely below N = 200,000 (the measurements that chose it: ``docs/jamming.md``)."""
 JAMMING_SCHEME = 3
 """Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused).
 3: the verdict independent of ``epsilon``, and the protocol chosen (``seed`` or ``ohern``)."""
@@ -131,9 +90,10 @@ JamProtocol = Literal["seed", "ohern"]
 JAM_PROTOCOLS: tuple[JamProtocol, ...] = ("seed", "ohern")
 """The bisection protocols (module docstring): trials from the last unjammed configuration
 (``seed``), or from the previous trial (``ohern``)."""
-JAM_PROTOCOL: JamProtocol = "seed"
-"""The default protocol: the one whose brackets nest more often over ``epsilon``
-(``docs/jamming.md``)."""
+JAM_PROTOCOL: JamProtocol = "ohern"
+"""The default protocol, chosen by measurement (``docs/jamming.md``): over 16 starts at N = 256
+and 1024 its brackets nested over ``epsilon`` in every pair, it never reopened a bracket, and it
+ran 2-7 times faster than ``seed``, with the same mean ``phi_c`` within its spread."""
 RESOLUTION = 1e-9
 """The smallest ``epsilon`` (packing fraction) the protocol accepts: the jamming threshold
 (:func:`energy_threshold`) is the energy of a packing ``RESOLUTION / 10`` above jamming, whose
@@ -186,7 +146,7 @@ def check_protocol(protocol: str) -> JamProtocol:
     otherwise."""
     if protocol not in JAM_PROTOCOLS:
         raise InputError(f"protocol: must be one of {', '.join(JAM_PROTOCOLS)}, got {protocol!r}")
-    return protocol  # type: ignore[return-value]
+    return cast(JamProtocol, protocol)
 
 
 def check_epsilon(epsilon: float) -> float:
@@ -360,7 +320,7 @@ class _Trials:
     ) -> None:
         self.start, self.model, self.minimizer = start, model, minimizer
         self.energy_tol, self.rtol, self.final_rtol = energy_tol, rtol, final_rtol
-        self.largest = 0.5 * float(start.cell.widths.min())
+        self.largest = 0.5 * float(start.cell.narrowest_width)
 
     def radii(self, phi: float) -> np.ndarray:
         """Radii at ``phi``: the start radii scaled uniformly."""
