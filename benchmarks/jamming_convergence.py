@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from athermal.atomic import write_text
+from athermal.errors import ConvergenceError
 from athermal.experiments import JamSpec, jam_packing
 from athermal.protocols import JAM_PROTOCOLS
 
@@ -51,9 +52,13 @@ def one_run(job: tuple[int, int, str, float]) -> dict[str, Any]:
     """Jam start ``seed`` of ``n`` particles with ``protocol`` to ``epsilon`` and return its
     numbers."""
     n, seed, protocol, epsilon = job
+    done = {"n": n, "seed": seed, "protocol": protocol, "epsilon": epsilon}
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = jam_packing(JamSpec(n=n, epsilon=epsilon, protocol=protocol), seed)  # type: ignore[arg-type]
+        try:
+            result = jam_packing(JamSpec(n=n, epsilon=epsilon, protocol=protocol), seed)  # type: ignore[arg-type]
+        except ConvergenceError as exc:  # counted in the table, not a crash of the study
+            return {**done, "error": str(exc)}
     history = result.history
     reopened = sum(
         1
@@ -61,10 +66,7 @@ def one_run(job: tuple[int, int, str, float]) -> dict[str, Any]:
         if np.isinf(step.phi_high) and np.isfinite(before.phi_high)
     )
     return {
-        "n": n,
-        "seed": seed,
-        "protocol": protocol,
-        "epsilon": epsilon,
+        **done,
         "phi_low": result.phi_low,
         "phi_c": result.phi_c,
         "seconds": result.seconds,
@@ -102,12 +104,15 @@ def report(runs: list[dict[str, Any]], epsilons: list[float]) -> str:
     head = (
         "| N | protocol | nested pairs | phi_c at eps "
         f"{finest:g}: mean (sd over starts) | largest change of phi_c over eps | reopened | "
-        "checks passed | " + " | ".join(f"s per run at {e:g}: mean (max)" for e in epsilons) + " |"
+        "checks passed (runs stopped by an error) | "
+        + " | ".join(f"s per run at {e:g}: mean (max)" for e in epsilons)
+        + " |"
     )
     lines = [head, "|" + "---|" * (7 + len(epsilons))]
     for n in sorted({r["n"] for r in runs}):
         for protocol in JAM_PROTOCOLS:
-            group = [r for r in runs if r["n"] == n and r["protocol"] == protocol]
+            every = [r for r in runs if r["n"] == n and r["protocol"] == protocol]
+            group = [r for r in every if "error" not in r]
             if not group:
                 continue
             nested, pairs, largest = nesting(group)
@@ -121,9 +126,8 @@ def report(runs: list[dict[str, Any]], epsilons: list[float]) -> str:
             lines.append(
                 f"| {n} | {protocol} | {nested} / {pairs} | {phis.mean():.5f} ({sd:.5f}), "
                 f"{starts} starts | {largest:.1e} | {sum(r['reopened'] > 0 for r in group)} of "
-                f"{len(group)} | {sum(r['passed'] for r in group)} of {len(group)} | "
-                + " | ".join(times)
-                + " |"
+                f"{len(group)} | {sum(r['passed'] for r in group)} of {len(every)} "
+                f"({len(every) - len(group)} stopped) | " + " | ".join(times) + " |"
             )
     return "\n".join(lines)
 
@@ -159,9 +163,11 @@ def main(argv: list[str] | None = None) -> int:
         for run in pool.imap_unordered(one_run, jobs):
             runs.append(run)
             write_text(store, "".join(json.dumps(r) + "\n" for r in runs))
+            what = run.get("error") or (
+                f"[{run['phi_low']:.10f}, {run['phi_c']:.10f}] {run['seconds']:.2f} s"
+            )
             print(
-                f"N {run['n']} seed {run['seed']} {run['protocol']} eps {run['epsilon']:g}: "
-                f"[{run['phi_low']:.10f}, {run['phi_c']:.10f}] {run['seconds']:.2f} s",
+                f"N {run['n']} seed {run['seed']} {run['protocol']} eps {run['epsilon']:g}: {what}",
                 flush=True,
             )
     wanted = [

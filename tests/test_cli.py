@@ -335,7 +335,7 @@ def test_compress_refuses_a_start_not_at_its_jamming_point_unless_asked(tmp_path
     write_gsd(dense, packing, model=model)
     cases = [
         (loose, [], "rattlers"),
-        (raw, [], "not relaxed"),
+        (raw, [], "above its jamming point"),
         (dense, ["--phi-c", str(packing.phi)], "above its jamming point"),
     ]
     for start, extra, why in cases:

@@ -13,6 +13,7 @@ TINY = Settings(
     table_methods=("L-BFGS", "scipy L-BFGS-B"),
     table_repeats=1,
     shear_delta_phi=1e-1,
+    scaling_packings=2,
 )
 PNG = b"\x89PNG\r\n\x1a\n"
 

@@ -195,7 +195,7 @@ def test_bulk_modulus_is_phi_dp_dphi_along_the_protocol():
     model = ContactModel(2.5)
     start = random_packing(128, 0.9, seed=3)
     deltas = np.array([1e-3, 1e-3 + 2e-7, 1e-3 + 4e-7])
-    with pytest.warns(UserWarning, match="not relaxed"):  # an unrelaxed start, on purpose
+    with pytest.warns(UserWarning, match="above its jamming point"):  # unrelaxed, on purpose
         steps = list(
             compression_steps(
                 start, model, phi_c=0.899, delta_phis=deltas, rtol=1e-12, from_unjammed=True

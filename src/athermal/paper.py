@@ -8,8 +8,9 @@
    one absolute scale, rattlers marked);
 2. one relaxation after growing the jammed packing's radii by ``1 + 5e-5``, by L-BFGS,
    P-L-BFGS, FR-CG, P-FR-CG, FIRE and contact P-L-BFGS: ``max_i |grad_i|`` per iteration;
-3. compression of the jammed packing for ``alpha = 2`` and ``2.5``: ``p``, ``G`` and
-   ``z - z_iso`` against ``phi - phi_c`` with fitted exponents;
+3. compression of the jammed packing, and of ``scaling_packings - 1`` more, for ``alpha = 2``
+   and ``2.5``: ``p``, ``G`` and ``z - z_iso`` against ``phi - phi_c`` with exponents fitted
+   to every packing's points pooled, and their spread over single packings;
 4. the iteration experiment: iterations per shear step (1e-6 ... 1e-5 in 10 steps) against
    ``Delta phi`` for L-BFGS and P-L-BFGS (and contact P-L-BFGS), mean and spread over
    realizations;
@@ -30,6 +31,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from . import bench, plot
 from .atomic import write_text
 from .contact import ContactModel
@@ -49,7 +52,7 @@ from .experiments import (
 )
 from .fitting import PowerLaw
 from .minimize import RTOL
-from .protocols.compress import FIT_LAWS
+from .protocols.compress import FIT_LAWS, pooled_fit
 
 SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
 """The exponents the seed reports (approximately) for alpha = 2 and 2.5."""
@@ -65,7 +68,8 @@ QUANTITIES = {
 
 @dataclass(frozen=True)
 class Settings:
-    """Sizes of one reproduction (``quick`` or ``full``)."""
+    """Sizes of one reproduction (``quick`` or ``full``): ``scaling_packings`` jammed packings
+    of ``n`` (the main one and more) are compressed for the scaling laws."""
 
     n: int
     per_decade: int
@@ -76,6 +80,7 @@ class Settings:
     table_methods: tuple[str, ...] | None
     table_repeats: int
     shear_delta_phi: float
+    scaling_packings: int
 
 
 QUICK = Settings(
@@ -88,6 +93,7 @@ QUICK = Settings(
     table_methods=("L-BFGS", "P-L-BFGS", "FR-CG", "P-FR-CG", bench.SCIPY),
     table_repeats=1,
     shear_delta_phi=1e-2,
+    scaling_packings=4,
 )
 FULL = Settings(
     n=4096,
@@ -99,6 +105,7 @@ FULL = Settings(
     table_methods=None,
     table_repeats=3,
     shear_delta_phi=1e-2,
+    scaling_packings=1,
 )
 
 
@@ -139,7 +146,7 @@ def reproduce(
         figures[name] = str(plot.save(figure, out / f"{name}.png"))  # type: ignore[arg-type]
         captions[name] = caption
 
-    seeds = child_seeds(seed, 1 + settings.realizations)
+    seeds = child_seeds(seed, settings.realizations + settings.scaling_packings)
     spec = JamSpec(n=settings.n)
     harmonic = spec.model
     say(f"jamming N = {settings.n}")
@@ -187,43 +194,67 @@ def reproduce(
     fits: dict[str, dict[str, PowerLaw | None]] = {key: {} for key in QUANTITIES}
     references: dict[str, dict[str, float]] = {key: {} for key in QUANTITIES}
     compress_spec = CompressSpec(per_decade=settings.per_decade)
+    # the scaling laws pooled over packings, as the seed's figures average realizations: one
+    # packing of N = 1024 resolves z - z_iso over two decades, where single packings' exponents
+    # scatter by 0.03 (docs/jamming.md)
+    starts = [(jammed.packing, phi_c)]
+    for k, extra in enumerate(seeds[1 + settings.realizations :]):
+        say(f"jamming packing {k + 2} of {settings.scaling_packings} for the scaling laws")
+        more = jam_packing(spec, extra)
+        if not more.check.passed:
+            warnings_.append(
+                f"scaling packing {k + 2} fails a check: " + "; ".join(more.check.problems())
+            )
+        starts.append((more.packing, more.phi_c))
     compressions = {}
     for alpha in (2.0, 2.5):
-        say(f"compression alpha = {alpha:g}")
         model = ContactModel(alpha)
-        compression = compress(jammed.packing, model, phi_c, compress_spec)
-        compressions[alpha] = compression
+        pooled = []
+        for k, (start, start_phi_c) in enumerate(starts):
+            say(f"compression alpha = {alpha:g}, packing {k + 1} of {len(starts)}")
+            pooled.append(compress(start, model, start_phi_c, compress_spec))
+        compressions[alpha] = pooled[0]
         label = f"alpha = {alpha:g}"
-        dphis[label] = [s.delta_phi for s in compression.steps]
-        laws = {
-            "p": compression.fits.pressure,
-            "G": compression.fits.shear_modulus,
-            "z": compression.fits.z_excess,
-        }
-        columns = dict(zip(laws, FIT_LAWS, strict=True))
-        series["p"][label] = [s.pressure for s in compression.steps]
-        series["G"][label] = [s.shear_modulus for s in compression.steps]
-        series["z"][label] = [s.z_excess for s in compression.steps]
+        dphis[label] = [s.delta_phi for one in pooled for s in one.steps]
+        series["p"][label] = [s.pressure for one in pooled for s in one.steps]
+        series["G"][label] = [s.shear_modulus for one in pooled for s in one.steps]
+        series["z"][label] = [s.z_excess for one in pooled for s in one.steps]
+        step_rows = [[s.row() for s in one.steps] for one in pooled]
         exponents[f"{alpha:g}"] = {}
-        for key, fit in laws.items():
-            fits[key][label] = fit
+        for key, column in zip(QUANTITIES, FIT_LAWS, strict=True):
             references[key][label] = SEED_EXPONENTS[key][alpha]
+            try:
+                fit: PowerLaw | None = pooled_fit(step_rows, column, compress_spec.fit_lower)
+            except InputError:
+                fit = None
+            fits[key][label] = fit
             if fit is None:
                 warnings_.append(
                     f"alpha = {alpha:g}: no fit of {QUANTITIES[key][1]} (fewer than 3 usable "
                     f"points with Delta phi >= {compress_spec.fit_lower:g})"
                 )
                 continue
+            left_out: dict[str, int] = {}
+            for one in pooled:
+                for why, count in one.fits.left_out[column].items():
+                    left_out[why] = left_out.get(why, 0) + count
+            single = [f.exponent for one in pooled if (f := getattr(one.fits, column)) is not None]
             exponents[f"{alpha:g}"][key] = {
                 "exponent": fit.exponent,
                 "stderr": fit.stderr,
                 "points": fit.points,
+                "packings": len(pooled),
+                "single_packing_sd": float(np.std(single, ddof=1)) if len(single) > 1 else None,
                 "delta_phi_min": fit.x_min,
                 "delta_phi_max": fit.x_max,
-                "left_out": compression.fits.left_out[columns[key]],
+                "left_out": left_out,
                 "seed": SEED_EXPONENTS[key][alpha],
             }
-        events = {k: v for k, v in compression.fits.events.items() if v}
+        events: dict[str, int] = {}
+        for one in pooled:
+            for name, count in one.fits.events.items():
+                if count:
+                    events[name] = events.get(name, 0) + count
         if events:
             warnings_.append(
                 f"alpha = {alpha:g}: compression events "
@@ -239,10 +270,11 @@ def reproduce(
                 ylabel=ylabel,
                 title=f"N = {settings.n}, 2D",
                 reference_slopes=references[key],
-                phi_c_note=f"$\\phi_c$ = {phi_c:.6f} of the jamming protocol",
+                phi_c_note=f"{len(starts)} packing(s), each from its own $\\phi_c$",
             ),
-            f"The {what} against phi - phi_c, phi_c = {phi_c:.7f} from the jamming protocol "
-            f"(not fitted), for alpha = 2 and 2.5. Filled markers lie in the fitted range, open "
+            f"The {what} against phi - phi_c of {len(starts)} packing(s), each from the phi_c of "
+            "its own jamming protocol (not fitted), for alpha = 2 and 2.5, the fits to their "
+            "points pooled. Filled markers lie in the fitted range, open "
             "ones outside it: the fits take Delta phi >= "
             f"{compress_spec.fit_lower:g}, p and G where Delta phi N^2 >= 1 (a finite packing's "
             "scaling regime), z - z_iso where it counts at least 10 contacts, and no step from "
@@ -357,19 +389,23 @@ def _report(
     lines += [
         "## Scaling exponents",
         "",
-        "Fits of y = a (phi - phi_c)^b against the jamming protocol's phi_c, each over the "
-        "steps its rules take (`athermal.protocols.compress.fit_points`); the last column says "
-        "how many steps each left out, and why.",
+        f"Fits of y = a (phi - phi_c)^b to the points of {settings.scaling_packings} "
+        "packing(s) pooled, each compressed from its own jamming protocol's phi_c, each fit "
+        "over the steps its rules take (`athermal.protocols.compress.fit_points`); 'single sd' "
+        "is the spread of the exponent fitted to each packing alone, the last column says how "
+        "many steps the fits left out, and why.",
         "",
-        "| alpha | quantity | fitted ± stderr | points | Delta phi range | seed | left out |",
-        "|---:|---|---:|---:|---|---:|---|",
+        "| alpha | quantity | fitted ± stderr | single sd | points | Delta phi range | seed "
+        "| left out |",
+        "|---:|---|---:|---:|---:|---|---:|---|",
     ]
     for alpha, per in exponents.items():
         for key, fit in per.items():
             lines.append(
                 f"| {alpha} | {key} | {fit['exponent']:.3f} ± {fit['stderr']:.3f} | "
-                f"{fit['points']:.0f} | {fit['delta_phi_min']:.1e} ... {fit['delta_phi_max']:.1e} "
-                f"| {fit['seed']:g} | "
+                + ("-" if fit["single_packing_sd"] is None else f"{fit['single_packing_sd']:.3f}")
+                + f" | {fit['points']:.0f} | {fit['delta_phi_min']:.1e} ... "
+                f"{fit['delta_phi_max']:.1e} | {fit['seed']:g} | "
                 + ("; ".join(f"{n} {why}" for why, n in fit["left_out"].items()) or "none")
                 + " |"
             )
