@@ -109,8 +109,9 @@ def report(runs: list[dict[str, Any]], epsilons: list[float]) -> str:
         + " |"
     )
     lines = [head, "|" + "---|" * (7 + len(epsilons))]
+    labels = list(JAM_PROTOCOLS) + sorted({r["protocol"] for r in runs} - set(JAM_PROTOCOLS))
     for n in sorted({r["n"] for r in runs}):
-        for protocol in JAM_PROTOCOLS:
+        for protocol in labels:
             every = [r for r in runs if r["n"] == n and r["protocol"] == protocol]
             group = [r for r in every if "error" not in r]
             if not group:
@@ -141,6 +142,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2, help="processes, one core each")
     parser.add_argument(
         "--output-dir", type=Path, default=ROOT / "benchmarks" / "results" / "jamming_convergence"
+    )
+    parser.add_argument(
+        "--compare",
+        type=Path,
+        nargs="*",
+        default=[],
+        help="JSON-lines files of the same runs by other code (e.g. an older commit), each "
+        "line one run with this script's keys; their 'protocol' labels their rows",
     )
     args = parser.parse_args(argv)
     args.output_dir.mkdir(parents=True, exist_ok=True)
@@ -175,6 +184,8 @@ def main(argv: list[str] | None = None) -> int:
         for r in runs
         if r["n"] in args.n and r["epsilon"] in args.epsilons and r["protocol"] in args.protocols
     ]
+    for other in args.compare:
+        wanted += [json.loads(t) for t in other.read_text().splitlines() if t.strip()]
     table = report(wanted, sorted(args.epsilons, reverse=True))
     markdown = (
         "# Jamming point against epsilon: nesting and spread (alpha = 2, dphi = 1e-3, "

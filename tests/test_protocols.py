@@ -59,6 +59,39 @@ def test_jamming_grows_by_dphi_then_ends_one_epsilon_above_its_own_unjammed_stat
     assert all(s.energy > 0 and s.pressure > 0 for s in steps if s.jammed)
 
 
+@pytest.mark.parametrize("protocol", ["seed", "ohern"])
+def test_a_smaller_epsilon_refines_the_bracket_of_a_larger_one(protocol):
+    """The verdicts do not depend on epsilon: runs from one start follow the same trials, bit
+    for bit, until the coarser bracket is closed, and the finer phi_c lies inside it (unless the
+    coarser run's last check reopened its bracket, which it did not here)."""
+    model, nested = ContactModel(2.0), 0
+    for seed in (3, 4, 5):
+        start = random_packing(64, 0.8, seed=seed)
+        coarse = list(jamming_steps(start, model, epsilon=1e-4, protocol=protocol))
+        fine = list(jamming_steps(start, model, epsilon=1e-7, protocol=protocol))
+        closed = next(k for k, s in enumerate(coarse) if s.bracket <= 1e-4)
+        for a, b in zip(coarse[: closed + 1], fine[: closed + 1], strict=True):
+            assert (a.phase, a.phi, a.origin, a.jammed, a.energy) == (
+                b.phase,
+                b.phi,
+                b.origin,
+                b.jammed,
+                b.energy,
+            )
+        assert fine[-1].bracket <= 1e-7
+        if all(np.isfinite(s.phi_high) for s in coarse[closed:]):  # the bracket never reopened
+            assert coarse[-1].phi_low <= fine[-1].phi_low < fine[-1].phi <= coarse[-1].phi
+            nested += 1
+    assert nested >= 2
+
+
+def test_epsilon_below_the_verdicts_resolution_is_refused():
+    with pytest.raises(InputError, match="epsilon"):
+        next(jamming_steps(random_packing(64, 0.8, seed=3), ContactModel(2.0), epsilon=1e-10))
+    with pytest.raises(InputError, match="protocol"):
+        next(jamming_steps(random_packing(64, 0.8, seed=3), ContactModel(2.0), protocol="x"))
+
+
 def _step(index, phase, origin, phi, jammed, low, high):
     return JammingStep(
         index, phase, origin, phi, jammed, 0.0, 0.0, 0, 0, 0, 0, 0.0, low, high, None
