@@ -157,7 +157,8 @@ def main() -> None:
         "|p / P - 1| <= 1e-3). Delta phi = phi - phi_c of that seed's jamming run; z - z_iso "
         "among non-rattlers; G and B by linear response; the spectrum of the stiffness matrix "
         "(rattlers removed, dense): its zero modes (2 = the translations) and negative ones, "
-        "omega* where D(omega) falls below half its plateau (`athermal.modes.plateau_frequency`)."
+        "omega* where the count of modes below omega falls to half the plateau's "
+        "(`athermal.modes.plateau_frequency`, docs/modes.md)."
         " Mean ± sd over the seeds that reached the pressure. A pressure drop is a trial whose "
         "pressure fell although phi rose: a plastic rearrangement on the way, which moves that "
         "packing's jamming point (Delta phi stays measured from the jamming run's).",

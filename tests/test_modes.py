@@ -1,6 +1,6 @@
 """Vibrational modes: the analytic spectrum of a triangular crystal, d zero modes and no negative
-one at a minimum, a saddle's negative mode, dense against shift-invert, D(omega) and omega*,
-and `athermal modes`."""
+one at a minimum, a saddle's negative mode, dense against shift-invert, D(omega), omega* and its
+bootstrap error on spectra with a known edge, and `athermal modes`."""
 
 import json
 
@@ -15,6 +15,7 @@ from athermal.io import write_gsd
 from athermal.minimize import minimize
 from athermal.modes import (
     density_of_states,
+    plateau_edge,
     plateau_frequency,
     stiffness_matrix,
     vibrational_modes,
@@ -112,23 +113,91 @@ def test_a_saddle_has_a_negative_mode():
     assert modes.negative_modes > 0 and modes.eigenvalues[0] == pytest.approx(-0.16)
 
 
-def test_the_density_of_states_is_normalised_and_omega_star_marks_the_plateau_edge():
+def test_the_density_of_states_is_normalised_and_omega_star_of_a_gap_is_twice_its_edge():
     rng = np.random.default_rng(4)
     omega = np.concatenate([rng.uniform(0.05, 2.0, 20_000), rng.uniform(0.001, 0.05, 20)])
     edges, density = density_of_states(omega)
     assert np.sum(density * np.diff(edges)) == pytest.approx(1.0)
-    assert plateau_frequency(omega) == pytest.approx(0.05, rel=0.3)
+    # a flat D above an (almost) empty gap: the mean density below omega is half the plateau
+    # at twice the gap's edge
+    assert plateau_frequency(omega) == pytest.approx(0.1, rel=0.05)
     with pytest.raises(InputError, match="at least two frequencies"):
         density_of_states(np.array([1.0]))
 
 
+def spectrum(m, omega_star, seed=None):
+    """``m`` frequencies drawn from D ~ omega / omega_star below omega_star (Debye in 2D), flat
+    up to 1.2, then 1.6x higher up to 2.4 (the band's peak): omega* = omega_star exactly. With
+    no seed, the ``m`` quantiles ``(k - 1/2) / m`` of that density (no sampling noise)."""
+    grid = np.linspace(0.0, 2.4, 240_001)
+    density = np.where(grid < omega_star, grid / omega_star, np.where(grid < 1.2, 1.0, 1.6))
+    cdf = np.concatenate([[0.0], np.cumsum((density[1:] + density[:-1]) / 2)])
+    if seed is None:
+        u = (np.arange(m) + 0.5) / m
+    else:
+        u = np.random.default_rng(seed).uniform(0.0, 1.0, m)
+    return np.interp(u * cdf[-1], cdf, grid)
+
+
+def test_omega_star_of_the_quantiles_of_a_known_density_is_its_edge():
+    for star in (0.02, 0.05, 0.2):
+        assert plateau_frequency(spectrum(4000, star)) == pytest.approx(star, rel=2e-3)
+
+
+def test_omega_star_of_a_known_edge_lies_within_its_error_bar():
+    edges = [plateau_edge(spectrum(2000, 0.05, seed), resamples=200) for seed in range(30)]
+    star = np.array([e.omega_star for e in edges])
+    error = np.array([e.error for e in edges])
+    assert np.mean(star) == pytest.approx(0.05, rel=0.15)
+    # a calibrated one-sigma error: ~68% of the draws within it, ~95% within twice it
+    # (measured 0.7 and 0.9), and the scatter of omega* over the draws (measured 1.0x)
+    assert np.mean(np.abs(star - 0.05) <= error) >= 0.5
+    assert np.mean(np.abs(star - 0.05) <= 2 * error) >= 0.8
+    assert 0.7 < np.mean(error) / np.std(star) < 1.4
+    assert all(e.plateau == pytest.approx(1 / (1.2 - 0.025 + 1.6 * 1.2), rel=0.1) for e in edges)
+
+
+def test_the_error_of_omega_star_shrinks_with_more_modes():
+    few, many = (plateau_edge(spectrum(m, 0.05, 1), resamples=200) for m in (1000, 16_000))
+    assert many.error < 0.4 * few.error  # 1 / sqrt(16) expected
+    # the modes below the edge: (0.05 / 2) / (1.2 - 0.025 + 1.6 x 1.2) of them
+    assert many.modes_below == pytest.approx(16_000 * 0.025 / 3.095, rel=0.15)
+
+
+def test_omega_star_ignores_an_empty_bin_and_a_lone_soft_mode():
+    omega = spectrum(2000, 0.05, 2)
+    edges, density = density_of_states(omega)
+    b = int(np.searchsorted(edges, 0.12)) - 1  # a bin on the plateau, above omega*
+    emptied = omega[(omega < edges[b]) | (omega >= edges[b + 1])]
+    assert density_of_states(emptied)[1][b] == 0.0 < density[b]
+    lone = np.append(omega, 1e-3)  # one soft mode a decade and a half below the rest
+    full = plateau_edge(omega)
+    # a histogram's lowest bin (the lone mode) or its empty one set the old omega*; the count
+    # only moves by the one mode more below omega*
+    for changed, moved in ((emptied, 0.05), (lone, 0.5)):
+        edge = plateau_edge(changed)
+        assert abs(edge.omega_star - 0.05) <= 2 * edge.error
+        assert edge.omega_star == pytest.approx(full.omega_star, abs=moved * full.error)
+
+
+def test_omega_star_and_its_error_are_reproducible():
+    omega = spectrum(2000, 0.05, 3)
+    edge = plateau_edge(omega)
+    assert plateau_edge(omega) == edge and edge.seed == 0
+    assert edge.omega_star == plateau_frequency(omega)
+    other = plateau_edge(omega, seed=1)
+    assert other.omega_star == edge.omega_star and other.error != edge.error
+    assert other.error == pytest.approx(edge.error, rel=0.2)
+    with pytest.raises(InputError, match="resamples"):
+        plateau_edge(omega, resamples=1)
+
+
 def test_omega_star_rises_with_compression():
-    low = vibrational_modes(*relaxed(512, 0.85, 2, 3))
-    high = vibrational_modes(*relaxed(512, 0.95, 2, 3))
+    low = plateau_edge(vibrational_modes(*relaxed(512, 0.85, 2, 3)).frequencies)
+    high = plateau_edge(vibrational_modes(*relaxed(512, 0.95, 2, 3)).frequencies)
     # omega* ~ z - z_iso (Wyart et al. 2005): measured over seeds 3 and 4, each relaxed with the
-    # exact and the incomplete factor, z - z_iso rose 3.0-4.2x and omega* 2.1-3.1x (the plateau
-    # edge of ~1000 modes is a coarse estimate)
-    assert plateau_frequency(high.frequencies) > 1.5 * plateau_frequency(low.frequencies)
+    # exact and the incomplete factor, z - z_iso rose 3.0-4.2x; omega* rises beyond both errors
+    assert high.omega_star - high.error > low.omega_star + low.error
 
 
 def test_the_full_spectrum_is_refused_beyond_the_dense_limit(packing_2d, monkeypatch):
@@ -149,7 +218,11 @@ def test_the_modes_command_writes_the_modes_and_the_figure(packing_2d, tmp_path,
     report = json.loads(capsys.readouterr().out)
     assert report["zero_modes"] == 2 and report["negative_modes"] == 0
     assert report["omega_star"] > 0 and (tmp_path / "m.png").stat().st_size > 10_000
+    assert 0 < report["omega_star_err"] and report["plateau_density"] > 0
     data = np.load(out)
+    assert data["omega_star"] == report["omega_star"] and data["bootstrap_seed"] == 0
+    assert data["omega_star_err"] == report["omega_star_err"]
+    assert data["omega_star_modes"] == report["omega_star_modes"]
     assert data["vectors"].shape == (3, packing.n, 2) and data["eigenvalues"].size == report["dofs"]
     assert np.sum(data["dos"] * np.diff(data["dos_edges"])) == pytest.approx(1.0)
     for argv, message in (

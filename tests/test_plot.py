@@ -1,4 +1,5 @@
-"""Figures: force-line widths and scale, rattler marking, panels, legends, ticks, PNG output."""
+"""Figures: force-line widths and scale, rattler marking, panels, legends, ticks, PNG output,
+the construction of omega* on the spectra figure."""
 
 from __future__ import annotations
 
@@ -265,3 +266,40 @@ def test_summary_panels(tmp_path: Path) -> None:
     with pytest.raises(InputError):
         plot.summary_figure({})
     _png(fig, tmp_path / "summary.png")
+
+
+def test_modes_figure_draws_what_decided_omega_star(tmp_path: Path) -> None:
+    from athermal.modes import Modes, plateau_edge
+
+    u = (np.arange(1000) + 0.5) / 1000  # D ~ omega up to 0.1, then flat up to 2
+    omega = np.where(u < 0.05 / 1.95, np.sqrt(0.39 * u), 1.95 * u + 0.05)
+    values = np.concatenate([[0.0, 0.0], omega**2])  # and two translations
+    modes = Modes(
+        eigenvalues=values,
+        vectors=np.zeros((0, 501, 2)),
+        vector_index=np.zeros(0, np.intp),
+        participation=np.full(values.size, 0.5),
+        n_rattlers=0,
+        dofs=values.size,
+        tolerance=1e-12,
+        complete=True,
+    )
+    edge = plateau_edge(omega)
+    fig = plot.modes_figure({"known edge": modes})
+    dos_ax, count_ax, _ = fig.axes
+    for ax in (dos_ax, count_ax):  # omega* as a vertical line, its error as a band
+        assert any(np.allclose(line.get_xdata(), edge.omega_star) for line in ax.get_lines())
+        (band,) = ax.patches
+        assert band.get_x() == pytest.approx(edge.omega_star - edge.error)
+        assert band.get_x() + band.get_width() == pytest.approx(edge.omega_star + edge.error)
+    # the count, the plateau's line D_p omega and half of it, crossing the count at omega*
+    slopes = {
+        round(float(np.median(line.get_ydata() / line.get_xdata())) / edge.plateau, 3)
+        for line in count_ax.get_lines()[1:3]
+    }
+    assert slopes == {1.0, 0.5}
+    crossing = [edge.omega_star, edge.plateau * edge.omega_star / 2]
+    assert any(np.allclose(line.get_xydata(), [crossing]) for line in count_ax.get_lines())
+    assert f"{edge.omega_star:.3g} $\\pm$ {edge.error:.2g}" in _legend_texts(fig)[0]
+    assert f"{edge.modes_below} of 1000 modes below" in _legend_texts(fig)[1]
+    _png(fig, tmp_path / "modes.png")

@@ -10,7 +10,9 @@ remaining ``d (N' - 1)`` are the vibrations, ``omega = sqrt(lambda)`` in units o
 ``sqrt(k l^(alpha-2) / m)`` (``m = 1``).
 
 Near jamming ``D(omega)`` develops a plateau that extends down to ``omega* ~ Delta z`` (Silbert,
-Liu and Nagel, PRL 95, 098301 (2005)); :func:`plateau_frequency` locates its lower edge.
+Liu and Nagel, PRL 95, 098301 (2005)); :func:`plateau_edge` locates its lower edge from the
+cumulative count of modes, with a bootstrap uncertainty (the choice, and what it gives on
+jammed packings: ``docs/modes.md``).
 """
 
 from __future__ import annotations
@@ -34,8 +36,13 @@ DENSE_MODES_DOFS = 12_288
 """Largest stiffness matrix (``N' d`` rows, N = 4096 spheres) whose full spectrum is computed
 (dense ``eigh``); above it only the lowest ``k`` modes (shift-invert ``eigsh``)."""
 PLATEAU_FRACTION = 0.5
-""":func:`plateau_frequency` puts ``omega*`` where ``D(omega)`` falls below this fraction of its
-plateau."""
+""":func:`plateau_edge` puts ``omega*`` where the mean density of states below it falls to this
+fraction of the plateau."""
+PLATEAU_WINDOW = (0.1, 0.4)
+"""The plateau of ``D(omega)`` is measured between these fractions of the largest frequency:
+above the crossover at ``omega*`` and below the rise to the band's peak (``docs/modes.md``)."""
+BOOTSTRAP_RESAMPLES = 500
+"""Resamples of the modes behind the uncertainty of ``omega*`` (:func:`plateau_edge`)."""
 
 
 @dataclass(frozen=True)
@@ -148,35 +155,131 @@ def density_of_states(
     return edges, counts / (omega.size * np.diff(edges))
 
 
-def plateau_frequency(frequencies: NDArray[np.float64], bins: int = 40) -> float:
-    """``omega*``, the lower edge of the plateau of ``D(omega)``.
+def cumulative_count(
+    frequencies: NDArray[np.float64],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The cumulative count of modes, no binning: the ``(M,)`` frequencies in ascending order
+    and the fraction of the ``M`` modes at or below each, ``(k - 1/2) / M`` for the ``k``-th
+    (the midpoint of the count's step there)."""
+    omega = np.sort(np.asarray(frequencies, dtype=np.float64))
+    if omega.size < 2 or omega[0] <= 0.0:
+        raise InputError("cumulative_count: need at least two frequencies, all > 0")
+    return omega, (np.arange(omega.size) + 0.5) / omega.size
 
-    The plateau level is the median of ``D`` over the bins between the frequency of its
-    maximum and a decade below it; coming down from the maximum, ``omega*`` is where ``D``
-    first falls below :data:`PLATEAU_FRACTION` of that level (interpolated in log-log between
-    the bin centres). Returns the lowest frequency when ``D`` never falls that low.
+
+@dataclass(frozen=True)
+class PlateauEdge:
+    """``omega*`` of a spectrum, its uncertainty and what decided it (:func:`plateau_edge`).
+
+    Frequencies in ``sqrt(k l^(alpha-2) / m)``; densities normalised as
+    :func:`density_of_states` (``sum D d_omega = 1`` over the ``M`` modes).
+
+    Attributes
+    ----------
+    omega_star : where the count of modes below ``omega``, ``N(omega) / M``, crosses
+        ``PLATEAU_FRACTION x plateau x omega`` coming down from the plateau.
+    error : half the 16-84 % range of ``omega_star`` over bootstrap resamples of the modes
+        (one standard deviation for a normal spread).
+    plateau : the plateau level of ``D(omega)``: the fraction of the modes in ``window`` over
+        its width.
+    window : ``(omega_lo, omega_hi)``, :data:`PLATEAU_WINDOW` x the largest frequency.
+    modes_below : modes below ``omega_star`` (how many decided it).
+    modes : ``M``, the frequencies given.
+    resamples, seed : the bootstrap's resamples and the seed of its generator.
     """
-    edges, density = density_of_states(frequencies, bins)
-    centres = np.sqrt(edges[:-1] * edges[1:])
-    top = int(np.argmax(density))
-    window = (centres <= centres[top]) & (centres >= centres[top] / 10.0)
-    level = float(np.median(density[window]))
-    threshold = PLATEAU_FRACTION * level
-    for b in range(top, 0, -1):
-        if density[b - 1] < threshold:
-            lo, hi = density[b - 1], density[b]
-            if lo <= 0.0:
-                return float(centres[b])
-            t = (np.log(threshold) - np.log(lo)) / (np.log(hi) - np.log(lo))
-            return float(np.exp(np.log(centres[b - 1]) + t * np.log(centres[b] / centres[b - 1])))
-    return float(np.min(frequencies))
+
+    omega_star: float
+    error: float
+    plateau: float
+    window: tuple[float, float]
+    modes_below: int
+    modes: int
+    resamples: int
+    seed: int
+
+
+def _edge(omega: NDArray[np.float64], fraction: NDArray[np.float64]) -> tuple[float, float]:
+    """``(omega*, plateau)`` of ascending frequencies and their cumulative fractions."""
+    lo, hi = PLATEAU_WINDOW[0] * omega[-1], PLATEAU_WINDOW[1] * omega[-1]
+    inside = np.searchsorted(omega, hi, side="right") - np.searchsorted(omega, lo)
+    plateau = float(inside / (omega.size * (hi - lo)))
+    gap = fraction - PLATEAU_FRACTION * plateau * omega  # < 0: the count under the line
+    rise = np.flatnonzero((gap[:-1] <= 0.0) & (gap[1:] > 0.0) & (omega[:-1] < hi))
+    if rise.size == 0:
+        return float(omega[0]), plateau
+    k = rise[-1]
+    t = gap[k] / (gap[k] - gap[k + 1])
+    return float(omega[k] + t * (omega[k + 1] - omega[k])), plateau
+
+
+def plateau_edge(
+    frequencies: NDArray[np.float64], *, resamples: int = BOOTSTRAP_RESAMPLES, seed: int = 0
+) -> PlateauEdge:
+    """``omega*``, the lower edge of the plateau of ``D(omega)``, with a bootstrap uncertainty.
+
+    No histogram: the plateau level ``D_p`` is the fraction of the ``M`` modes between
+    :data:`PLATEAU_WINDOW` x the largest frequency, over that window's width; ``omega*`` is the
+    highest frequency below the window's top where the cumulative count ``N(omega) / M``
+    (:func:`cumulative_count`) rises through ``PLATEAU_FRACTION x D_p x omega``, i.e. where the
+    mean density of states below ``omega`` is half the plateau (interpolated linearly between
+    modes). For ``D`` rising as ``omega`` below a sharp edge (Debye in 2D) that is the edge;
+    for an empty gap below it, twice the edge. With no mode under the line, the lowest
+    frequency (``omega*`` is not resolved).
+
+    ``error`` is half the 16-84 % range of ``omega*`` over ``resamples`` resamples of the modes
+    with replacement, drawn by ``numpy.random.default_rng(seed)``: the same frequencies and
+    seed give the same numbers. It treats the modes as independent draws from ``D(omega)``;
+    the modes of one packing are more regular than that, and on jammed packings the error
+    came out larger than the spread of ``omega*`` over packings (``docs/modes.md``).
+
+    Parameters
+    ----------
+    frequencies : ``(M,)`` vibrational frequencies ``> 0`` (:attr:`Modes.frequencies` of a
+        full spectrum).
+    resamples : bootstrap resamples, at least 2.
+    seed : seed of the bootstrap's generator.
+
+    Examples
+    --------
+    >>> u = (np.arange(2000) + 0.5) / 2000  # D ~ omega up to 0.1, then flat up to 2
+    >>> omega = np.where(u < 0.05 / 1.95, np.sqrt(0.39 * u), 1.95 * u + 0.05)
+    >>> edge = plateau_edge(omega)
+    >>> round(edge.omega_star, 3), edge.modes_below
+    (0.1, 51)
+    """
+    omega, fraction = cumulative_count(frequencies)
+    if int(resamples) != resamples or resamples < 2:
+        raise InputError(f"resamples: need an integer >= 2, got {resamples!r}")
+    star, plateau = _edge(omega, fraction)
+    rng = np.random.default_rng(seed)
+    draws = np.empty(int(resamples))
+    for i in range(draws.size):
+        draws[i] = _edge(omega[np.sort(rng.integers(0, omega.size, omega.size))], fraction)[0]
+    low, high = np.percentile(draws, [16.0, 84.0])
+    return PlateauEdge(
+        omega_star=star,
+        error=float(high - low) / 2.0,
+        plateau=plateau,
+        window=(PLATEAU_WINDOW[0] * float(omega[-1]), PLATEAU_WINDOW[1] * float(omega[-1])),
+        modes_below=int(np.searchsorted(omega, star)),
+        modes=int(omega.size),
+        resamples=int(resamples),
+        seed=int(seed),
+    )
+
+
+def plateau_frequency(frequencies: NDArray[np.float64]) -> float:
+    """``omega*`` alone, as :func:`plateau_edge` finds it, without the bootstrap."""
+    return _edge(*cumulative_count(frequencies))[0]
 
 
 def save_modes(path: str | os.PathLike[str], modes: Modes, bins: int = 40) -> Path:
     """Write ``modes`` to the NPZ file ``path`` atomically: ``eigenvalues``, ``participation``,
     ``vectors`` and ``vector_index``, ``frequencies``, ``zero_modes``, ``negative_modes``,
-    ``n_rattlers``, ``tolerance`` and, for a full spectrum, ``dos_edges``, ``dos`` and
-    ``omega_star``."""
+    ``n_rattlers``, ``tolerance`` and, for a full spectrum, ``dos_edges``, ``dos`` (``bins``
+    logarithmic bins) and :func:`plateau_edge`'s ``omega_star``, ``omega_star_err``,
+    ``omega_star_modes`` (modes below it), ``plateau_density``, ``plateau_window`` and
+    ``bootstrap_seed``."""
     data: dict[str, Any] = {
         "eigenvalues": modes.eigenvalues,
         "participation": modes.participation,
@@ -190,7 +293,17 @@ def save_modes(path: str | os.PathLike[str], modes: Modes, bins: int = 40) -> Pa
     }
     if modes.complete:
         edges, dos = density_of_states(modes.frequencies, bins)
-        data.update(dos_edges=edges, dos=dos, omega_star=plateau_frequency(modes.frequencies, bins))
+        edge = plateau_edge(modes.frequencies)
+        data.update(
+            dos_edges=edges,
+            dos=dos,
+            omega_star=edge.omega_star,
+            omega_star_err=edge.error,
+            omega_star_modes=edge.modes_below,
+            plateau_density=edge.plateau,
+            plateau_window=np.array(edge.window),
+            bootstrap_seed=edge.seed,
+        )
     with replacing(path) as temporary, open(temporary, "wb") as handle:
         np.savez(handle, **data)
     return Path(path)

@@ -531,36 +531,63 @@ def force_distribution_figure(
 
 
 def modes_figure(spectra: Mapping[str, Modes], *, title: str = "") -> Figure:
-    """Vibrational spectra, one curve per packing (label -> :class:`~athermal.modes.Modes` of a
-    full spectrum): the density of states ``D(omega)`` on log-log axes with each ``omega*``
-    (:func:`~athermal.modes.plateau_frequency`) marked (left), and the participation ratio of
-    every mode against its frequency (right). Frequencies in ``sqrt(k l^(alpha-2) / m)``."""
-    from .modes import density_of_states, plateau_frequency
+    """Vibrational spectra, one colour per packing (label -> :class:`~athermal.modes.Modes` of a
+    full spectrum), with what decided each ``omega*`` (:func:`~athermal.modes.plateau_edge`):
+    the density of states ``D(omega)`` on log-log axes with the plateau level over its window
+    (solid), half of it (dashed) and ``omega*`` with its bootstrap error band (left); the
+    cumulative count of modes ``N(omega) / M`` with the plateau's line ``D_p omega`` (dotted)
+    and the line of half the plateau, ``D_p omega / 2`` (dashed), whose crossing with the count
+    is ``omega*`` (middle); the participation ratio of every mode against its frequency
+    (right). Frequencies in ``sqrt(k l^(alpha-2) / m)``."""
+    from .modes import PLATEAU_FRACTION, cumulative_count, density_of_states, plateau_edge
 
-    fig = _figure(9.0, 3.8)
-    dos_ax, pr_ax = fig.subplots(1, 2)
+    fig = _figure(13.0, 4.0)
+    dos_ax, count_ax, pr_ax = fig.subplots(1, 3)
     for label, modes in spectra.items():
         omega = modes.frequencies
         edges, density = density_of_states(omega)
         centres = np.sqrt(edges[:-1] * edges[1:])
         seen = density > 0
-        star = plateau_frequency(omega)
+        edge = plateau_edge(omega)
+        star, half = edge.omega_star, PLATEAU_FRACTION * edge.plateau
         (line,) = dos_ax.loglog(
             centres[seen],
             density[seen],
             "o-",
             markersize=3,
             linewidth=1.0,
-            label=rf"{label}: $\omega^*$ = {star:.3g}",
+            label=rf"{label}: $\omega^*$ = {star:.3g} $\pm$ {edge.error:.2g}",
         )
-        dos_ax.axvline(star, color=line.get_color(), linestyle=":", linewidth=1.0)
+        color = line.get_color()
+        dos_ax.hlines(edge.plateau, *edge.window, color=color, linewidth=2.0, alpha=0.6)
+        dos_ax.hlines(half, omega.min(), edge.window[1], color=color, linestyle="--")
+        sorted_omega, fraction = cumulative_count(omega)
+        count_ax.loglog(
+            sorted_omega,
+            fraction,
+            drawstyle="steps-mid",
+            color=color,
+            linewidth=1.0,
+            label=rf"{label}: {edge.modes_below} of {edge.modes} modes below $\omega^*$",
+        )
+        count_ax.loglog(sorted_omega, edge.plateau * sorted_omega, ":", color=color)
+        count_ax.loglog(sorted_omega, half * sorted_omega, "--", color=color)
+        count_ax.plot(star, half * star, "o", color=color, markerfacecolor="none")
+        for ax in (dos_ax, count_ax):
+            ax.axvline(star, color=color, linestyle=":", linewidth=1.0)
+            ax.axvspan(
+                max(star - edge.error, omega.min()), star + edge.error, color=color, alpha=0.12
+            )
         vibrating = modes.eigenvalues > modes.tolerance
-        pr_ax.semilogx(
-            omega, modes.participation[vibrating], ".", markersize=2, color=line.get_color()
-        )
+        pr_ax.semilogx(omega, modes.participation[vibrating], ".", markersize=2, color=color)
+    dos_ax.set_title(r"solid: plateau $D_p$ over its window; dashed: $D_p / 2$", fontsize="small")
     dos_ax.set_xlabel(r"$\omega$")
     dos_ax.set_ylabel(r"$D(\omega)$")
     dos_ax.legend(fontsize="small")
+    count_ax.set_title(r"dotted: $D_p\,\omega$; dashed: $D_p\,\omega / 2$", fontsize="small")
+    count_ax.set_xlabel(r"$\omega$")
+    count_ax.set_ylabel(r"$N(\omega) / M$ (modes below $\omega$)")
+    count_ax.legend(fontsize="small", loc="upper left")
     pr_ax.set_xlabel(r"$\omega$")
     pr_ax.set_ylabel("participation ratio")
     pr_ax.set_ylim(0.0, 1.0)

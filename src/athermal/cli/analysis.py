@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..io import read_gsd
-from ..modes import plateau_frequency, save_modes, vibrational_modes
+from ..modes import plateau_edge, save_modes, vibrational_modes
 from ..plot import modes_figure, save
 from .common import model_from
 from .printer import emit
@@ -23,6 +23,7 @@ def modes(args: argparse.Namespace) -> None:
     found = vibrational_modes(frame.packing, model, args.lowest, vectors=args.vectors)
     save_modes(args.output, found)
     omega = found.frequencies
+    edge = plateau_edge(omega) if found.complete else None
     out = {
         "n": frame.packing.n,
         "dim": frame.packing.dim,
@@ -33,7 +34,10 @@ def modes(args: argparse.Namespace) -> None:
         "negative_modes": found.negative_modes,
         "lowest_eigenvalue": float(found.eigenvalues[0]),
         "lowest_frequency": float(omega[0]) if omega.size else None,
-        "omega_star": plateau_frequency(omega) if found.complete else None,
+        "omega_star": edge.omega_star if edge else None,
+        "omega_star_err": edge.error if edge else None,
+        "omega_star_modes": edge.modes_below if edge else None,
+        "plateau_density": edge.plateau if edge else None,
         "mean_participation": float(np.mean(found.participation)),
         "output": args.output,
     }
