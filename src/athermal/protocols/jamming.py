@@ -26,8 +26,8 @@ function of the steps before it (:func:`_next_trial`): an interrupted run resume
 **The verdict does not depend on epsilon.** A trial relaxation ends in one of two states,
 told apart by the configuration's own scales:
 
-- *unjammed*: the energy per particle falls to ``ENERGY_TOL`` x ``k <r>^alpha``, the energy
-  of a packing ``~RESOLUTION / 10`` above jamming (``RESOLUTION`` is the smallest ``epsilon``
+- *unjammed*: the energy per particle falls to :func:`energy_threshold`, the energy of a
+  packing ``~RESOLUTION / 10`` above jamming (``RESOLUTION`` is the smallest ``epsilon``
   accepted);
 - *jammed*: ``max_i |grad_i| <= rtol`` (1e-6) x the packing's own mean contact force, or the
   round-off floor (:func:`~athermal.protocols._relax.round_off_floor`) where that is larger,
@@ -39,7 +39,8 @@ told apart by the configuration's own scales:
 Neither the threshold nor the tolerance depends on ``epsilon``, so runs from the same start
 with the same ``dphi`` and protocol follow the same trials until the coarser one stops: the
 jamming point of a smaller ``epsilon`` lies inside the bracket of a larger one, unless the
-coarser run's last check reopens its bracket (measured in ``docs/jamming.md``). The ``final``
+coarser run's last check reopens its bracket (measured in ``docs/jamming.md``; after a reopening
+the growth increment is the one step whose size depends on ``epsilon``). The ``final``
 step relaxes to ``max_i |grad_i| <= final_rtol`` (1e-10) x the packing's own mean contact force,
 or to the round-off floor where that is larger.
 
@@ -93,11 +94,13 @@ JAM_PROTOCOLS: tuple[JamProtocol, ...] = ("seed", "ohern")
 JAM_PROTOCOL: JamProtocol = "ohern"
 """The default protocol, chosen by measurement (``docs/jamming.md``): over 16 starts at N = 256
 and 1024 its brackets nested over ``epsilon`` in every pair, it never reopened a bracket, and it
-ran 2-7 times faster than ``seed``, with the same mean ``phi_c`` within its spread."""
+ran 2-9 times faster than ``seed``, with the same mean ``phi_c`` within its error."""
 RESOLUTION = 1e-9
 """The smallest ``epsilon`` (packing fraction) the protocol accepts: the jamming threshold
 (:func:`energy_threshold`) is the energy of a packing ``RESOLUTION / 10`` above jamming, whose
-forces stay above the round-off floor of float64 coordinates at N <= 10^5."""
+overlaps (~1e-13 of the cell's side at N = 10^5) are still resolved by float64 coordinates.
+Packings that close to jamming balance their forces only to the round-off floor
+(``docs/jamming.md``)."""
 PHI_INIT = {2: 0.8, 3: 0.6}
 """Default start fraction by dimension: unjammed after relaxation (phi_c ~ 0.84 in 2D and
 ~0.64 in 3D for the bidisperse 1:1, 1.4 mixture)."""
