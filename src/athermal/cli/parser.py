@@ -334,7 +334,7 @@ def build() -> argparse.ArgumentParser:
 
     jam = sub.add_parser(
         "jam",
-        help="jam a random packing (growth + bisection, the seed's Algorithm 1)",
+        help="jam a random packing (growth + bisection, after the seed's Algorithm 1)",
         description="Place N particles at random at --phi-init, then grow them by --dphi and "
         "relax until the relaxed packing is jammed (E > 0, p > 0), and bisect the packing "
         "fraction down to --epsilon; check the result (decompression unjams it, isostatic, "
