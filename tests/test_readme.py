@@ -51,20 +51,29 @@ def test_protocol_example_jams_compresses_and_shears_with_the_seeds_physics(tmp_
     assert len(rows) == 11
     values = [numbers(r, "Delta phi", "p", "G", "z - z_iso") for r in rows]
     pressures = [v[1] for v in values]
-    assert all(p > 0.0 for p in pressures) and pressures[-1] > 1e4 * pressures[0]
     for row, (_, _, g, _) in zip(rows, values, strict=True):
         assert (g < 0.0) == ("unstable to shear" in row)  # a negative G is reported as such
     line = next(line for line in out if line.startswith("exponents"))
-    (p, _, _), (g, g_err, g_points), (z, _, _) = (
-        [float(v) for v in re.search(rf"{name} (\S+) ± (\S+) \((\d+) points\)", line).groups()]
-        for name in ("p", "G", "z")
-    )
-    assert abs(p - 1.0) < 0.1 and abs(z - 0.5) < 0.2
-    # one packing's G is not self-averaging near jamming (per-packing exponents 0.37-0.61 over
-    # five N = 1024 packings, benchmarks/results/protocols/scaling_n1024_a2.md; 0.75 +- 0.11 on
-    # one trajectory, stderr 0.03-0.11): its fit must be informative and agree with 1/2 within
-    # its own error
-    assert g_points >= 8 and g_err < 0.2 and abs(g - 0.5) < 3.0 * g_err
+    left = [line for line in out if line.startswith("left its basin")]
+    unjammed = [r for r in rows if "unjammed" in r]
+    if unjammed:
+        # a packing of 1024 may rearrange into a looser one on the way (seen on a generic
+        # x86-64 build, at Delta phi = 1e-4): the fits stop there and say so
+        first = numbers(unjammed[0], "Delta phi")[0]
+        assert len(left) == 1 and numbers(left[0], "Delta phi")[0] == pytest.approx(first, rel=0.1)
+        assert "after the packing left its basin" in left[0]
+    else:
+        assert not left and all(p > 0.0 for p in pressures) and pressures[-1] > 1e4 * pressures[0]
+        (p, _, _), (g, g_err, g_points), (z, _, _) = (
+            [float(v) for v in re.search(rf"{n} (\S+) ± (\S+) \((\d+) points\)", line).groups()]
+            for n in ("p", "G", "z")
+        )
+        assert abs(p - 1.0) < 0.1 and abs(z - 0.5) < 0.2
+        # one packing's G is not self-averaging near jamming (per-packing exponents 0.37-0.61
+        # over five N = 1024 packings, benchmarks/results/protocols/scaling_n1024_a2.md; 0.75 +-
+        # 0.11 on one trajectory, stderr 0.03-0.11): its fit must be informative and agree with
+        # 1/2 within its own error
+        assert g_points >= 8 and g_err < 0.2 and abs(g - 0.5) < 3.0 * g_err
     bulk, shear = numbers(next(line for line in out if line.startswith("B ")), "B", "G")
     assert bulk > shear > 0.0
     strains = [line for line in out if line.startswith("strain")]
