@@ -396,9 +396,9 @@ def _row_sq(u, v, a, w, out, p, dim, mode):  # type: ignore[no-untyped-def]
 @_jit
 def _max_row_sq(u, v, a, w, out, dim, mode):  # type: ignore[no-untyped-def]
     """``max_i`` of :func:`_row_sq` over the ``dim``-vectors of the flat arrays, four rows at a
-    time: four running maxima, where one waits on the last comparison (2.5 against 5-10 us at
-    N = 4096, 2D, Intel Xeon). Called with a literal ``dim`` and ``mode``, which the compiler
-    folds in."""
+    time: four running maxima, where one waits on the last comparison (measurements:
+    ``docs/decisions.md``, section "Compiled kernels"). Called with a literal ``dim`` and
+    ``mode``, which the compiler folds in."""
     rows = u.size // dim
     b0 = b1 = b2 = b3 = 0.0
     i = 0

@@ -14,15 +14,14 @@ the forces balance and ``sigma = P I`` (volume alone: ``p = P``), to the force t
 its cell, and its shear modulus is ``>= 0`` (shear-stabilized packings, Dagois-Bohy et al., PRL
 109, 095703 (2012)).
 
-Each evaluation finds the contacts afresh (the cell changes at every step): ~3 ms at N = 1024
-against ~0.1 ms for a fixed cell; a Verlet list that follows the cell is future work.
+Each evaluation finds the contacts afresh (the cell changes at every step), many times the cost
+of an evaluation in a fixed cell; a Verlet list that follows the cell is future work.
 
-Preconditioner (:class:`EnthalpyPreconditioner`, ``precon="exp"``). Measured from random
-starts at phi = 0.8 to P = 1e-3 (2D, alpha = 2, seed 2), iterations
-without / with it: N = 256 volume L-BFGS 1977 / 3292, FIRE 9862 / 8918; shape L-BFGS 4258 /
-1932, FIRE 6682 / 7591; N = 1024 volume L-BFGS 7319 / 6535, FIRE 21343 / 14099; shape L-BFGS
-7752 / 4467, FIRE 17860 / 13694. It pays with the shape free and at N = 1024, not always at
-N = 256; the default is none. L-BFGS takes ~2 evaluations per iteration either way.
+Preconditioner (:class:`EnthalpyPreconditioner`, ``precon="exp"``): optional, the default is
+none; it pays with the shape free and at the larger N, not always at small N.
+
+Measurements (the cost of an evaluation, iterations with and without the preconditioner):
+``docs/decisions.md``, section "Minimization at fixed pressure".
 """
 
 from __future__ import annotations

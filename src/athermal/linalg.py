@@ -36,15 +36,15 @@ SOLVERS: tuple[str, ...] = ("auto", "direct", "amg", "ic0")
 AUTO_DIRECT_MAX_N = 200_000
 """``solver="auto"`` in 3D: direct below this number of particles, AMG from it on."""
 AUTO_DIRECT_MAX_N_2D = 2_000_000
-"""``solver="auto"`` in 2D. Measured (``benchmarks/results/scale.md``, Exp P-L-BFGS, one core):
-the direct solve is 2.1x faster per iteration than AMG at N = 262144 (82 against 169 ms), and
-at N = 1048576 ran at 424 ms per iteration in 1.8 GB while AMG did not finish in its time."""
+"""``solver="auto"`` in 2D: direct below this number of particles, AMG from it on. In 2D the
+direct solve stays faster per iteration than AMG at the sizes measured (up to N = 1048576;
+measurements: ``docs/decisions.md``, section "Sparse solvers", ``AUTO_DIRECT_MAX_N_2D``)."""
 AUTO_IC0_MAX_N = 200_000
 """``solver="auto"`` for an M-matrix (the Exp preconditioner's): the incomplete factor
-(:class:`IncompleteCholeskyFactor`, which quotes the measurements) below this number of
-particles, in 2D and 3D: faster than the exact factor up to N = 65536, even with it at
-N = 262144 and 1048576 (its iterations grow faster with N). The contact preconditioner's
-matrix is no M-matrix: its ``auto`` stays direct."""
+(:class:`IncompleteCholeskyFactor`) below this number of particles, in 2D and 3D: faster than the
+exact factor up to N = 65536, even with it at N = 262144 and 1048576 (its iterations grow faster
+with N). The contact preconditioner's matrix is no M-matrix: its ``auto`` stays direct.
+Measurements: ``docs/decisions.md``, section "Sparse solvers", ``IncompleteCholeskyFactor``."""
 AMG_CYCLES = 1
 """Default number of AMG V-cycles per application (N = 65536, 2D: ~19 matrix-vector products)."""
 
@@ -151,24 +151,11 @@ class IncompleteCholeskyFactor:
     (``shift`` records it). Cheaper to build and apply than the exact factor, but a weaker
     preconditioner whose iterations grow faster with N; ``auto`` takes it for the Exp matrix
     below :data:`AUTO_IC0_MAX_N`. The solves take the columns in interleaved pairs (a
-    substitution is latency-bound: two chains cost about one). Measured (Exp P-L-BFGS, one
-    core, Intel Xeon, against ``direct`` in the same session):
+    substitution is latency-bound: two chains cost about one).
 
-    * the Table (N = 4096, ``benchmarks/results/table1.md``): the 2-column solve 0.036-0.064
-      against 0.14-0.16 ms, about one energy+gradient (0.05-0.07 ms; bare calls, five runs on
-      a machine whose load varied); 4-17 % more iterations but 0.73-0.78x the wall time at
-      alpha = 2 and 0.56-0.81x at 2.5 (case 2, alpha 2.5: fewer iterations, 1442 against 1839);
-    * the tiled start of ``benchmarks/scale.py`` (``benchmarks/results/ic0/scale.md``):
-      N = 65536 2004 against 1451 iterations, 16.6 against 23.5 s; N = 262144 2658 against
-      1490, 114.5 against 112.7 s; N = 1048576 4134 against 1976, 697 against 685 s, 1141
-      against 1967 MB, the build 1.0 against 36 s;
-    * ``athermal jam`` (``benchmarks/results/protocols/phic_*``, two-loop L-BFGS): N = 4096
-      (2D), 10 realizations, 392 against 582 s in all (median 36 against 53 s); N = 1024
-      (3D), 3 realizations, 57 against 89 s.
-
-    Tried and dropped: the modified factor (MIC, the dropped fill added to the diagonal so that
-    row sums are kept, Gustafsson 1978) took 1.4-2.1x IC(0)'s iterations on the Table's six
-    cases (case 1, alpha 2: 2322 against 1411).
+    Measurements (against ``direct``: the Table, large N, ``athermal jam``; the modified factor
+    MIC, tried and dropped): ``docs/decisions.md``, section "Sparse solvers",
+    ``IncompleteCholeskyFactor``.
     """
 
     backend = "ic0"
@@ -219,11 +206,15 @@ def available(module: str) -> bool:
 def resolve_solver(solver: str, n: int, dim: int = 3, *, m_matrix: bool = False) -> str:
     """``"direct"``, ``"amg"`` or ``"ic0"`` for ``solver`` and ``n`` particles in ``dim``
     dimensions (``"auto"`` resolved; ``m_matrix``: the matrix to factor is an M-matrix, so its
-    incomplete factor exists and ``auto`` takes it below :data:`AUTO_IC0_MAX_N`)."""
+    incomplete factor exists and ``auto`` takes it below :data:`AUTO_IC0_MAX_N`).
+
+    pyamg is one of athermal's dependencies; only an environment that lacks it (installed with
+    ``--no-deps``, or pyamg removed) makes ``"amg"`` an error and ``"auto"`` stay direct."""
     choice(solver, "solver", SOLVERS)
     if solver == "amg" and not available("pyamg"):
         raise InputError(
-            "solver: 'amg' needs pyamg; install it with `pip install athermal[solvers]`"
+            "solver: 'amg' needs pyamg, a dependency of athermal missing from this environment;"
+            " install it with `pip install pyamg`"
         )
     if solver == "auto" and m_matrix and n < AUTO_IC0_MAX_N:
         return "ic0"

@@ -4,10 +4,9 @@ cap, and the move to the accepted point.
 A :class:`CompiledProblem` (an :class:`~athermal.objective.Objective`) is searched without
 leaving compiled code: the trial points, the energy kernel and the line search's state machine
 run in one call, and control comes back to Python only when the search ends or a trial point
-moves beyond where the Verlet list holds. Measured on the Table's case 1 (N = 4096, alpha = 2,
-the two searches alternating in one process, Intel Xeon): 0.90x the wall time for L-BFGS,
-0.93x for P-L-BFGS and 0.96-0.98x for CG, for the same iterations; the compiled iterations
-of L-BFGS and CG (:mod:`._compiled`) go further.
+moves beyond where the Verlet list holds; the same iterations as a search driven from Python.
+The compiled iterations of L-BFGS and CG (:mod:`._compiled`) go further. Measurements:
+``docs/decisions.md``, section "The compiled line search".
 """
 
 from __future__ import annotations

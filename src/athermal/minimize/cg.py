@@ -6,15 +6,15 @@ that keeps FR directions descent directions); the first trial step follows Noced
 ``a_k = a_{k-1} g_{k-1}.p_{k-1} / g_k.p_k``. The method restarts from the (preconditioned)
 gradient when a direction is not a descent direction, when a line search fails, and by Powell's
 test when consecutive gradients are far from orthogonal, ``|g_{k-1}.y_k| >= 0.1 g_k.y_k``
-(Nocedal & Wright, section 5.2): without it FR crawls (77204 iterations instead of 612 relaxing
-a random 128-disk packing to 1e-9 of the contact forces).
+(Nocedal & Wright, section 5.2): without it FR crawls.
 
 On an :class:`~athermal.objective.Objective`, without a preconditioner or with the Exp
 preconditioner's incomplete factor, whole iterations run in compiled code (:func:`_iterate`, as
 L-BFGS's: :mod:`._compiled`), ``beta`` and the next direction by the same compiled functions as
-the Python loop's, so the iterations are the same. Table case 1 (N = 4096, alpha = 2, Intel
-Xeon, one core, the old and new code alternating): 0.23 against 0.28-0.29 ms per FR-CG
-iteration, 0.30 against 0.42-0.44 ms per P-FR-CG iteration.
+the Python loop's, so the iterations are the same.
+
+Measurements (Powell's test, the compiled iterations): ``docs/decisions.md``, section
+"Nonlinear CG".
 """
 
 from __future__ import annotations

@@ -20,17 +20,15 @@ Algorithm 2, with its "initial delay" and "half step back" options on. One step 
 
 Preconditioned variant (``precon`` given): the dynamics are ``P dv/dt = F`` (``P`` is the mass
 matrix), i.e. ``F`` is replaced by ``F_p = -P^-1 grad E`` in the velocity update and in the
-mixing, with Euclidean norms (norms in the metric of ``P``, at one more product with ``P`` per
-step, were tried and were no better with the project's preconditioners). The uphill test keeps
-the true power ``F . v = -dE/dt``, the rate of energy change whatever the metric, so a reset
-happens exactly when the motion climbs. ``precon.update(x)`` is called at every iterate before
-its solve. (A preconditioned FIRE came with the Exp preconditioner of Packwood et al., J. Chem.
-Phys. 144, 164109 (2016); the choices above are ours, in the FIRE 2.0 form.)
+mixing, with Euclidean norms. The uphill test keeps the true power ``F . v = -dE/dt``, the
+rate of energy change whatever the metric, so a reset happens exactly when the motion climbs.
+``precon.update(x)`` is called at every iterate before its solve. (A preconditioned FIRE came with
+the Exp preconditioner of Packwood et al., J. Chem. Phys. 144, 164109 (2016); the choices above are
+ours, in the FIRE 2.0 form.)
 
-Measured: running the steps of an :class:`~athermal.objective.Objective` in compiled loops
-with the energy kernel inside (returning to Python only to rebuild the Verlet list) took no
-less time per step than this loop on the Table's Case 1 (0.13-0.17 ms both, N = 4096), so the
-loop stays in Python.
+The loop runs in Python: compiled loops with the energy kernel inside were no faster per step.
+Measurements (this, the norms of the preconditioned variant, :data:`DT_MAX_PRECON`):
+``docs/decisions.md``, section "FIRE".
 """
 
 from __future__ import annotations
@@ -50,10 +48,8 @@ DT_MAX_FACTOR = 1.6
 DT_START_FRACTION = 0.1
 #: Default smallest time step, as a multiple of the first one (FIRE 2.0: 0.02).
 DT_MIN_FACTOR = 0.02
-#: Default largest time step with a preconditioner, measured with the project's Exp and contact
-#: preconditioners on the seed's N = 4096 cases (alpha = 2): FIRE ran about equally fast with
-#: dt_max from 0.2 to 0.3 and stalled with 0.4-0.5 and above (Exp: lambda_max(P^-1 H) ~ 13;
-#: contact: ~0.9, but its many stiff modes then oscillate in phase and keep resetting FIRE).
+#: Default largest time step with a preconditioner (time units ``sqrt(m / k)``): larger ones
+#: stalled FIRE with the Exp and contact preconditioners (``docs/decisions.md``, section "FIRE").
 DT_MAX_PRECON = 0.25
 
 

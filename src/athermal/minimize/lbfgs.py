@@ -8,15 +8,12 @@ Wright, eq. 7.20, in the metric of ``P``). Steps come from the strong-Wolfe line
 One solve per iteration: the method keeps ``z = P^-1 g`` and, for each pair, ``P^-1 y =
 z_{k+1} - z_k``, so ``H0`` applied to the pairs is a combination of stored vectors
 (recomputed by ``m`` solves when ``P`` is rebuilt). The seed's unscaled ``H0 = P^-1`` left the
-Exp preconditioner about 3x too soft on Case 1 (N = 4096, alpha = 2): accepted steps 0.29-0.32,
-the unit step never accepted, two evaluations per iteration. With ``gamma`` the unit step is
-the accepted one (``benchmarks/results/breakdown*.md``).
+Exp preconditioner too soft, the unit step never accepted; with ``gamma`` it is the accepted one.
 
 The step is the two-loop recursion's (Nocedal & Wright, Algorithm 7.4) in the compact form of
 Byrd, Nocedal & Schnabel (1994): two blocked passes over the stored ``s`` and ``P^-1 y`` and
-``O(m^2)`` work on their dot products, kept from one iteration to the next. The recursion
-streams ``s``, ``y`` and ``P^-1 y`` about five times; measured on Case 1 (Intel Xeon, one core),
-0.064 against 0.090 ms per P-L-BFGS iteration (0.291 against 0.322 ms in all).
+``O(m^2)`` work on their dot products, kept from one iteration to the next (the recursion
+streams ``s``, ``y`` and ``P^-1 y`` about five times).
 
 On a problem that searches in compiled code (:class:`~._step.CompiledProblem`, an
 :class:`~athermal.objective.Objective`), without a preconditioner or with one solved in compiled
@@ -24,14 +21,12 @@ code (the Exp preconditioner's incomplete factor), whole iterations run compiled
 (:func:`_iterate`): the direction, the line search with its evaluations, the solve, the pair and
 the record. Python takes over, for the rest of that iteration, where compiled code cannot go on:
 a trial point beyond the Verlet skin, a failed search or a direction that does not descend, a
-preconditioner to rebuild. The same iterations either way; measured against the Python loop,
-the two alternating in one process (Intel Xeon, one core): Table case 1 (N = 4096) 0.80x the
-wall time for L-BFGS and 0.82x for P-L-BFGS, ``athermal jam`` at N = 1024 0.62-0.67x
-(``benchmarks/results/compiled_loops_n1024.md``). The accepted point's buffers swap with the
-iterate's instead of being copied (the loop's shared parts: :mod:`._compiled`), and the row
-maxima (step cap, largest gradient, Verlet and preconditioner reach) take four rows at a time:
-0.19 against 0.21-0.24 ms per L-BFGS iteration of case 1, 0.27-0.30 against 0.30-0.35 ms per
-P-L-BFGS iteration (the old and new code alternating).
+preconditioner to rebuild. The same iterations either way. The accepted point's buffers swap
+with the iterate's instead of being copied (the loop's shared parts: :mod:`._compiled`), and the
+row maxima (step cap, largest gradient, Verlet and preconditioner reach) take four rows at a time.
+
+Measurements (the scaled ``H0``, the compact step, the compiled iterations):
+``docs/decisions.md``, section "L-BFGS".
 """
 
 from __future__ import annotations

@@ -15,95 +15,33 @@ quasi-static step is one linear solve with the stiffness matrix. Each iteration:
    second strong-Wolfe search from the new point along ``d``, signed downhill, from a step as
    long as the one just taken (:func:`follow_negative_curvature`): ``p`` stops short of ``d``,
    the direction in which the energy falls fastest, and without this search Newton creeps along
-   it. Measured (``benchmarks/results/protocols/negative_curvature/ab_n4096.md``: N = 4096,
-   alpha = 2, 36 shear steps of 1e-6 at Delta phi = 1e-7, 1e-6, 1e-5 from the same starts):
-   2319 iterations in all against 2637 without it, the worst step at 1e-6 108 against 336, the
-   same CG work (32644 against 33617 CG iterations) and wall time (35.0 against 34.9 s). Before
-   :data:`SHIFT_MIN` was raised it mattered more (2772 against 5697 iterations, the worst step
-   616 against 1339): one slow step of 533 iterations spent its last 500 on unit steps along
-   ``p`` that each lowered the energy by the same 1.3e-19, CG stopping at negative curvature
-   after 4 iterations every time.
+   it.
 
-The preconditioner of step 2 is a CHOLMOD factor of ``H(x_b) + sigma kappa I`` at an earlier
+The preconditioner of step 2 is a CHOLMOD factor of ``M = H(x_b) + sigma kappa I`` at an earlier
 iterate ``x_b`` (``kappa`` the mean positive diagonal of ``H``). ``sigma`` lifts the zero modes
 (translations, rattlers) and the negative curvature that the tangential terms of particles with one
 or two contacts, and saddles, give ``H``: it starts at a tenth of the last build's (the last one
 itself if that build had to raise it), never below :data:`SHIFT_MIN` nor below :data:`BLOCK_MARGIN`
 times the most negative eigenvalue of a particle's diagonal block (an upper bound on the lowest
 eigenvalue of ``H``: a lower shift cannot succeed), and is raised tenfold (:data:`SHIFT_RAISE`)
-until CHOLMOD succeeds. Measured on 18 starts (the Table packings at alpha = 2 and 2.5, their radii
-grown by 2e-5, 5e-5 and 1e-4, sheared by 5e-5, 1e-4 and 2e-4, and displaced as in case 3 with seeds
-1-3; Intel Xeon, one core, two runs each): that bound cut the failed factorizations from 34 to 11,
-for 447 iterations in all against 433, and the total time from 8.76-8.83 to 8.13-8.63 s; a margin
-of 5 (6 failed, 470 iterations, 7.99 s, one run) and a threefold raise (14, 467, 8.27 s) were
-within that spread. Chaos decides single cases: Table case 1 at alpha = 2 took 21 iterations
-against 13, case 2 at alpha = 2.5 0.21 against 0.36-0.41 s. ``M`` is factored anew at the iterate
-after a direction that needed more than :data:`REFACTOR_INNER` CG iterations: while the contact
-network holds, ``H`` barely changes and CG converges in a few iterations on the lagged factor.
+until CHOLMOD succeeds. ``M`` is factored anew at the iterate after a direction that needed more
+than :data:`REFACTOR_INNER` CG iterations: while the contact network holds, ``H`` barely changes
+and CG converges in a few iterations on the lagged factor.
 
 Between builds the factor follows the contacts that form (:meth:`LaggedFactor.follow`): their
 blocks are added to ``M`` by a low-rank (Woodbury) correction, each new contact costing one
-solve with ``d`` right-hand sides instead of a factorization. Near jamming a quasi-static step
-forms and breaks a few contacts per iteration (1-3, up to tens; N = 4096, Delta phi = 1e-6), and
-each change cost CG about two more iterations on the lagged factor until a rebuild. Measured
-(AMD EPYC, one core, N = 4096, the 10 realizations of root seed 0, 3 steps each, linear-response
-starts; ``benchmarks/results/protocols/amd_epyc/iterations_n4096_linear.md`` and
-``before_follow/``): 82 / 54 / 17 / 14 iterations and 787 / 504 / 153 / 111 ms per step at Delta
-phi = 1e-7 / 1e-6 / 1e-5 / 1e-4 against 86 / 66 / 22 / 13 and 1092 / 695 / 192 / 115 (medians
-over the realizations at 1e-6: 37 against 55 iterations, 344 against 547 ms), at 1e-1 90 against
-93 ms: a time ratio 1e-6 / 1e-1 of 5.6 against 7.5 (of the medians 4.0 against 5.9); root
-seed 1 (``_r1.md`` as first run; its rerun, the same iterations: 358 ms, 4.4): 383 against 570
-ms per step at 1e-6, a ratio of 4.2 against 6.6, but one realization's steps at 1e-7 went
-through a rearrangement past the protocols' patience (7.4 s per step against 1.0 s without the
-correction). Taking the contacts lost since the build out of ``M`` as well (``M`` then that
-of the current network) made three of the ten realizations crawl past the protocols' patience
-at 1e-7 or 1e-6, P-L-BFGS taking over (6140, 3527 and 9289 iterations per step, against 73-156
-Newton iterations without the correction): ``M`` is then as soft as ``H`` along the modes those
-contacts held, and near a saddle CG's first direction ``M^-1 g`` runs far along them. With a
-new build also where more than :data:`CORRECTION_MAX` contacts had formed (the first version),
-one realization's step at 1e-6 crawled through a rearrangement past the patience (CG meeting
-negative curvature in 261 of its 296 directions; chaos decides such crawls), and the time ratio
-was 6.2.
+solve with ``d`` right-hand sides instead of a factorization. Contacts lost since the build stay
+in ``M``: taken out, they leave ``M`` as soft as ``H`` along the modes they held, and near a
+saddle CG's first direction ``M^-1 g`` runs far along them.
 
-Measured (2D, alpha = 2, one core, AMD EPYC; 10 realizations each,
-``benchmarks/results/protocols/negative_curvature/iterations_n*_linear.md``): per quasi-static
-shear step of 1e-6 started from its linear-response prediction, 8 +- 7 iterations (26 ms) at
-``Delta phi = 1e-6`` and N = 1024, 51 +- 16 (0.74 s) at N = 4096, 64 +- 26 at 1e-7, where the
-L-BFGS family needs thousands to tens of thousands
-(``benchmarks/results/protocols/iterations_n*.md``); wall time per step at 1e-6 over that at 1e-1:
-1.3 at N = 1024, 5.9 at N = 4096, where the factorizations (25-30 ms each, analysis included:
-cholespy keeps none) and the CG solves with them (0.3 ms each) are two thirds of the time. At N =
-4096 on an Intel Xeon, with the compiled Hessian assembly and other packings (commit ca7e0d4): 39
-+- 17 iterations at 1e-6 and the same time ratio, 5.9; 288 +- 665 at 1e-7 and 101 +- 291 at 1e-4,
-means pulled up by one packing whose steps crawl through rearrangements (realization 0: 2178 and
-930 iterations per step there, 25 at 1e-6). With the diagonal-block bound on the shift (commit
-6d0d762): 44 +- 21 at 1e-6, ratio 6.0; 64 +- 34 at 1e-7 and 94 +- 269 at 1e-4 (realization 0: 858
-per step there); with the protocols' hand-over to P-L-BFGS
-(``benchmarks/results/protocols/iterations_n4096_linear.md``, the other core idle): the same
-iterations at 1e-6, ratio 5.3, and 545 against 1621 ms per step at 1e-4. Its third step at 1e-4
-took 5392 iterations while the energy fell 4.3x: CG met negative curvature in 77 % of them and the
-median accepted step was 0.02 of the Newton step; P-L-BFGS took 23100 iterations, and its three
-steps 21.0 s in all against 80.6 s (the same session). Tried and not kept: handing a streak of 20
-such directions to 2000 iterations of plain L-BFGS, then Newton again: 50 s for those steps (11221
-iterations), but ordinary steps near jamming have streaks of up to 22-26 (N = 4096, 1e-7 and 1e-5,
-93-116 iterations), so it would fire there too; and the incomplete factor IC(0) of ``M`` instead of
-the exact one (three packings at 1e-6: 9.7-18.8 s per step against 0.55-0.61 s, one step of 11088
-iterations); and a trust region instead of the line search (Steihaug's CG in the norm of ``M``, the
-radius cut to a quarter of the step or doubled by the ratio of actual to predicted decrease): at
-alpha = 2 the quadratic model fails at every radius where contacts open or close (``H`` jumps
-there), so Table case 1 took 14371 iterations, most of them rejected, and 21.7 s against 0.23 s; at
-alpha = 2.5 (a continuous ``H``) case 1 took 0.16 against 0.29 s but cases 2 and 3 0.44 and 0.57
-against 0.41 and 0.40 s; and the direction for the contact set predicted at ``x + p`` (a
-primal-dual active-set step: the quadratic model with the pairs that overlap at ``x + p``, those
-closing taken as springs from ``x`` and those opening dropped, solved again, at most three times,
-until the set repeats). At a crawl it predicted the gradient at ``x + p`` to 8e-8 against 0.12 for
-``H`` alone (displacements of 1e-9 open 274 contacts there), yet over the 30 steps at 1e-6 of
-root seed 0 (N = 4096, AMD EPYC) it took 2.3 s per step against 0.53 s, two realizations passing
-the patience (with closing pairs only: 1.7 s). Where contacts keep breaking and forming over a
-long rearrangement (``shear_steps`` to large strain, the jamming protocol's trials near
-``phi_c``) it is slower than L-BFGS and P-L-BFGS (``negative_curvature/shear_n1024.md``:
-2-8x); the protocols hand a Newton relaxation on to P-L-BFGS after
+Near jamming a quasi-static shear step takes tens of iterations where the L-BFGS family needs
+thousands. Where contacts keep breaking and forming over a long rearrangement (``shear_steps`` to
+large strain, the jamming protocol's trials near ``phi_c``) it is slower than L-BFGS and
+P-L-BFGS; the protocols hand a Newton relaxation on to P-L-BFGS after
 :data:`~athermal.protocols._relax.NEWTON_PATIENCE` iterations.
+
+Measurements (iterations and time per step, each choice above, and what was tried and not
+kept): ``docs/decisions.md``, section "Newton-CG".
 """
 
 from __future__ import annotations
@@ -121,20 +59,15 @@ from .result import MinimizeResult, Problem, Status, Tracker
 SHIFT_MIN = 1e-5
 """Smallest shift ``sigma`` of the factored matrix, in units of ``kappa``. A smaller one makes
 ``M^-1`` blow the soft and rattling modes up into long directions the line search cuts back,
-and each build probes it (a failed factorization where ``H`` is indefinite). Measured on 36
-shear steps near jamming (N = 4096, alpha = 2, Delta phi = 1e-7 ... 1e-5, the same starts),
-Newton iterations / CG iterations / factorizations, failed ones included (with
-:data:`REFACTOR_INNER` at 50): 1e-10 2602 / 58633 / 400, 1e-7 2580 / 58207 / 281, 1e-6
-1995 / 44643 / 234, 3e-6 1906 / 42306 / 219, 1e-5 1811 / 45344 / 223, 1e-4 1828 / 57312 /
-300."""
+and each build probes it (a failed factorization where ``H`` is indefinite); a larger one
+makes ``M`` a poorer model of ``H``. Measurements: ``docs/decisions.md``, section "Newton-CG",
+``SHIFT_MIN``."""
 SHIFT_MAX = 1e2
 """Largest; beyond it the preconditioner is the scaled identity (``H`` tells nothing)."""
 REFACTOR_INNER = 20
-"""CG iterations of one Newton direction beyond which ``H`` is factored anew. A factorization
-costs about 70 CG iterations at N = 4096 (24 ms against 0.34 ms). Measured on the 36 steps of
-:data:`SHIFT_MIN`, Newton / CG iterations / factorizations (failed ones included) / seconds:
-50: 1811 / 45344 / 223 / 27.7-30.2; 30: 1850 / 32147 / 306; 20: 1806 / 24709 / 386 /
-24.0-26.2; 10: 1865 / 18553 / 697 (AMD EPYC, one core, the two cores running one each)."""
+"""CG iterations of one Newton direction beyond which ``H`` is factored anew: a factorization
+costs as much as tens of CG iterations on the lagged factor. Measurements:
+``docs/decisions.md``, section "Newton-CG", ``REFACTOR_INNER``."""
 SHIFT_RAISE = 10.0
 """Factor the shift is raised by after a failed factorization."""
 BLOCK_MARGIN = 2.0
@@ -257,16 +190,13 @@ class LaggedFactor:
         per contact until the next build) and ``X = U^T W``, so that CG meets the new contacts
         already solved. Contacts lost since the build stay in ``M``: taken out, they leave ``M``
         as soft as ``H`` along the modes they held, and near a saddle ``M^-1`` sends CG's first
-        direction far along those (module doc). ``M`` stays as it was built when more contacts
+        direction far along those. ``M`` stays as it was built when more contacts
         formed than :data:`CORRECTION_MAX` (or than :data:`CORRECTION_BYTES` hold), or when
         ``hessian`` does not give its contacts: CG's iterations then decide the next build, as
         they always do (:data:`REFACTOR_INNER`). Returns False when ``M + U C U^T`` is not
         positive definite (an eigenvalue of ``I + C X`` not above 0): the new contacts need a
-        larger shift, and ``H`` is to be factored anew. Measured on the Table (alpha = 2, cases
-        1 / 2 / 3) and the 3D small packing of the tests: 18 / 61 / 17 and 91 Newton
-        iterations; building anew also when too many contacts formed, 18 / 75 / 15 and 138 (22
-        builds instead of 4 in 3D, far from equilibrium); never building for the correction,
-        18 / 245 / 17 and 91."""
+        larger shift, and ``H`` is to be factored anew. Measurements: ``docs/decisions.md``,
+        section "Newton-CG", "Following the contacts that form"."""
         contacts = _contacts(hessian)
         if self._factor is None or self._keys is None or contacts is None:
             return True

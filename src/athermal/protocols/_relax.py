@@ -31,14 +31,10 @@ gives up."""
 NEWTON_PATIENCE = 300
 """Newton-CG iterations after which :meth:`Relaxer.relax` goes on with P-L-BFGS (Exp). Near
 jamming a quasi-static step that rearranges can send Newton crawling (CG meeting negative
-curvature, the line search cutting its steps to a few per cent) for thousands of iterations of
-5-20 ms each, where P-L-BFGS takes many more but much cheaper ones; ordinary steps take 1-150
-(``athermal.minimize.newton``). Measured (N = 4096, alpha = 2, realization 0 of root seed 0
-compressed to Delta phi = 1e-7 and 1e-4, three shear steps of 1e-6 from the linear start at
-each; Intel Xeon, one core): 18 / 26 / 2221 iterations and 9.2 s per step without, 18 / 26 / 300
-+ 20103 and 4.5 s per step with the hand-over (the third step, an instability, ended in another
-minimum: G -0.052 against -0.119); at 1e-7 the same steps, 20 / 22 / 34 iterations, never reach
-it."""
+curvature, the line search cutting its steps to a few per cent) for thousands of iterations,
+where P-L-BFGS takes many more but much cheaper ones; ordinary steps take 1-150
+(``athermal.minimize.newton``). Measurements: ``docs/decisions.md``, section "Relaxing a
+protocol step", ``NEWTON_PATIENCE``."""
 ROUND_OFF_MARGIN = 10.0
 """:func:`round_off_floor` is this many times the round-off estimate ``eps (L kappa + f)``."""
 
@@ -48,8 +44,9 @@ class Relaxer:
 
     Each step builds its own (from the step's start configuration), so that a step depends on
     that configuration alone and an interrupted protocol resumes bit for bit; within the step
-    the preconditioner rebuilds by its own rule and the Verlet list by the skin. Measured: an
-    Exp build costs 35-40 ms at N = 4096: 51 of them, 2 s of a 109 s jamming run. When L-BFGS or CG
+    the preconditioner rebuilds by its own rule and the Verlet list by the skin (a build costs
+    little against the relaxation: ``docs/decisions.md``, section "Relaxing a protocol step").
+    When L-BFGS or CG
     stops because no Wolfe step exists (it happens within a few times ``gtol`` of a minimum
     near jamming, where the energy differences of a step are at round-off), FIRE, which needs
     no line search, finishes the relaxation from there; a Newton-CG relaxation that has not

@@ -34,18 +34,11 @@ DEFAULT_STRAINS.setflags(write=False)
 StepStart = Literal["linear", "affine"]
 STEP_STARTS: tuple[str, ...] = ("linear", "affine")
 FINITE_STRAIN_MINIMIZER = Minimizer("newton")
-"""Default minimizer of the finite-strain steps: truncated Newton. Measured (2D, alpha = 2, one
-core, the seed's shear steps of 1e-6 at ``Delta phi = 1e-6``, affine start;
-``benchmarks/results/protocols/iterations_n*.md``): 64 +- 82 iterations and 0.27 s per step at
-N = 1024 (10 realizations) where the L-BFGS family and FIRE need 3.2-12.5k and 0.84-1.19 s;
-126 +- 102 and 2.4 s at N = 4096 (2 realizations) against 10.7-40k and 8.0-15.3 s. Its worst
-step seen (N = 4096, ``Delta phi = 1e-5``, a long rearrangement): 9590 iterations and 106 s,
-where P-L-BFGS took 65517 and 41 s, and 200 Newton iterations handed to P-L-BFGS 32 s. Those
-are the Newton before it followed negative curvature and floored its shift
-(:mod:`athermal.minimize.newton`); since, from the linear start (AMD EPYC, 10 realizations):
-8 +- 7 iterations and 26 ms per step at N = 1024, 51 +- 16 and 0.74 s at N = 4096. A step
-still unconverged after :data:`~athermal.protocols._relax.NEWTON_PATIENCE` iterations goes on
-with P-L-BFGS."""
+"""Default minimizer of the finite-strain steps: truncated Newton (:mod:`athermal.minimize.newton`),
+which near jamming takes tens of iterations per step where the L-BFGS family and FIRE take
+thousands. A step still unconverged after :data:`~athermal.protocols._relax.NEWTON_PATIENCE`
+iterations goes on with P-L-BFGS. Measurements: ``docs/decisions.md``, section "Finite-strain
+moduli", ``FINITE_STRAIN_MINIMIZER``."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,11 +232,8 @@ def _linear_start(
     then no guide, as at an instability).
 
     Neither the energy nor the largest force tells a good prediction from a bad one: the affine
-    step opens contacts and lowers both. Measured (``Delta phi`` = 1e-7 ... 1e-5, steps of 1e-6):
-    the prediction keeps all but 0-60 contacts where the affine step changes 30-2800, yet has
-    higher forces; from it Newton needed 1-4 iterations in 7 of 9 steps at N = 1024 (14 and
-    150 in the others) against 18-157 from the affine start, and at N = 4096 sometimes more
-    than from the affine start (both starts end in long rearrangements there).
+    step opens contacts and lowers both. Measurements (contacts kept, Newton iterations from
+    either start): ``docs/decisions.md``, section "Finite-strain moduli", "The linear start".
     """
     d1 = deformation - np.eye(relaxed.dim)
     with warnings.catch_warnings():
