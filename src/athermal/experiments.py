@@ -25,6 +25,8 @@ from .minimize import RTOL, Minimizer, relax
 from .objective import Objective
 from .packing import POLYDISPERSITY, Packing, SizeDistribution, check_width, random_packing
 from .protocols import (
+    DPHI,
+    EPSILON,
     JAM_PROTOCOL,
     JAMMING_MINIMIZER,
     PHI_INIT,
@@ -96,8 +98,8 @@ class JamSpec:
     sizes: SizeDistribution = "bidisperse"
     polydispersity: float = POLYDISPERSITY
     phi_init: float | None = None
-    dphi: float = 1e-3
-    epsilon: float = 1e-6
+    dphi: float = DPHI
+    epsilon: float = EPSILON
     protocol: JamProtocol = JAM_PROTOCOL
     minimizer: Minimizer = JAMMING_MINIMIZER
 

@@ -52,6 +52,7 @@ from .experiments import (
 )
 from .fitting import PowerLaw
 from .minimize import RTOL
+from .protocols import EPSILON
 from .protocols.compress import FIT_LAWS, pooled_fit
 
 SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
@@ -165,7 +166,8 @@ def reproduce(
             harmonic,
             title=f"jamming, N = {settings.n}, alpha = 2",
         ),
-        "The jamming protocol (growth by 1e-3, bisection to epsilon = 1e-6): (a) the random "
+        f"The jamming protocol (growth by {spec.dphi:g}, bisection to epsilon = {spec.epsilon:g}): "
+        "(a) the random "
         "start, (b) a relaxed intermediate state, (c) the jammed packing at phi_c = "
         f"{phi_c:.7f}. Disks to scale (small light, large dark, rattlers open); contact "
         "forces as lines whose width is proportional to the force on one absolute scale for "
@@ -379,7 +381,7 @@ def _report(
         "# Wang & Zhang, reproduced by athermal",
         "",
         f"N = {settings.n} (iteration experiment: N = {settings.realization_n}, "
-        f"{settings.realizations} realizations); phi_c = {phi_c:.7f} (epsilon = 1e-6); "
+        f"{settings.realizations} realizations); phi_c = {phi_c:.7f} (epsilon = {EPSILON:g}); "
         f"{seconds:.0f} s in all. Units: unit cell, stiffness k = 1; stresses and moduli in "
         "k l^(alpha - 2).",
         "",

@@ -13,7 +13,7 @@ from .. import bench
 from ..linalg import SOLVERS
 from ..minimize import METHODS, PRECONDITIONERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
-from ..protocols import JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
+from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
 
 
 class _Help(argparse.HelpFormatter):
@@ -117,11 +117,11 @@ def _minimizer(
 
 def _jamming(parser: argparse.ArgumentParser, prefix: str) -> None:
     """The jamming protocol's options (their help starting with ``prefix``)."""
-    parser.add_argument("--dphi", type=float, default=1e-3, help=f"{prefix}growth increment of phi")
+    parser.add_argument("--dphi", type=float, default=DPHI, help=f"{prefix}growth increment of phi")
     parser.add_argument(
         "--epsilon",
         type=float,
-        default=1e-6,
+        default=EPSILON,
         help=f"{prefix}bisection accuracy of phi_c (>= {RESOLUTION:g})",
     )
     parser.add_argument(

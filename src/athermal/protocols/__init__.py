@@ -12,6 +12,8 @@ from .compress import (
 )
 from .finite_strain import FiniteStrain, finite_strain_bulk, finite_strain_shear
 from .jamming import (
+    DPHI,
+    EPSILON,
     JAM_PROTOCOL,
     JAM_PROTOCOLS,
     JAMMING_MINIMIZER,
@@ -30,6 +32,8 @@ from .pressure import PressureResult, PressureTrial, jam_to_pressure, pressure_s
 from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
 
 __all__ = [
+    "DPHI",
+    "EPSILON",
     "EVENTS",
     "JAMMING_MINIMIZER",
     "JAMMING_SCHEME",

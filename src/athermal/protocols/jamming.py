@@ -87,6 +87,10 @@ incompletely below N = 200,000 (the measurements that chose it: ``docs/jamming.m
 JAMMING_SCHEME = 3
 """Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused).
 3: the verdict independent of ``epsilon``, and the protocol chosen (``seed`` or ``ohern``)."""
+DPHI = 1e-3
+"""Default growth increment of the packing fraction (the seed's ``delta phi``)."""
+EPSILON = 1e-6
+"""Default width of the bracket the bisection ends on (the seed's ``epsilon``)."""
 JamProtocol = Literal["seed", "ohern"]
 JAM_PROTOCOLS: tuple[JamProtocol, ...] = ("seed", "ohern")
 """The bisection protocols (module docstring): trials from the last unjammed configuration
@@ -413,8 +417,8 @@ def jamming_steps(
     start: Packing,
     model: ContactModel,
     *,
-    dphi: float = 1e-3,
-    epsilon: float = 1e-6,
+    dphi: float = DPHI,
+    epsilon: float = EPSILON,
     protocol: JamProtocol = JAM_PROTOCOL,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
@@ -544,7 +548,7 @@ def check_jammed(
     packing: Packing,
     model: ContactModel,
     *,
-    epsilon: float = 1e-6,
+    epsilon: float = EPSILON,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,
 ) -> JammingCheck:
@@ -583,8 +587,8 @@ def jam(
     start: Packing,
     model: ContactModel,
     *,
-    dphi: float = 1e-3,
-    epsilon: float = 1e-6,
+    dphi: float = DPHI,
+    epsilon: float = EPSILON,
     protocol: JamProtocol = JAM_PROTOCOL,
     minimizer: Minimizer | None = None,
     energy_tol: float | None = None,

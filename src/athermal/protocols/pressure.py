@@ -31,7 +31,7 @@ from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
-from .jamming import JAMMING_MINIMIZER, JammingResult, JammingStep, jam
+from .jamming import DPHI, EPSILON, JAMMING_MINIMIZER, JammingResult, JammingStep, jam
 
 PRESSURE_RTOL = 1e-3
 """Default relative accuracy of the pressure reached."""
@@ -220,8 +220,8 @@ def jam_to_pressure(
     model: ContactModel,
     pressure: float,
     *,
-    dphi: float = 1e-3,
-    epsilon: float = 1e-6,
+    dphi: float = DPHI,
+    epsilon: float = EPSILON,
     rtol: float = PRESSURE_RTOL,
     minimizer: Minimizer | None = None,
     resume: Sequence[JammingStep] = (),
