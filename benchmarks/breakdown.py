@@ -15,10 +15,10 @@ median ratio); the issue's target is
 the compiled line search and with the Python one (an objective without ``took``), alternating in
 one process, and reports their time ratio (FIRE, which has no line search, is the control).
 
-    python benchmarks/breakdown.py                     # N = 4096 Case 1, alpha 2 (~30 s)
-    python benchmarks/breakdown.py --compare-search 5  # and the two line searches (~2 min)
-    python benchmarks/breakdown.py --name breakdown_before
-    python benchmarks/breakdown.py --tile 16 --maxiter 40 --methods L-BFGS P-L-BFGS FR-CG FIRE \
+    python -m benchmarks.breakdown                     # N = 4096 Case 1, alpha 2 (~30 s)
+    python -m benchmarks.breakdown --compare-search 5  # and the two line searches (~2 min)
+    python -m benchmarks.breakdown --name breakdown_before
+    python -m benchmarks.breakdown --tile 16 --maxiter 40 --methods L-BFGS P-L-BFGS FR-CG FIRE \
         --name breakdown_n1048576                      # scale.py's start at N = 1048576
 
 ``--tile K`` takes ``scale.py``'s start (the Table packing tiled K x K, Case 3's displacements,
@@ -26,6 +26,13 @@ Case 1's growth); ``--maxiter`` stops each run early (ms per iteration of its fi
 iterations).
 
 Results: ``benchmarks/results/<name>.md`` and ``.json``.
+
+A profiler of the minimizers' insides, this is the one benchmark that reaches into them: it
+wraps functions and methods of ``athermal.objective``, ``athermal.precon`` and
+``athermal.minimize.lbfgs`` / ``cg`` with ``unittest.mock.patch.object`` for the run (no public
+hook reports where an iteration's time goes) and uses the private names ``_Memory``,
+``_iterate`` and ``_rebuild``; ``benchmarks/README.md`` lists them. It follows those modules
+when they change.
 """
 
 from __future__ import annotations
@@ -46,9 +53,7 @@ from athermal.bench import make_case, reference_packing
 from athermal.contact import ContactModel
 from athermal.minimize import RTOL, Minimizer, relax
 from athermal.objective import Objective
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import ROOT, pin, save
+from benchmarks.machine import ROOT, pin, save
 
 # athermal.minimize is also a function name: the modules by import_module
 contact_module = import_module("athermal.contact")
@@ -126,10 +131,12 @@ def floors(start: Any, model: ContactModel, precons: set[str]) -> dict[str, floa
     nlist = obj.neighbor_list(x)
     grad = np.empty(obj.n_dof)
     pos = x.reshape(obj.n, obj.dim)
+    typeid = model.typeid(start.permuted(obj.order))  # the objective's, in its internal order
+    shifts = nlist.shifts(obj.cell)
 
     def kernel() -> None:
         contact_module.energy_gradient_contacts(
-            pos, obj.radii, obj._typeid, obj._shifts, nlist, model, grad.reshape(obj.n, obj.dim)
+            pos, obj.radii, typeid, shifts, nlist, model, grad.reshape(obj.n, obj.dim)
         )
 
     repeats = 200 if obj.n <= 65536 else 25  # a bare kernel call at 10^6 drifts by 20 %
@@ -341,7 +348,7 @@ def main(argv: list[str] | None = None) -> int:
     pin()
     model = ContactModel(args.alpha)
     if args.tile > 1:
-        from scale import start_packing
+        from benchmarks.scale import start_packing
 
         start = start_packing(args.alpha, args.tile)
         what = f"scale.py's start tiled {args.tile} x {args.tile}"

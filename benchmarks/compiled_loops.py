@@ -7,8 +7,8 @@ the Python loops (the objective's ``took`` hidden, so that the minimizers evalua
 point through ``Objective.__call__``), ``--repeats`` times each after a warm-up, in one process:
 the medians and the median of the per-pair time ratios, and the iterations, which must agree.
 
-    python benchmarks/compiled_loops.py                      # N = 1024, realizations 0-2 (~3 min)
-    python benchmarks/compiled_loops.py --n 4096 --realizations 0 --repeats 1
+    python -m benchmarks.compiled_loops                      # N = 1024, realizations 0-2 (~3 min)
+    python -m benchmarks.compiled_loops --n 4096 --realizations 0 --repeats 1
 
 Results: ``benchmarks/results/compiled_loops_n<N>.md`` and ``.json``.
 """
@@ -24,9 +24,7 @@ from typing import Any
 
 from athermal.experiments import JamSpec, child_seeds, jam_packing
 from athermal.objective import Objective
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import ROOT, pin, save
+from benchmarks.machine import ROOT, pin, save
 
 
 def jam_both_ways(spec: JamSpec, seed: int, repeats: int) -> dict[str, Any]:

@@ -17,13 +17,12 @@ not converge within :data:`MAXITER`), their power law in Delta phi, and the rati
 The modes here come from a dense eigendecomposition (seconds at N = 1024, out of reach at N =
 10^5): the table measures what deflation buys in iterations, not a method.
 
-    python benchmarks/deflation.py --n 1024 --seeds 10
+    python -m benchmarks.deflation --n 1024 --seeds 10
 """
 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,10 +36,8 @@ from athermal.minimize import minimize
 from athermal.objective import Objective
 from athermal.precon import ExpPreconditioner
 from athermal.protocols._relax import force_tolerance
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import save
-from spectrum import DELTA_PHIS, MODEL, ZERO, arguments, compressed_states, hessian
+from benchmarks.machine import save
+from benchmarks.spectrum import DELTA_PHIS, MODEL, ZERO, arguments, compressed_states, hessian
 
 MODES = (0, 10, 40, 100)
 """Numbers ``k`` of soft modes deflated."""

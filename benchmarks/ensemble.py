@@ -5,8 +5,8 @@ epsilon = 1e-6, P-L-BFGS), root seed 0, run twice into fresh directories: on a l
 1 worker process, then 2. Reports both wall times, their ratio (ideal 0.5 on a 2-core machine),
 whether the realizations are identical, and phi_c's mean, standard deviation and standard error.
 
-    python benchmarks/ensemble.py              # M = 8, N = 1024 (about 10 minutes)
-    python benchmarks/ensemble.py --m 4 --n 256
+    python -m benchmarks.ensemble              # M = 8, N = 1024 (about 10 minutes)
+    python -m benchmarks.ensemble --m 4 --n 256
 
 Results: ``benchmarks/results/ensemble.md`` and ``.json``.
 """
@@ -22,11 +22,7 @@ from typing import Any
 
 from athermal.ensemble import EnsembleSpec, run_ensemble
 from athermal.experiments import JamSpec
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import save
-
-ROOT = Path(__file__).resolve().parent.parent
+from benchmarks.machine import ROOT, save
 
 
 def timeless(record: dict[str, Any]) -> dict[str, Any]:

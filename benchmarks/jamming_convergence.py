@@ -11,7 +11,7 @@ how many runs reopened their bracket, passed every check, and the run times.
 Run from the repository root (each worker pinned to its own core; every finished run is kept in
 ``runs.jsonl`` of the output directory, so an interrupted study continues where it stopped)::
 
-    python benchmarks/jamming_convergence.py --n 256 1024 --starts 16 --workers 2
+    python -m benchmarks.jamming_convergence --n 256 1024 --starts 16 --workers 2
 
 Results: ``benchmarks/results/jamming_convergence.md`` and ``.json``.
 """
@@ -23,7 +23,6 @@ import itertools
 import json
 import multiprocessing
 import os
-import sys
 import warnings
 from pathlib import Path
 from typing import Any
@@ -34,11 +33,8 @@ from athermal.atomic import write_text
 from athermal.errors import ConvergenceError
 from athermal.experiments import JamSpec, jam_packing
 from athermal.protocols import JAM_PROTOCOLS
+from benchmarks.machine import ROOT, pin, save
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-
-ROOT = Path(__file__).resolve().parent.parent
 ROUND_OFF = 1e-12
 """Slack on the bracket bounds when nesting is checked (packing fraction)."""
 
@@ -118,7 +114,7 @@ def report(runs: list[dict[str, Any]], epsilons: list[float]) -> str:
                 continue
             nested, pairs, largest = nesting(group)
             phis = np.array([r["phi_c"] for r in group if r["epsilon"] == finest])
-            starts = len({r["seed"] for r in group})
+            starts = phis.size
             times = []
             for e in epsilons:
                 t = np.array([r["seconds"] for r in group if r["epsilon"] == e])

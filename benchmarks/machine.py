@@ -1,7 +1,7 @@
 """What every results file of ``benchmarks/`` records, and how it is written: once, here.
 
-The scripts import it as ``from machine import ...`` (``benchmarks/`` is ``sys.path[0]`` when a
-script runs as ``python benchmarks/NAME.py``; each script also puts it there itself).
+The scripts import it as ``from benchmarks.machine import ...``; they run as modules of the
+``benchmarks`` package from the repository root (``python -m benchmarks.NAME``).
 
 - :func:`pin` pins the run to one core (the machines are shared: one core, less noise);
 - :func:`describe` is the run's machine: date (UTC), commit, CPU model, cores, pinned cores and

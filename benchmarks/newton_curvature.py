@@ -13,8 +13,8 @@ starts. Iterations, evaluations, CG iterations, factorizations and seconds per s
 N = 1024 packings compressed to each Delta phi, relaxed by L-BFGS (the default), P-L-BFGS and
 Newton-CG: seconds and iterations per run.
 
-    python benchmarks/newton_curvature.py --core 1 ab --n 4096 --seeds 4
-    python benchmarks/newton_curvature.py --core 1 shear --n 1024 --seeds 3
+    python -m benchmarks.newton_curvature --core 1 ab --n 4096 --seeds 4
+    python -m benchmarks.newton_curvature --core 1 shear --n 1024 --seeds 3
 """
 
 from __future__ import annotations
@@ -23,26 +23,32 @@ import argparse
 import statistics
 import sys
 import time
+import warnings
 from collections.abc import Iterator
+from contextlib import nullcontext
+from importlib import import_module
 from pathlib import Path
 from typing import Any
+from unittest import mock
+
+import numpy as np
+from numpy.typing import NDArray
 
 from athermal.cell import simple_shear
 from athermal.contact import ContactModel
 from athermal.experiments import JamSpec, child_seeds, compression_steps
 from athermal.minimize import Minimizer
-from athermal.objective import Objective
+from athermal.moduli import nonaffine_displacement
+from athermal.objective import MAX_STEP_FACTOR, Objective
 from athermal.packing import Packing
 from athermal.protocols import CompressionStep, shear_steps
 from athermal.protocols._relax import Relaxer, force_tolerance
-from athermal.protocols.finite_strain import _linear_start
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-from protocols import EPSILON, GROWTH, RESULTS, jammed
+from benchmarks.machine import pin, save
+from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
 
 OUTPUT = RESULTS / "negative_curvature"
-NEWTON = sys.modules["athermal.minimize.newton"]
+# the module, not the function athermal.minimize.newton that the package exports
+NEWTON = import_module("athermal.minimize.newton")
 SHEAR_METHODS = (Minimizer("lbfgs"), Minimizer("lbfgs", "exp"), Minimizer("newton"))
 
 
@@ -50,20 +56,44 @@ def log(text: str) -> None:
     print(text, file=sys.stderr, flush=True)
 
 
+def linear_start(
+    relaxed: Packing, deformation: NDArray[np.float64], model: ContactModel
+) -> Packing:
+    """``relaxed`` deformed affinely by ``deformation`` ``(d, d)`` and moved by the
+    linear-response displacement (:func:`athermal.moduli.nonaffine_displacement`); the affine
+    start alone where that displacement is not finite or moves a particle more than
+    ``MAX_STEP_FACTOR`` mean radii. The same start as ``finite_strain_shear(start="linear")``."""
+    deformed = relaxed.deform(deformation)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # a poor solve is caught below
+        u = nonaffine_displacement(relaxed, model, deformation - np.eye(relaxed.dim))
+    longest = float(np.sqrt(np.max(np.einsum("ij,ij->i", u, u)))) if u.size else 0.0
+    if not np.isfinite(longest) or longest > MAX_STEP_FACTOR * float(np.mean(relaxed.radii)):
+        return deformed
+    return deformed.with_positions(deformed.positions + u)
+
+
+def stay(
+    problem: Any, x: NDArray[np.float64], energy: float, grad: NDArray[np.float64], *_: Any
+) -> tuple[NDArray[np.float64], float, NDArray[np.float64]]:
+    """``follow_negative_curvature`` that does not move: Newton-CG before it followed."""
+    return x, energy, grad
+
+
 def relax_step(
     start: Packing, model: ContactModel, gtol: float, follow: bool
 ) -> tuple[Packing, dict[str, float]]:
-    """Relax one step start with Newton-CG, following negative curvature or not."""
-    original = NEWTON.follow_negative_curvature
-    if not follow:
-        NEWTON.follow_negative_curvature = lambda problem, x, energy, grad, d, n: (x, energy, grad)
-    try:
+    """Relax one step start with Newton-CG, following negative curvature or not.
+
+    Newton has no switch for it (the A/B of an algorithm's part is no user's need), so
+    ``plain`` patches :func:`athermal.minimize.newton.follow_negative_curvature` for the call.
+    """
+    plain = mock.patch.object(NEWTON, "follow_negative_curvature", stay)
+    with nullcontext() if follow else plain:
         objective = Objective(start, model)
         t0 = time.perf_counter()
         result = Relaxer(objective, Minimizer("newton")).relax(objective.x0, gtol=gtol)
         seconds = time.perf_counter() - t0
-    finally:
-        NEWTON.follow_negative_curvature = original
     return result.packing, {
         "iterations": result.iterations,
         "evaluations": result.evaluations,
@@ -89,7 +119,7 @@ def run_ab(args: argparse.Namespace) -> None:
         current = state.packing
         for step in range(args.steps):
             shear = simple_shear(1e-6, 2)
-            start = _linear_start(current, current.deform(shear), shear, spec.model)
+            start = linear_start(current, shear, spec.model)
             gtol = force_tolerance(start, spec.model, 1e-9)
             row: dict[str, Any] = {"realization": k, "delta_phi": state.delta_phi}
             row["step"] = step

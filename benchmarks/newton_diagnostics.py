@@ -13,7 +13,7 @@ For a jammed packing of the iteration experiment (``--cache``) compressed to eac
    Newton-CG and P-L-BFGS: iterations and wall milliseconds per step (the prediction's solve
    included), and G.
 
-    python benchmarks/newton_diagnostics.py --n 1024 --seed-index 0
+    python -m benchmarks.newton_diagnostics --n 1024 --seed-index 0
 """
 
 from __future__ import annotations
@@ -32,10 +32,8 @@ from athermal.packing import Packing
 from athermal.protocols import finite_strain_shear
 from athermal.protocols._relax import force_tolerance
 from athermal.protocols.finite_strain import DEFAULT_STRAINS
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-from protocols import EPSILON, GROWTH, RESULTS, jammed
+from benchmarks.machine import pin, save
+from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
 
 DELTA_PHIS = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 GAMMAS = (1e-6, 1e-8)

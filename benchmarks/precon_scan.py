@@ -8,8 +8,8 @@ the memory, and the contact-stiffness preconditioner with its Exp stabilization 
 Iteration counts are deterministic; the ratio is against plain L-BFGS with the same memory.
 Seconds are one run each (noisy: compare evaluations).
 
-    python benchmarks/precon_scan.py            # about 5 minutes
-    python benchmarks/precon_scan.py --quick    # Case 1, alpha 2, four variants
+    python -m benchmarks.precon_scan            # about 5 minutes
+    python -m benchmarks.precon_scan --quick    # Case 1, alpha 2, four variants
 
 Results: ``benchmarks/results/precon_scan.md`` and ``.json``.
 """
@@ -30,11 +30,7 @@ from athermal.minimize import lbfgs
 from athermal.objective import Objective
 from athermal.packing import Packing
 from athermal.precon import R_CUT_FACTOR, SINE_AMPLITUDE, ContactPreconditioner, ExpPreconditioner
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-
-ROOT = Path(__file__).resolve().parent.parent
+from benchmarks.machine import ROOT, pin, save
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@ packings at 7 pressures 1e-7 ... 1e-1, and at each Delta phi = phi - phi_c, z - 
 moduli by linear response, the vibrational spectrum (zero and negative modes, omega*) and the
 force network; pooled fits of the scaling laws and the D(omega) figure of three pressures.
 
-    python benchmarks/pressures.py --core 0 --n 1024 --seeds 5
+    python -m benchmarks.pressures --core 0 --n 1024 --seeds 5
 
 2D, alpha = 2, pressures 1e-7 ... 1e-1 and 5e-2, jammed to epsilon = 1e-8 (so that Delta phi
 at p = 1e-7, ~3e-7, is 30 epsilon away) by the jamming protocol's defaults; each pressure is
@@ -30,9 +30,7 @@ from athermal.forces import force_statistics
 from athermal.modes import plateau_frequency, vibrational_modes
 from athermal.moduli import linear_response
 from athermal.protocols import isostatic_z, pressure_search
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
+from benchmarks.machine import pin, save
 
 RESULTS = Path(__file__).resolve().parent / "results" / "pressure"
 PRESSURES = tuple(sorted([float(p) for p in np.logspace(-7, -1, 7)] + [5e-2]))

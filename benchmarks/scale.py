@@ -17,10 +17,10 @@ builds, the setup time (tiling + Objective), and the exponent b of iterations ~ 
 in log-log over the N that converged), checked against the issue's targets (P-L-BFGS: b <= 0.25
 from 4096 to 10^6; <= 0.5 s per iteration and <= 4 GB at 10^6 on one core).
 
-    python benchmarks/scale.py              # k = 1 4 8 16, all methods (about 1 hour 50
+    python -m benchmarks.scale              # k = 1 4 8 16, all methods (about 1 hour 50
                                             # minutes; the N = 10^6 rows take 13-30 each)
-    python benchmarks/scale.py --quick      # smoke test: k = 1 and 4 (about 3 minutes)
-    python benchmarks/scale.py --limit 16 amg 600 --reuse old.json   # one row capped at 600
+    python -m benchmarks.scale --quick      # smoke test: k = 1 and 4 (about 3 minutes)
+    python -m benchmarks.scale --limit 16 amg 600 --reuse old.json   # one row capped at 600
                                             # iterations; rows already in old.json not rerun
 
 Results: ``benchmarks/results/scale.md`` and ``scale.json`` (rewritten after every row).
@@ -48,11 +48,8 @@ from athermal.minimize import RTOL, Minimizer, minimize
 from athermal.objective import Objective
 from athermal.packing import Packing
 from athermal.precon import make_preconditioner
+from benchmarks.machine import ROOT, pin, save
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-
-ROOT = Path(__file__).resolve().parent.parent
 METHODS = {
     "lbfgs": Minimizer("lbfgs"),
     "direct": Minimizer("lbfgs", "exp", solver="direct"),
@@ -144,9 +141,13 @@ def run_one(k: int, key: str, alpha: float, maxiter: int) -> dict[str, Any]:
 
 def child(k: int, key: str, alpha: float, maxiter: int) -> dict[str, Any]:
     """Run ``--one k key`` in a fresh interpreter (same core) and return its JSON row."""
-    cmd = [sys.executable, __file__, "--one", str(k), key, "--alpha", f"{alpha!r}"]
+    cmd = [sys.executable, "-m", "benchmarks.scale", "--one", str(k), key, "--alpha", f"{alpha!r}"]
     proc = subprocess.run(
-        [*cmd, "--maxiter", str(maxiter)], stdout=subprocess.PIPE, text=True, check=False
+        [*cmd, "--maxiter", str(maxiter)],
+        stdout=subprocess.PIPE,
+        text=True,
+        check=False,
+        cwd=ROOT,  # where the benchmarks package is
     )
     lines = proc.stdout.strip().splitlines()
     if proc.returncode != 0 or not lines:

@@ -24,7 +24,7 @@ A state a compression step left unjammed (its ``"unjammed"`` event,
 :func:`athermal.protocols.compress.is_unjammed`) is reported and left out, as is a step that
 ends unjammed.
 
-    python benchmarks/spectrum.py --n 1024 --seeds 10
+    python -m benchmarks.spectrum --n 1024 --seeds 10
 """
 
 from __future__ import annotations
@@ -54,11 +54,9 @@ from athermal.packing import Packing
 from athermal.precon import ContactPreconditioner, ExpPreconditioner
 from athermal.protocols._relax import force_tolerance
 from athermal.protocols.compress import CompressionStep
-
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-from newton_diagnostics import pair_set
-from protocols import EPSILON, GROWTH, RESULTS, jammed
+from benchmarks.machine import pin, save
+from benchmarks.newton_diagnostics import pair_set
+from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
 
 MODEL = ContactModel(2.0)
 """The contact law of the packings (harmonic)."""

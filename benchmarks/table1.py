@@ -6,11 +6,11 @@ adds what a results file needs: the machine, the commit, one pinned core and ato
 
 Run from the repository root::
 
-    python benchmarks/table1.py            # full table, median of 3 (10-20 minutes)
-    python benchmarks/table1.py --lammps   # the same, with LAMMPS min cg rows from the same run
-    python benchmarks/table1.py --quick    # smoke test: case 3, alpha 2, three methods, 1 repeat
+    python -m benchmarks.table1            # full table, median of 3 (10-20 minutes)
+    python -m benchmarks.table1 --lammps   # the same, with LAMMPS min cg rows from the same run
+    python -m benchmarks.table1 --quick    # smoke test: case 3, alpha 2, three methods, 1 repeat
 
-``--lammps`` needs LAMMPS (``python benchmarks/lammps_cg.py --install``); it adds a row
+``--lammps`` needs LAMMPS (``python -m benchmarks.lammps_cg --install``); it adds a row
 "LAMMPS min cg" per case (:func:`lammps_cg.run_case`, same criterion) and a comparison:
 athermal's fastest method against LAMMPS, and P-L-BFGS against L-BFGS, in wall time.
 
@@ -36,11 +36,8 @@ from athermal.bench import (
     reference_packing,
     table1,
 )
+from benchmarks.machine import ROOT, pin, save
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import pin, save
-
-ROOT = Path(__file__).resolve().parent.parent
 META = {
     "criterion": f"max_i |grad_i| <= {RTOL:g} F0 (F0: mean contact force at the start)",
     "timing": "median wall time of the repeats; iterations/evaluations of the first",
@@ -62,7 +59,7 @@ LAMMPS = "LAMMPS min cg"
 
 def lammps_rows(cases: list[int], alphas: list[float], repeats: int) -> list[Row]:
     """One LAMMPS ``min cg`` row per case (:mod:`lammps_cg`)."""
-    import lammps_cg
+    from benchmarks import lammps_cg
 
     if lammps_cg.load_lammps() is None:
         raise SystemExit(lammps_cg.HOW_TO_INSTALL)

@@ -505,6 +505,14 @@ def test_a_misspelt_option_is_named_before_a_missing_required_one(capsys):
         main(["jam", "--n", "64"])
     err = capsys.readouterr().err
     assert stop.value.code == 2 and "required: -o/--output" in err
+    for argv, required in (
+        (["jam", "--help"], "-o OUTPUT"),
+        (["ensemble", "jam", "-h"], "-o OUTPUT"),
+    ):
+        with pytest.raises(SystemExit) as stop:  # the usage shows a required option as such
+            main(argv)
+        usage = " ".join(capsys.readouterr().out.split())
+        assert stop.value.code == 0 and required in usage and f"[{required}]" not in usage
 
 
 def test_ensemble_with_an_unreachable_scheduler_leaves_nothing_behind(

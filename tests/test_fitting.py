@@ -100,6 +100,17 @@ def test_scaling_fits_use_the_protocols_delta_phi_and_say_which_points():
     assert fits.left_basin is None
 
 
+def test_rows_without_a_particle_count_and_fits_at_one_x_are_refused():
+    from athermal.protocols.compress import fit_points
+
+    row = _step(1e-3, 3e-4, 1e-2, 0.1).row()
+    del row["n"]
+    with pytest.raises(InputError, match="particle count"):
+        fit_points([row], "pressure")
+    with pytest.raises(InputError, match="distinct"):
+        fit_power_law([1e-3, 1e-3, 1e-3], [1.0, 2.0, 3.0])
+
+
 def test_pooled_fits_of_an_ensemble_leave_out_unjammed_steps():
     """The ensemble's pooled fit takes each row as the realizations' own fits do: a step that
     unjammed (all rattlers, a pressure of round-off) is no data point of ``p ~ Delta phi``, nor

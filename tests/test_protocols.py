@@ -85,6 +85,22 @@ def test_a_smaller_epsilon_refines_the_bracket_of_a_larger_one(protocol):
     assert nested >= 2
 
 
+def test_a_jammed_trial_balances_its_forces_to_its_own_mean_contact_force():
+    """The verdict's force rule: every jammed trial is relaxed to rtol (1e-6) of its own mean
+    contact force (or the round-off floor), not of the forces it started from."""
+    from athermal.protocols.jamming import TRIAL_RTOL
+
+    model = ContactModel(2.0)
+    steps = list(jamming_steps(random_packing(64, 0.8, seed=2), model, epsilon=1e-6))
+    trials = [s for s in steps if s.jammed and s.phase != "final"]
+    assert trials
+    for s in trials:
+        objective = Objective(s.packing, model)
+        gradient = objective(objective.x0)[1].reshape(-1, 2)
+        largest = float(np.sqrt((gradient**2).sum(axis=1)).max())
+        assert largest <= force_tolerance(s.packing, model, TRIAL_RTOL) * (1 + 1e-9)
+
+
 def test_epsilon_below_the_verdicts_resolution_is_refused():
     with pytest.raises(InputError, match="epsilon"):
         next(jamming_steps(random_packing(64, 0.8, seed=3), ContactModel(2.0), epsilon=1e-10))

@@ -296,18 +296,13 @@ def _stats(values: list[float]) -> dict[str, float]:
     return {"mean": mean, "sd": sd, "stderr": sd / np.sqrt(n) if n else float("nan"), "n": n}
 
 
-SUMMARY_FIT_LOWER = 1e-6
-"""The pooled fits of the summary use every realization's steps with ``Delta phi`` at least
-this (as :func:`~athermal.protocols.scaling_exponents`)."""
-
-
 def pooled_exponent(records: list[CompressionRecord], column: str) -> dict[str, Any] | None:
     """The power law of ``column`` (``"pressure"``, ``"shear_modulus"``, ``"z_excess"``) against
     ``Delta phi`` fitted to all ``records``' rows pooled
     (:func:`~athermal.protocols.compress.pooled_fit`): its exponent, standard error, the number
     of points and their ``Delta phi`` range; None with too few points."""
     try:
-        pooled = pooled_fit((c.rows for c in records), column, SUMMARY_FIT_LOWER)
+        pooled = pooled_fit((c.rows for c in records), column)
     except InputError:
         return None
     return {

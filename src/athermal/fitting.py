@@ -43,10 +43,10 @@ def fit_power_law(
     xs = float_array(x, "x", (None,))
     ys = float_array(y, "y", (xs.size,))
     keep = (xs >= lower) & (xs <= upper) & (xs > 0.0) & (ys > 0.0)
-    if int(keep.sum()) < 3:
+    if int(keep.sum()) < 3 or np.unique(xs[keep]).size < 2:
         raise InputError(
             f"fit_power_law: need at least 3 points with x in [{lower:g}, {upper:g}] and "
-            f"x, y > 0; got {int(keep.sum())}"
+            f"x, y > 0, at 2 or more distinct x; got {int(keep.sum())}"
         )
     lx, ly = np.log(xs[keep]), np.log(ys[keep])
     design = np.column_stack([lx, np.ones_like(lx)])

@@ -53,7 +53,13 @@ from .experiments import (
 from .fitting import PowerLaw
 from .minimize import RTOL
 from .protocols import EPSILON
-from .protocols.compress import FIT_LAWS, pooled_fit
+from .protocols.compress import (
+    FINITE_SIZE,
+    FIT_LAWS,
+    RESOLVED_CONTACTS,
+    fit_reasons,
+    pooled_fit,
+)
 
 SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
 """The exponents the seed reports (approximately) for alpha = 2 and 2.5."""
@@ -194,11 +200,12 @@ def reproduce(
     series: dict[str, dict[str, list[float]]] = {key: {} for key in QUANTITIES}
     dphis: dict[str, list[float]] = {}
     fits: dict[str, dict[str, PowerLaw | None]] = {key: {} for key in QUANTITIES}
+    used: dict[str, dict[str, list[bool]]] = {key: {} for key in QUANTITIES}
     references: dict[str, dict[str, float]] = {key: {} for key in QUANTITIES}
     compress_spec = CompressSpec(per_decade=settings.per_decade)
     # the scaling laws pooled over packings, as the seed's figures average realizations: one
-    # packing of N = 1024 resolves z - z_iso over two decades, where single packings' exponents
-    # scatter by 0.03 (docs/jamming.md)
+    # packing of N = 1024 resolves z - z_iso over three decades, where single packings'
+    # exponents scatter by 0.02-0.03 (docs/jamming.md)
     starts = [(jammed.packing, phi_c)]
     for k, extra in enumerate(seeds[1 + settings.realizations :]):
         say(f"jamming packing {k + 2} of {settings.scaling_packings} for the scaling laws")
@@ -225,21 +232,26 @@ def reproduce(
         exponents[f"{alpha:g}"] = {}
         for key, column in zip(QUANTITIES, FIT_LAWS, strict=True):
             references[key][label] = SEED_EXPONENTS[key][alpha]
+            used[key][label] = [
+                why is None
+                for rows in step_rows
+                for why in fit_reasons(rows, column, compress_spec.fit_lower)
+            ]
             try:
                 fit: PowerLaw | None = pooled_fit(step_rows, column, compress_spec.fit_lower)
             except InputError:
                 fit = None
             fits[key][label] = fit
-            if fit is None:
-                warnings_.append(
-                    f"alpha = {alpha:g}: no fit of {QUANTITIES[key][1]} (fewer than 3 usable "
-                    f"points with Delta phi >= {compress_spec.fit_lower:g})"
-                )
-                continue
             left_out: dict[str, int] = {}
             for one in pooled:
                 for why, count in one.fits.left_out[column].items():
                     left_out[why] = left_out.get(why, 0) + count
+            if fit is None:
+                warnings_.append(
+                    f"alpha = {alpha:g}: no fit of {QUANTITIES[key][1]} (fewer than 3 points "
+                    f"left; left out: {left_out})"
+                )
+                continue
             single = [f.exponent for one in pooled if (f := getattr(one.fits, column)) is not None]
             exponents[f"{alpha:g}"][key] = {
                 "exponent": fit.exponent,
@@ -273,15 +285,16 @@ def reproduce(
                 title=f"N = {settings.n}, 2D",
                 reference_slopes=references[key],
                 phi_c_note=f"{len(starts)} packing(s), each from its own $\\phi_c$",
+                used=used[key],
             ),
             f"The {what} against phi - phi_c of {len(starts)} packing(s), each from the phi_c of "
             "its own jamming protocol (not fitted), for alpha = 2 and 2.5, the fits to their "
-            "points pooled. Filled markers lie in the fitted range, open "
-            "ones outside it: the fits take Delta phi >= "
-            f"{compress_spec.fit_lower:g}, p and G where Delta phi N^2 >= 1 (a finite packing's "
-            "scaling regime), z - z_iso where it counts at least 10 contacts, and no step from "
-            "the first unjammed one on (the report lists what each fit left out); solid lines "
-            "are the fits, dotted ones the seed's slopes.",
+            "points pooled. Filled markers are the fitted points, open ones were left out: the "
+            f"fits take Delta phi >= {compress_spec.fit_lower:g}, p and G where Delta phi N^2 >= "
+            f"{FINITE_SIZE:g} (a finite packing's scaling regime), z - z_iso where it counts at "
+            f"least {RESOLVED_CONTACTS} contacts, and no step from the first unjammed one on (the "
+            "report lists what each fit left out); solid lines are the fits, dotted ones the "
+            "seed's slopes.",
         )
 
     say("iteration experiment")

@@ -289,13 +289,17 @@ def _loglog(
     fit: PowerLaw | None,
     label: str,
     reference: float | None,
+    used: Sequence[bool] | None = None,
 ) -> None:
-    """Points (filled where fitted, open outside the fit's range), the fit over its range with
-    its window shaded, and (``reference``) a dotted line of that slope a factor 2 below the
-    middle fitted point."""
+    """Points (filled where ``used`` by the fit, default: inside the fit's range; open
+    otherwise), the fit over its range with its window shaded, and (``reference``) a dotted line
+    of that slope a factor 2 below the middle fitted point."""
     xs, ys = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
     ok = (xs > 0) & (ys > 0)
-    inside = ok if fit is None else ok & (xs >= fit.x_min) & (xs <= fit.x_max)
+    if used is not None:
+        inside = ok & np.asarray(used, dtype=bool)
+    else:
+        inside = ok if fit is None else ok & (xs >= fit.x_min) & (xs <= fit.x_max)
     (line,) = ax.loglog(xs[inside], ys[inside], "o", markersize=3, label=label)
     color = line.get_color()
     ax.loglog(xs[ok & ~inside], ys[ok & ~inside], "o", markersize=3, mfc="none", color=color)
@@ -338,16 +342,21 @@ def scaling_figure(
     title: str = "",
     reference_slopes: Mapping[str, float] | None = None,
     phi_c_note: str | None = None,
+    used: Mapping[str, Sequence[bool]] | None = None,
 ) -> Figure:
     """``values[label]`` against ``delta_phi[label]`` on log-log axes, one series per label
-    (e.g. ``alpha = 2``): fitted points filled, the others open, the fit over its (shaded)
-    window, and a grey dotted line of slope ``reference_slopes[label]`` (the expected
-    exponent) where given. ``ylabel`` should carry units; ``phi_c_note`` explains phi_c."""
+    (e.g. ``alpha = 2``): fitted points filled (those ``used[label]`` marks, default: those in
+    the fit's range), the others open, the fit over its (shaded) window, and a grey dotted line
+    of slope ``reference_slopes[label]`` (the expected exponent) where given. ``ylabel`` should
+    carry units; ``phi_c_note`` explains phi_c."""
     fig = _figure(6.4, 4.8)
     ax = fig.add_subplot()
     slopes = reference_slopes or {}
     for label in values:
-        _loglog(ax, delta_phi[label], values[label], fits.get(label), label, slopes.get(label))
+        mask = None if used is None else used.get(label)
+        _loglog(
+            ax, delta_phi[label], values[label], fits.get(label), label, slopes.get(label), mask
+        )
     note = r"$\phi_c$ of the jamming protocol" if phi_c_note is None else phi_c_note
     ax.set_xlabel(r"$\phi - \phi_c$" + (f" ({note})" if note else ""))
     ax.set_ylabel(ylabel)

@@ -55,11 +55,15 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
 
     argparse stops at a missing required argument before it names the unknown ones, so a
     misspelt ``--ouput`` would read as "-o required": a first pass with nothing required
-    collects the unknown options, the second one parses with every rule.
+    collects the unknown options, the second one parses with every rule. A request for help
+    skips the first pass, so that the usage shows the required options as required.
     """
     parser = build()
+    words = sys.argv[1:] if argv is None else list(argv)
+    if "-h" in words or "--help" in words:
+        return parser.parse_args(words)
     with _nothing_required(parser):
-        args, unknown = parser.parse_known_args(argv)
+        args, unknown = parser.parse_known_args(words)
     if unknown:
         where = parser if args.command is None else subparser(parser, args.command)
         where.error(f"unrecognized arguments: {' '.join(unknown)}")

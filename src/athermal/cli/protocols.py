@@ -171,8 +171,7 @@ def jam(args: argparse.Namespace) -> None:
     result = jam_packing(spec, args.seed, resume=done, on_step=record)
     record.close()
     obs, check, final = result.observables, result.check, result.packing
-    jammed = result.observables
-    # the jamming check belongs to the jammed packing at phi_c, whatever packing is written
+    jammed = obs  # the jamming check belongs to the jammed packing, whatever packing is written
     jamming_check = {
         "phi": jammed.phi,
         "energy": jammed.energy,
@@ -354,7 +353,6 @@ def compress(args: argparse.Namespace) -> None:
             "stderr": fit.stderr,
             "points": fit.points,
             "delta_phi_range": [fit.x_min, fit.x_max],
-            "left_out": fits.left_out[name],
         }
         for name, fit in laws.items()
     }
@@ -365,6 +363,7 @@ def compress(args: argparse.Namespace) -> None:
             "phi_c": fits.phi_c,
             "phi_c_fitted": fits.phi_c_fitted if np.isfinite(fits.phi_c_fitted) else None,
             "events": fits.events,
+            "left_out": fits.left_out,
             "left_basin_at_delta_phi": fits.left_basin,
             "frame": index,
             "steps": len(steps),

@@ -61,11 +61,18 @@ class Relaxer:
         self.precon = make_preconditioner(name, objective, A=minimizer.A, solver=minimizer.solver)
 
     def relax(
-        self, x: NDArray[np.float64], *, gtol: float, etol: float = 0.0, what: str = "step"
+        self,
+        x: NDArray[np.float64],
+        *,
+        gtol: float,
+        etol: float = 0.0,
+        what: str = "step",
+        maxiter: int | None = None,
     ) -> MinimizeResult:
         """Minimize from ``x`` ``(N d,)`` (internal order) to ``max_i |grad_i| <= gtol`` or
-        energy ``<= etol``; raises :class:`ConvergenceError` naming ``what`` otherwise."""
-        maxiter = self.minimizer.maxiter
+        energy ``<= etol`` within ``maxiter`` iterations (default the minimizer's); raises
+        :class:`ConvergenceError` naming ``what`` otherwise."""
+        maxiter = self.minimizer.maxiter if maxiter is None else maxiter
         patience = NEWTON_PATIENCE if self.method == "newton" else maxiter
         result = minimize(
             self.objective,
@@ -78,9 +85,9 @@ class Relaxer:
         )
         if result.status is Status.ITERATION_LIMIT and patience < maxiter:
             exp = make_preconditioner("exp", self.objective, solver=self.minimizer.solver)
-            result = self._go_on(result, "lbfgs", "P-L-BFGS", exp, gtol, etol)
+            result = self._go_on(result, "lbfgs", "P-L-BFGS", exp, gtol, etol, maxiter)
         if result.status is Status.LINE_SEARCH_FAILED:
-            result = self._go_on(result, "fire", "FIRE", self.precon, gtol, etol)
+            result = self._go_on(result, "fire", "FIRE", self.precon, gtol, etol, maxiter)
         if not result.converged:
             raise ConvergenceError(
                 f"{what}: {self.minimizer.label} did not converge ({result.message}; "
@@ -161,6 +168,7 @@ class Relaxer:
         precon: Preconditioner | None,
         gtol: float,
         etol: float,
+        maxiter: int,
     ) -> MinimizeResult:
         """Relax on from where ``first`` stopped by ``method`` (called ``label`` in the message)
         with ``precon``, within what is left of ``maxiter``; the result counts both."""
@@ -171,7 +179,7 @@ class Relaxer:
             precon=precon if precon is not None else "none",
             gtol=gtol,
             etol=etol,
-            maxiter=max(1, self.minimizer.maxiter - first.iterations),
+            maxiter=max(1, maxiter - first.iterations),
         )
         return replace(
             rest,
@@ -223,11 +231,6 @@ def force_tolerance(packing: Packing, model: ContactModel, rtol: float) -> float
     contacts = find_contacts(packing, model)
     mean = float(contacts.force_magnitude.mean()) if contacts.i.size else 0.0
     return max(rtol * mean, round_off_floor(contacts, packing.cell))
-
-
-def force_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
-    """``k_max <r>^(alpha-1)``: the force of an overlap of one mean radius (force units)."""
-    return float(model.kmat.max()) * float(np.mean(radii)) ** (model.alpha - 1.0)
 
 
 def energy_scale(radii: NDArray[np.float64], model: ContactModel) -> float:

@@ -34,7 +34,7 @@ from ..objective import Objective
 from ..observables import Observables, isostatic_contacts, measure
 from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
-from .jamming import overlap_distance
+from .jamming import EPSILON, overlap_distance
 
 EVENTS = ("unjammed", "pressure drop", "saddle left", "unstable to shear")
 """What a compression step reports when it happens (``CompressionStep.events``): no load borne
@@ -61,7 +61,7 @@ UNJAMMED_DROP = 1e-3
 factor :data:`UNJAMMED_FORCE` is capped at ``UNJAMMED_DROP / rtol``: an unjammed step's forces
 must also have fallen this far below those it started from (``rtol`` = 1e-3: to the tolerance
 itself)."""
-FIT_LOWER = 1e-6
+FIT_LOWER = EPSILON
 """Smallest ``Delta phi`` fitted by default: the jamming protocol's default ``epsilon``, below
 which ``Delta phi`` is not known to better than itself."""
 RESOLVED_CONTACTS = 10
@@ -332,11 +332,17 @@ def left_out(row: Mapping[str, Any], column: str, lower: float, upper: float) ->
     ``column`` (one of :data:`FIT_LAWS`) over ``[lower, upper]``, or None when it is one.
 
     Left out: a ``Delta phi`` outside the window; an unjammed step (whatever pressure its
-    round-off contacts leave: 6e-15 measured with one contact of N = 48 on an AMD EPYC, exactly 0
-    on an Intel Xeon); a negative ``G`` (unstable to shear); ``z - z_iso`` of fewer than
+    round-off contacts leave); a negative ``G`` (unstable to shear); ``z - z_iso`` of fewer than
     :data:`RESOLVED_CONTACTS` contacts; ``p`` and ``G`` with ``Delta phi N^2`` below
-    :data:`FINITE_SIZE`; a value that is not positive.
+    :data:`FINITE_SIZE`; a value that is not positive. A step with a pressure drop stays: the
+    packing rearranged but bears its load, and its ``Delta phi`` is still measured from the
+    jamming point it came from (the event says so).
     """
+    if "n" not in row:
+        raise InputError(
+            "rows: a compression step without its particle count 'n' (written before the fits "
+            "had finite-size rules): add the packing's N to each row"
+        )
     dphi, value = float(row["delta_phi"]), float(row[column])
     events = str(row["events"]).split(";")
     if not lower <= dphi <= upper:
@@ -355,21 +361,34 @@ def left_out(row: Mapping[str, Any], column: str, lower: float, upper: float) ->
     return None
 
 
+def fit_reasons(
+    rows: Sequence[Mapping[str, Any]], column: str, lower: float = FIT_LOWER, upper: float = np.inf
+) -> list[str | None]:
+    """For each of one compression's ``rows`` (in order), why the fit of ``column`` leaves it
+    out (:func:`left_out`), or None when it is a point of the fit. The steps after the first
+    unjammed one are left out too: the packing has left the basin of the jamming point
+    ``Delta phi`` is measured from."""
+    reasons: list[str | None] = []
+    left_basin = False
+    for row in rows:
+        reasons.append(
+            "after the packing left its basin"
+            if left_basin
+            else left_out(row, column, lower, upper)
+        )
+        left_basin = left_basin or "unjammed" in str(row["events"]).split(";")
+    return reasons
+
+
 def fit_points(
     rows: Sequence[Mapping[str, Any]], column: str, lower: float = FIT_LOWER, upper: float = np.inf
 ) -> tuple[list[float], list[float], dict[str, int]]:
-    """The points ``(Delta phi, value)`` of one compression's ``rows`` (in order) that the fit of
-    ``column`` uses, and how many steps were left out for each reason (:func:`left_out`). The
-    steps after the first unjammed one are left out too: the packing has left the basin of the
-    jamming point ``Delta phi`` is measured from."""
+    """The points ``(Delta phi, value)`` of one compression's ``rows`` that the fit of
+    ``column`` uses, and how many steps it left out for each reason (:func:`fit_reasons`)."""
     xs: list[float] = []
     ys: list[float] = []
     dropped: dict[str, int] = {}
-    left_basin = False
-    for row in rows:
-        reason = "after the packing left its basin" if left_basin else None
-        reason = reason or left_out(row, column, lower, upper)
-        left_basin = left_basin or "unjammed" in str(row["events"]).split(";")
+    for row, reason in zip(rows, fit_reasons(rows, column, lower, upper), strict=True):
         if reason is None:
             xs.append(float(row["delta_phi"]))
             ys.append(float(row[column]))

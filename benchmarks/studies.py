@@ -6,15 +6,15 @@ experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summar
 (default ``benchmarks/results/protocols``); jammed packings are cached as GSD files in
 ``--cache`` so later experiments reuse them.
 
-    python benchmarks/protocols.py phic --dim 2 --n 1024 --seeds 10       # phi_c and checks (2D)
-    python benchmarks/protocols.py phic --dim 2 --alpha 2.5 --seeds 5     # ... Hertzian
-    python benchmarks/protocols.py phic --dim 3 --n 1024 --seeds 3        # ... 3D
-    python benchmarks/protocols.py phic --n 4096 --solver direct          # ... exact factor
-    python benchmarks/protocols.py scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
-    python benchmarks/protocols.py scaling --alpha 2 --n 1024 --refit     # ... its fits again
-    python benchmarks/protocols.py iterations --n 1024 --seeds 10         # seed's iteration figure
-    python benchmarks/protocols.py iterations --n 4096 --seeds 2 --steps 3  # ... larger, shorter
-    python benchmarks/protocols.py timing --n 4096                        # per minimizer
+    python -m benchmarks.studies phic --dim 2 --n 1024 --seeds 10       # phi_c and checks (2D)
+    python -m benchmarks.studies phic --dim 2 --alpha 2.5 --seeds 5     # ... Hertzian
+    python -m benchmarks.studies phic --dim 3 --n 1024 --seeds 3        # ... 3D
+    python -m benchmarks.studies phic --n 4096 --solver direct          # ... exact factor
+    python -m benchmarks.studies scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
+    python -m benchmarks.studies scaling --alpha 2 --n 1024 --refit     # ... its fits again
+    python -m benchmarks.studies iterations --n 1024 --seeds 10         # seed's iteration figure
+    python -m benchmarks.studies iterations --n 4096 --seeds 2 --steps 3  # ... larger, shorter
+    python -m benchmarks.studies timing --n 4096                        # per minimizer
 
 Seeding, the library's one rule: realization ``k`` of a run with ``--root-seed S`` (default 0)
 is the packing of seed ``child_seeds(S, count)[k]``; ``--seeds M`` runs realizations
@@ -65,11 +65,8 @@ from athermal.protocols import (
 )
 from athermal.protocols.compress import pooled_fit
 from athermal.protocols.jamming import isostatic_allowance
+from benchmarks.machine import ROOT, describe, line, pin, save
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from machine import describe, line, pin, save
-
-ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "benchmarks" / "results" / "protocols"
 TIMING_METHODS = (
     Minimizer("lbfgs"),
@@ -246,6 +243,8 @@ def run_scaling(args: argparse.Namespace) -> None:
         stored = json.loads((args.output_dir / f"{result_name(args, name)}.json").read_text())
         for k, record in enumerate(stored["per_seed"]):  # older results numbered none
             record.setdefault("realization", k)
+            for step in record["steps"]:  # nor did their steps give N (the finite-size rule)
+                step.setdefault("n", args.n)
             for entry in stored["agreement"]:
                 if entry["seed"] == record["seed"]:
                     entry.setdefault("realization", k)
@@ -318,9 +317,10 @@ def scaling_report(
         f"(the jammed packings of `phic`, epsilon = {EPSILON:g}), {spec.per_decade} per decade, "
         f"each step relaxed from the previous one ({spec.minimizer.name}, {spec.rtol:g} of the "
         "mean contact force) and checked to be a minimum. Fits: y = a Delta phi^b over Delta phi "
-        f"in [{args.lower:g}, {spec.delta_max:g}], every step with y > 0 (G < 0 steps, unstable "
-        "to shear, and unjammed steps drop out), per realization and pooled (all realizations' "
-        "points in one fit).",
+        f"in [{args.lower:g}, {spec.delta_max:g}], over the steps "
+        "`athermal.protocols.compress.fit_points` takes (no unjammed step nor any after it, no "
+        "G < 0, z - z_iso of at least 10 contacts, p and G with Delta phi N^2 >= 1), per "
+        "realization and pooled (all realizations' points in one fit).",
         "",
         "| quantity | expected | pooled fit (points) | per realization (exponent ± stderr) | "
         "per-realization spread (sd) |",
