@@ -103,10 +103,15 @@ class Packing:
         """Radii multiplied by ``factor``; positions and cell kept."""
         return Packing(self.positions, self.radii * positive_scalar(factor, "factor"), self.cell)
 
+    def radii_at(self, phi: float) -> NDArray[np.float64]:
+        """The radii ``(N,)`` scaled uniformly to packing fraction ``phi``:
+        ``r (phi / self.phi)^(1/d)`` (the protocols grow every step from one packing's radii,
+        so that their radii do not drift by round-off)."""
+        return self.radii * (_check_phi(phi) / self.phi) ** (1.0 / self.dim)
+
     def at_phi(self, phi: float) -> Packing:
         """Radii scaled uniformly so that the packing fraction becomes ``phi``."""
-        target = _check_phi(phi)
-        return self.scale_radii((target / self.phi) ** (1.0 / self.dim))
+        return Packing(self.positions, self.radii_at(phi), self.cell)
 
     def permuted(self, order: NDArray[np.intp]) -> Packing:
         """Reordered: particle ``k`` of the result is particle ``order[k]`` of this one."""

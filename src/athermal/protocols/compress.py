@@ -211,7 +211,7 @@ def compression_steps(
             stacklevel=2,
         )
     config = minimizer or Minimizer()
-    base, phi0 = jammed.radii, jammed.phi
+    phi0 = jammed.phi
 
     def advance(
         packing: Packing, p_start: float, phi: float, depth: int, index: int
@@ -220,8 +220,7 @@ def compression_steps(
         unjamming of a jammed start, redo it in two halves (to depth :data:`MAX_SPLITS`).
         Returns the last relaxation (iterations and evaluations summed over the substeps), the
         saddles left and the number of substeps."""
-        radii = base * (phi / phi0) ** (1.0 / jammed.dim)
-        grown = Packing(packing.positions, radii, jammed.cell)
+        grown = Packing(packing.positions, jammed.radii_at(phi), jammed.cell)
         objective = Objective(grown, model)
         result, saddles = Relaxer(objective, config).relax_to_minimum(
             objective.x0,

@@ -330,7 +330,7 @@ class _Trials:
 
     def radii(self, phi: float) -> np.ndarray:
         """Radii at ``phi``: the start radii scaled uniformly."""
-        return self.start.radii * (phi / self.start.phi) ** (1.0 / self.start.dim)
+        return self.start.radii_at(phi)
 
     def threshold(self, radii: np.ndarray) -> float:
         """The jamming threshold on the total energy (energy units)."""

@@ -130,7 +130,7 @@ def pressure_search(
     t0 = time.perf_counter()
     config = minimizer or Minimizer()
     exponent = 1.0 / (model.alpha - 1.0)
-    base, phi0 = jammed.radii, jammed.phi
+    phi0 = jammed.phi
     trials: list[PressureTrial] = []
 
     def relax(start: Packing, phi: float) -> tuple[Packing, float]:
@@ -140,7 +140,7 @@ def pressure_search(
                 f"(last p = {trials[-1].pressure:.6e} at phi {trials[-1].phi:.12f}; a "
                 "rearrangement may make p jump across the target)"
             )
-        grown = Packing(start.positions, base * (phi / phi0) ** (1.0 / jammed.dim), jammed.cell)
+        grown = Packing(start.positions, jammed.radii_at(phi), jammed.cell)
         objective = Objective(grown, model)
         result, _ = Relaxer(objective, config).relax_to_minimum(
             objective.x0,
