@@ -11,7 +11,7 @@ from typing import Any, NoReturn
 
 from .. import bench
 from ..linalg import SOLVERS
-from ..minimize import METHODS, PRECONDITIONERS
+from ..minimize import METHODS, PRECONDITIONERS, RTOL
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
 
@@ -156,7 +156,7 @@ def _protocol_outputs(parser: argparse.ArgumentParser) -> None:
 def _quasi_static(parser: argparse.ArgumentParser) -> None:
     """The options of a protocol that relaxes every step of a file's packing."""
     parser.add_argument(
-        "--rtol", type=float, default=1e-9, help="force tolerance, x the mean contact force"
+        "--rtol", type=float, default=RTOL, help="force tolerance, x the mean contact force"
     )
     _minimizer(parser, "of every step", 1_000_000)
     _protocol_outputs(parser)
@@ -328,7 +328,7 @@ def build() -> argparse.ArgumentParser:
     tol.add_argument(
         "--rtol",
         type=float,
-        help="tolerance relative to the mean contact force (default: 1e-9 unless --gtol)",
+        help=f"tolerance relative to the mean contact force (default: {RTOL:g} unless --gtol)",
     )
     _model(rel, from_file=True)
 
