@@ -30,6 +30,7 @@ from ..protocols import (
     scaling_exponents,
     shear_steps,
 )
+from ..protocols.compress import FIT_LAWS
 from ..protocols.pressure import pressure_search, warn_if_near_jamming
 from ..tables import Row, write_table
 from .common import (
@@ -340,11 +341,7 @@ def compress(args: argparse.Namespace) -> None:
         )
     )
     fits = scaling_exponents(steps)
-    laws = {
-        "pressure": fits.pressure,
-        "shear_modulus": fits.shear_modulus,
-        "z_excess": fits.z_excess,
-    }
+    laws = {name: getattr(fits, name) for name in FIT_LAWS}
     exponents = {
         name: None
         if fit is None
