@@ -13,22 +13,24 @@ import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
+from ._records import as_numbers, from_numbers
 from .contact import ContactModel
 from .errors import FileFormatError, InputError
 from .io import Frame, append_gsd, claim, count_frames, read_gsd, write_gsd
 from .observables import measure
 from .protocols import CompressionStep, JammingStep, ShearStep
-from .protocols.compress import EVENTS
 
-PHASES = ("start", "increment", "bisection", "final")
+BRACKET = "phi_high"
+"""The field of a jamming step that is infinite while the bracket is open."""
 NO_BRACKET = -1.0
 """``phi_high`` as stored before the first jammed step (every frame must carry the same log
 names: gsd reads a name missing from a frame as frame 0's value)."""
 Step = JammingStep | CompressionStep | ShearStep
+S = TypeVar("S", JammingStep, CompressionStep, ShearStep)
 
 
 def run_id(protocol: str, parameters: Mapping[str, Any]) -> float:
@@ -38,17 +40,13 @@ def run_id(protocol: str, parameters: Mapping[str, Any]) -> float:
 
 
 def step_log(step: Step) -> dict[str, float]:
-    """The numbers of ``step`` as frame observables: floats, the same names in every frame
-    (``phase`` as its index in :data:`PHASES`, an open bracket as :data:`NO_BRACKET`, the events
-    of a compression step as bits in the order of ``EVENTS``)."""
-    out: dict[str, float | int | str] = dict(step.row())
-    if isinstance(step, JammingStep):
-        out["phase"] = PHASES.index(step.phase)
-        if not np.isfinite(step.phi_high):
-            out["phi_high"] = NO_BRACKET
-    if isinstance(step, CompressionStep):
-        out["events"] = sum(1 << EVENTS.index(e) for e in step.events)
-    return {k: float(v) for k, v in out.items()}
+    """The numbers of ``step``'s row as frame observables: floats, the same names in every frame
+    (:func:`~athermal._records.as_numbers`: ``phase`` as its index among the phases, the events
+    of a compression step as bits; an open bracket as :data:`NO_BRACKET`)."""
+    log = as_numbers(step, step.row())
+    if not np.isfinite(log.get(BRACKET, 0.0)):
+        log[BRACKET] = NO_BRACKET
+    return log
 
 
 def _number(frame: Frame, name: str) -> float:
@@ -58,70 +56,29 @@ def _number(frame: Frame, name: str) -> float:
         raise FileFormatError(f"frame has no {name!r}: not an athermal protocol step") from None
 
 
+def _step(cls: type[S], frame: Frame, **given: Any) -> S:
+    """The ``cls`` step stored in ``frame`` by :func:`step_log` (its packing the frame's)."""
+
+    def number(name: str) -> float:
+        value = _number(frame, name)
+        return np.inf if name == BRACKET and value == NO_BRACKET else value
+
+    return from_numbers(cls, number, packing=frame.packing, **given)
+
+
 def jamming_step(frame: Frame) -> JammingStep:
     """The jamming step stored in ``frame``."""
-    get = lambda name: _number(frame, name)  # noqa: E731
-    return JammingStep(
-        index=int(get("index")),
-        phase=PHASES[int(get("phase"))],  # type: ignore[arg-type]
-        origin=int(get("origin")),
-        phi=get("phi"),
-        jammed=bool(get("jammed")),
-        energy=get("energy"),
-        pressure=get("pressure"),
-        contacts=int(get("contacts")),
-        iterations=int(get("iterations")),
-        evaluations=int(get("evaluations")),
-        saddles=int(get("saddles")),
-        seconds=get("seconds"),
-        phi_low=get("phi_low"),
-        phi_high=np.inf if get("phi_high") == NO_BRACKET else get("phi_high"),
-        packing=frame.packing,
-    )
+    return _step(JammingStep, frame)
 
 
 def compression_step(frame: Frame) -> CompressionStep:
     """The compression step stored in ``frame``."""
-    get = lambda name: _number(frame, name)  # noqa: E731
-    return CompressionStep(
-        index=int(get("index")),
-        delta_phi=get("delta_phi"),
-        phi=get("phi"),
-        energy=get("energy"),
-        pressure=get("pressure"),
-        shear_stress=get("shear_stress"),
-        contacts=int(get("contacts")),
-        z=get("z"),
-        z_excess=get("z_excess"),
-        n_rattlers=int(get("n_rattlers")),
-        bulk_modulus=get("bulk_modulus"),
-        shear_modulus=get("shear_modulus"),
-        saddles=int(get("saddles")),
-        substeps=int(get("substeps")),
-        events=tuple(e for k, e in enumerate(EVENTS) if int(get("events")) >> k & 1),
-        iterations=int(get("iterations")),
-        evaluations=int(get("evaluations")),
-        seconds=get("seconds"),
-        packing=frame.packing,
-    )
+    return _step(CompressionStep, frame)
 
 
 def shear_step(frame: Frame, model: ContactModel) -> ShearStep:
     """The shear step stored in ``frame`` (its observables measured again, identically)."""
-    get = lambda name: _number(frame, name)  # noqa: E731
-    return ShearStep(
-        index=int(get("index")),
-        strain=get("strain"),
-        tau=get("tau"),
-        stress_drop=get("stress_drop"),
-        plastic=bool(get("plastic")),
-        saddles=int(get("saddles")),
-        observables=measure(frame.packing, model),
-        iterations=int(get("iterations")),
-        evaluations=int(get("evaluations")),
-        seconds=get("seconds"),
-        packing=frame.packing,
-    )
+    return _step(ShearStep, frame, observables=measure(frame.packing, model))
 
 
 class Trajectory:

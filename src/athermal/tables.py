@@ -5,13 +5,12 @@ from __future__ import annotations
 import csv
 import io
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 
+from ._records import Row
 from .atomic import write_text
 from .errors import FileFormatError, InputError
-
-Row = Mapping[str, float | int | str]
 
 
 def write_table(path: str | os.PathLike[str], rows: Sequence[Row]) -> None:

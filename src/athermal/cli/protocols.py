@@ -16,7 +16,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from ..checkpoint import Trajectory, compression_step, jamming_step, run_id, shear_step
+from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
 from ..contact import ContactModel, find_contacts
 from ..errors import InputError
 from ..experiments import JamSpec, jam_packing
@@ -43,7 +43,7 @@ from .common import (
 )
 from .printer import emit
 
-S = TypeVar("S")
+S = TypeVar("S", bound=Step)
 
 
 class _Recorder(Generic[S]):
@@ -59,13 +59,13 @@ class _Recorder(Generic[S]):
         self.trajectory, self.describe = trajectory, describe
         self.table = _table_path(args, args.output)
         self.steps = list(resumed)
-        self.rows: list[Row] = [s.row() for s in resumed]  # type: ignore[attr-defined]
+        self.rows: list[Row] = [s.row() for s in resumed]
         self.progress = Progress(args.quiet)
 
     def __call__(self, step: S) -> None:
-        self.trajectory.append(step)  # type: ignore[arg-type]
+        self.trajectory.append(step)
         self.steps.append(step)
-        self.rows.append(step.row())  # type: ignore[attr-defined]
+        self.rows.append(step.row())
         write_table(self.table, self.rows)
         self.progress(self.describe(step))
 

@@ -19,11 +19,12 @@ import time
 import warnings
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .._records import Value, as_row
 from .._validate import float_array
 from ..contact import ContactModel, find_contacts
 from ..errors import InputError
@@ -36,7 +37,8 @@ from ..packing import Packing
 from ._relax import Minimizer, Relaxer, force_tolerance
 from .jamming import EPSILON, overlap_distance
 
-EVENTS = ("unjammed", "pressure drop", "saddle left", "unstable to shear")
+Event = Literal["unjammed", "pressure drop", "saddle left", "unstable to shear"]
+EVENTS: tuple[Event, ...] = get_args(Event)
 """What a compression step reports when it happens (``CompressionStep.events``): no load borne
 (:func:`is_unjammed`); a pressure below the previous step's; a saddle left along its negative
 mode (:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`); a minimum with a negative
@@ -122,35 +124,17 @@ class CompressionStep:
     shear_modulus: float
     saddles: int
     substeps: int
-    events: tuple[str, ...]
+    events: tuple[Event, ...]
     iterations: int
     evaluations: int
     seconds: float
     packing: Packing
 
-    def row(self) -> dict[str, float | int | str]:
-        """The step's numbers (no packing), for tables."""
-        return {
-            "index": self.index,
-            "n": self.packing.n,
-            "delta_phi": self.delta_phi,
-            "phi": self.phi,
-            "energy": self.energy,
-            "pressure": self.pressure,
-            "shear_stress": self.shear_stress,
-            "contacts": self.contacts,
-            "z": self.z,
-            "z_excess": self.z_excess,
-            "n_rattlers": self.n_rattlers,
-            "bulk_modulus": self.bulk_modulus,
-            "shear_modulus": self.shear_modulus,
-            "saddles": self.saddles,
-            "substeps": self.substeps,
-            "events": ";".join(self.events),
-            "iterations": self.iterations,
-            "evaluations": self.evaluations,
-            "seconds": self.seconds,
-        }
+    def row(self) -> dict[str, Value]:
+        """The step's numbers, for tables and checkpoints.
+
+        No packing; the packing's ``n`` follows ``index``."""
+        return as_row(self, after={"index": {"n": self.packing.n}})
 
 
 def compression_steps(
@@ -264,7 +248,7 @@ def compression_steps(
         obs = measure(current, model)
         moduli = linear_response(current, model)
         n_live = obs.n - obs.n_rattlers
-        events = []
+        events: list[Event] = []
         if is_unjammed(obs, result.gtol, rtol):
             events.append("unjammed")
         if obs.pressure < p_prev and p_prev > 0.0 and "unjammed" not in events:

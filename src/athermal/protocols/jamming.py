@@ -64,6 +64,7 @@ from typing import Literal, cast
 
 import numpy as np
 
+from .._records import Value, as_row
 from .._validate import positive_scalar
 from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import ConvergenceError, InputError
@@ -195,24 +196,9 @@ class JammingStep:
     phi_high: float
     packing: Packing
 
-    def row(self) -> dict[str, float | int | str]:
-        """The step's numbers (no packing), for tables."""
-        return {
-            "index": self.index,
-            "phase": self.phase,
-            "origin": self.origin,
-            "phi": self.phi,
-            "jammed": int(self.jammed),
-            "energy": self.energy,
-            "pressure": self.pressure,
-            "contacts": self.contacts,
-            "iterations": self.iterations,
-            "evaluations": self.evaluations,
-            "saddles": self.saddles,
-            "seconds": self.seconds,
-            "phi_low": self.phi_low,
-            "phi_high": self.phi_high,
-        }
+    def row(self) -> dict[str, Value]:
+        """The step's numbers (no packing), for tables and checkpoints."""
+        return as_row(self)
 
     @property
     def bracket(self) -> float:

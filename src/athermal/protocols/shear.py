@@ -22,6 +22,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from .._records import Value, as_row
 from .._validate import choice, positive_scalar
 from ..cell import pure_shear, simple_shear
 from ..contact import ContactModel
@@ -36,6 +37,18 @@ ShearMode = Literal["simple", "pure"]
 SHEAR_MODES: tuple[str, ...] = ("simple", "pure")
 DROP_TOL = 1e-6
 """A plastic event is a drop of ``tau`` by more than ``DROP_TOL`` x the pressure."""
+ROW_OBSERVABLES: tuple[str, ...] = (
+    "energy",
+    "pressure",
+    "stress_iso",
+    "stress_dev",
+    "fabric_iso",
+    "fabric_dev",
+    "contacts",
+    "z",
+    "n_rattlers",
+)
+"""The observables a shear step's row holds (:meth:`ShearStep.row`), in its column order."""
 
 
 def deformation(mode: ShearMode, gamma: float, dim: int) -> NDArray[np.float64]:
@@ -72,29 +85,12 @@ class ShearStep:
     seconds: float
     packing: Packing
 
-    def row(self) -> dict[str, float | int]:
-        """The step's numbers (no packing), for tables."""
+    def row(self) -> dict[str, Value]:
+        """The step's numbers, for tables and checkpoints.
+
+        No packing; of the observables, those of :data:`ROW_OBSERVABLES`."""
         obs = self.observables
-        return {
-            "index": self.index,
-            "strain": self.strain,
-            "tau": self.tau,
-            "stress_drop": self.stress_drop,
-            "plastic": int(self.plastic),
-            "saddles": self.saddles,
-            "energy": obs.energy,
-            "pressure": obs.pressure,
-            "stress_iso": obs.stress_iso,
-            "stress_dev": obs.stress_dev,
-            "fabric_iso": obs.fabric_iso,
-            "fabric_dev": obs.fabric_dev,
-            "contacts": obs.contacts,
-            "z": obs.z,
-            "n_rattlers": obs.n_rattlers,
-            "iterations": self.iterations,
-            "evaluations": self.evaluations,
-            "seconds": self.seconds,
-        }
+        return as_row(self, after={"observables": {k: getattr(obs, k) for k in ROW_OBSERVABLES}})
 
 
 def shear_steps(
