@@ -11,6 +11,7 @@ import argparse
 import hashlib
 import time
 from collections.abc import Callable, Iterable
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
@@ -147,17 +148,9 @@ def jam(args: argparse.Namespace) -> None:
         "jam",
         model,
         args.seed,
-        n=args.n,
-        dim=args.dim,
-        size_ratio=args.size_ratio,
+        spec=asdict(spec),  # the run is its spec, as an ensemble's realization is
         seed=args.seed,
-        phi_init=phi_init,
-        dphi=args.dphi,
-        epsilon=args.epsilon,
-        bisection=args.bisection,
         scheme=JAMMING_SCHEME,
-        # continuous sizes only: the identity of a bidisperse run is the one it always had
-        **({} if args.sizes == "bidisperse" else {"sizes": [args.sizes, args.polydispersity]}),
     )
     done = [jamming_step(f) for f in trajectory.frames]
     record = _Recorder(
