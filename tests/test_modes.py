@@ -225,6 +225,14 @@ def test_the_modes_command_writes_the_modes_and_the_figure(packing_2d, tmp_path,
     assert data["omega_star_modes"] == report["omega_star_modes"]
     assert data["vectors"].shape == (3, packing.n, 2) and data["eigenvalues"].size == report["dofs"]
     assert np.sum(data["dos"] * np.diff(data["dos_edges"])) == pytest.approx(1.0)
+    # --seed: another bootstrap, the same omega*; the seed is recorded
+    other = tmp_path / "s.npz"
+    argv = ["modes", str(tmp_path / "p.gsd"), "-o", str(other), "--seed", "7", "--json"]
+    assert main([*argv, "--figure", "none"]) == 0
+    seeded = json.loads(capsys.readouterr().out)
+    assert seeded["seed"] == 7 and np.load(other)["bootstrap_seed"] == 7
+    assert seeded["omega_star"] == report["omega_star"]
+    assert seeded["omega_star_err"] != report["omega_star_err"]
     for argv, message in (
         ([], "exists; replace it with --overwrite"),
         (["--lowest", "5", "--figure", "x.png"], "needs the full spectrum"),

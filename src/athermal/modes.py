@@ -273,13 +273,15 @@ def plateau_frequency(frequencies: NDArray[np.float64]) -> float:
     return _edge(*cumulative_count(frequencies))[0]
 
 
-def save_modes(path: str | os.PathLike[str], modes: Modes, bins: int = 40) -> Path:
+def save_modes(
+    path: str | os.PathLike[str], modes: Modes, bins: int = 40, *, seed: int = 0
+) -> Path:
     """Write ``modes`` to the NPZ file ``path`` atomically: ``eigenvalues``, ``participation``,
     ``vectors`` and ``vector_index``, ``frequencies``, ``zero_modes``, ``negative_modes``,
     ``n_rattlers``, ``tolerance`` and, for a full spectrum, ``dos_edges``, ``dos`` (``bins``
     logarithmic bins) and :func:`plateau_edge`'s ``omega_star``, ``omega_star_err``,
     ``omega_star_modes`` (modes below it), ``plateau_density``, ``plateau_window`` and
-    ``bootstrap_seed``."""
+    ``bootstrap_seed`` (``seed``, its bootstrap's)."""
     data: dict[str, Any] = {
         "eigenvalues": modes.eigenvalues,
         "participation": modes.participation,
@@ -293,7 +295,7 @@ def save_modes(path: str | os.PathLike[str], modes: Modes, bins: int = 40) -> Pa
     }
     if modes.complete:
         edges, dos = density_of_states(modes.frequencies, bins)
-        edge = plateau_edge(modes.frequencies)
+        edge = plateau_edge(modes.frequencies, seed=seed)
         data.update(
             dos_edges=edges,
             dos=dos,

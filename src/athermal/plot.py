@@ -539,7 +539,7 @@ def force_distribution_figure(
     return fig
 
 
-def modes_figure(spectra: Mapping[str, Modes], *, title: str = "") -> Figure:
+def modes_figure(spectra: Mapping[str, Modes], *, title: str = "", seed: int = 0) -> Figure:
     """Vibrational spectra, one colour per packing (label -> :class:`~athermal.modes.Modes` of a
     full spectrum), with what decided each ``omega*`` (:func:`~athermal.modes.plateau_edge`):
     the density of states ``D(omega)`` on log-log axes with the plateau level over its window
@@ -547,7 +547,7 @@ def modes_figure(spectra: Mapping[str, Modes], *, title: str = "") -> Figure:
     cumulative count of modes ``N(omega) / M`` with the plateau's line ``D_p omega`` (dotted)
     and the line of half the plateau, ``D_p omega / 2`` (dashed), whose crossing with the count
     is ``omega*`` (middle); the participation ratio of every mode against its frequency
-    (right). Frequencies in ``sqrt(k l^(alpha-2) / m)``."""
+    (right). Frequencies in ``sqrt(k l^(alpha-2) / m)``; ``seed`` is the bootstrap's."""
     from .modes import PLATEAU_FRACTION, cumulative_count, density_of_states, plateau_edge
 
     fig = _figure(13.0, 4.0)
@@ -557,7 +557,7 @@ def modes_figure(spectra: Mapping[str, Modes], *, title: str = "") -> Figure:
         edges, density = density_of_states(omega)
         centres = np.sqrt(edges[:-1] * edges[1:])
         seen = density > 0
-        edge = plateau_edge(omega)
+        edge = plateau_edge(omega, seed=seed)
         star, half = edge.omega_star, PLATEAU_FRACTION * edge.plateau
         (line,) = dos_ax.loglog(
             centres[seen],

@@ -21,9 +21,9 @@ def modes(args: argparse.Namespace) -> None:
     frame = read_gsd(args.input, frame=args.frame)
     model = model_from(args, frame.model)
     found = vibrational_modes(frame.packing, model, args.lowest, vectors=args.vectors)
-    save_modes(args.output, found)
+    save_modes(args.output, found, seed=args.seed)
     omega = found.frequencies
-    edge = plateau_edge(omega) if found.complete else None
+    edge = plateau_edge(omega, seed=args.seed) if found.complete else None
     out = {
         "n": frame.packing.n,
         "dim": frame.packing.dim,
@@ -38,13 +38,15 @@ def modes(args: argparse.Namespace) -> None:
         "omega_star_err": edge.error if edge else None,
         "omega_star_modes": edge.modes_below if edge else None,
         "plateau_density": edge.plateau if edge else None,
+        "seed": args.seed,
         "mean_participation": float(np.mean(found.participation)),
         "output": args.output,
     }
     if args.figure != "none" and found.complete:
         picture = Path(args.figure or Path(args.output).with_suffix(".png"))
         title = f"{Path(args.input).name}, frame {args.frame}: N = {frame.packing.n}"
-        save(modes_figure({f"phi = {frame.packing.phi:.6f}": found}, title=title), picture)
+        spectra = {f"phi = {frame.packing.phi:.6f}": found}
+        save(modes_figure(spectra, title=title, seed=args.seed), picture)
         out["figure"] = str(picture)
     out["seconds"] = round(time.perf_counter() - t0, 3)
     emit(out, args.json)

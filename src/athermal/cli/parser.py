@@ -279,6 +279,9 @@ def build() -> argparse.ArgumentParser:
     mod.add_argument("-o", "--output", required=True, help="NPZ file to write (.npz)")
     mod.add_argument("--frame", type=int, default=-1, help="frame index (-1: the last)")
     mod.add_argument(
+        "--seed", type=int, default=0, help="seed of omega*'s bootstrap (its uncertainty)"
+    )
+    mod.add_argument(
         "--lowest",
         type=int,
         default=None,
