@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from ._validate import choice
 from .contact import ContactModel
 from .errors import InputError
 from .minimize import RTOL, Minimizer, relax
@@ -46,7 +47,7 @@ from .protocols import (
 )
 from .protocols.compress import FIT_LOWER
 from .protocols.finite_strain import DEFAULT_STRAINS, StepStart
-from .protocols.jamming import check_epsilon, check_protocol
+from .protocols.jamming import JAM_PROTOCOLS, check_epsilon
 
 ITERATION_METHODS = (
     Minimizer("lbfgs"),
@@ -110,7 +111,7 @@ class JamSpec:
             raise InputError(f"dim: must be 2 or 3, got {self.dim!r}")
         if self.sizes != "bidisperse":
             check_width(self.sizes, self.polydispersity)
-        check_protocol(self.protocol)
+        choice(self.protocol, "protocol", JAM_PROTOCOLS)
         check_epsilon(self.epsilon)
         self.model  # noqa: B018  # validates alpha and stiffness
 

@@ -127,16 +127,42 @@ class Relaxer:
             again = self.relax(
                 x, gtol=max(floor, 1e-3 * gtol), etol=etol, what=f"{what} (after a saddle)"
             )
-            result = replace(
-                again,
-                iterations=result.iterations + again.iterations,
-                evaluations=result.evaluations + again.evaluations,
-                seconds=result.seconds + again.seconds,
-            )
+            result = _summed(result, again)
         raise ConvergenceError(
             f"{what}: still a saddle after leaving {MAX_ESCAPES} saddles along their negative "
             f"modes (lowest Hessian eigenvalue {check.lowest_eigenvalue:.3e})"
         )
+
+    def relax_balanced(
+        self,
+        x: NDArray[np.float64],
+        *,
+        gtol: float,
+        rtol: float,
+        etol: float = 0.0,
+        what: str = "step",
+    ) -> MinimizeResult:
+        """:meth:`relax` to ``gtol``, then on until ``max_i |grad_i|`` is also within
+        :func:`force_tolerance` (``rtol``) of the result's own forces, or the energy is
+        ``<= etol``, all within the minimizer's ``maxiter``: a relaxation stopped relative to
+        its start's forces, whose forces fell on the way, is not balanced yet. Raises
+        :class:`ConvergenceError` naming ``what`` when the iterations run out."""
+        result = self.relax(x, gtol=gtol, etol=etol, what=what)
+        model, limit = self.objective.model, self.minimizer.maxiter
+        while result.energy > etol:
+            own = force_tolerance(result.packing, model, rtol)
+            if result.max_gradient <= own:
+                break
+            if result.iterations >= limit:
+                raise ConvergenceError(
+                    f"{what}: {self.minimizer.label} used its {limit} iterations before the "
+                    "forces balanced to their own mean"
+                )
+            more = self.relax(
+                result.x, gtol=own, etol=etol, what=what, maxiter=limit - result.iterations
+            )
+            result = _summed(result, more)
+        return result
 
     def _leave_saddle(
         self, x: NDArray[np.float64], mode: NDArray[np.float64]
@@ -199,6 +225,17 @@ class Relaxer:
             + (first.precon_builds if precon is not self.precon else 0),
             linear_iterations=first.linear_iterations + rest.linear_iterations,
         )
+
+
+def _summed(first: MinimizeResult, then: MinimizeResult) -> MinimizeResult:
+    """``then``, a relaxation that went on from where ``first`` stopped, counting both runs'
+    iterations, evaluations and seconds."""
+    return replace(
+        then,
+        iterations=first.iterations + then.iterations,
+        evaluations=first.evaluations + then.evaluations,
+        seconds=first.seconds + then.seconds,
+    )
 
 
 def round_off_floor(contacts: Contacts, cell: Cell) -> float:

@@ -59,13 +59,13 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import dataclass, replace
-from typing import Literal, cast
+from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
 from .._records import Value, as_row
-from .._validate import positive_scalar
+from .._validate import choice, positive_scalar
 from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import ConvergenceError, InputError
 from ..moduli import stability
@@ -80,7 +80,7 @@ from ..observables import (
     stress,
 )
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, energy_scale, force_tolerance, round_off_floor
+from ._relax import Minimizer, Relaxer, energy_scale, force_tolerance
 
 JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
 """Default minimizer of the jamming protocol: P-L-BFGS, its Exp preconditioner factored
@@ -146,14 +146,6 @@ def energy_threshold(dim: int, alpha: float) -> float:
     ``delta ~ <r> Delta phi / (d phi)`` and ``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``,
     so states jammed by more than ~``RESOLUTION / 10`` lie above it."""
     return float((RESOLUTION / (10.0 * dim)) ** alpha)
-
-
-def check_protocol(protocol: str) -> JamProtocol:
-    """``protocol`` if it is one of :data:`JAM_PROTOCOLS`; :class:`InputError` naming them
-    otherwise."""
-    if protocol not in JAM_PROTOCOLS:
-        raise InputError(f"protocol: must be one of {', '.join(JAM_PROTOCOLS)}, got {protocol!r}")
-    return cast(JamProtocol, protocol)
 
 
 def check_epsilon(epsilon: float) -> float:
@@ -330,37 +322,23 @@ class _Trials:
         grown = Packing(origin.positions, radii, self.start.cell)
         objective = Objective(grown, self.model)
         e_min = self.threshold(radii)
-        contacts = find_contacts(grown, self.model)
-        floor = round_off_floor(contacts, self.start.cell)
-        f0 = float(contacts.force_magnitude.mean()) if contacts.i.size else 0.0
         relaxer = Relaxer(objective, self.minimizer)
         if tight:  # the packing the protocol reports: a minimum, not a saddle
-            tol = max(self.final_rtol * f0, floor)
             result, saddles = relaxer.relax_to_minimum(
-                objective.x0, gtol=tol, etol=e_min, what=what
+                objective.x0,
+                gtol=force_tolerance(grown, self.model, self.final_rtol),
+                etol=e_min,
+                what=what,
             )
-        else:
-            tol = max(self.rtol * f0, floor)
-            result, saddles = relaxer.relax(objective.x0, gtol=tol, etol=e_min, what=what), 0
-            # balanced relative to its own forces, not to its start's (module docstring), all
-            # within the minimizer's iteration limit
-            while result.energy > e_min:
-                own = force_tolerance(result.packing, self.model, self.rtol)
-                if result.max_gradient <= own:
-                    break
-                left = self.minimizer.maxiter - result.iterations
-                if left < 1:
-                    raise ConvergenceError(
-                        f"{what}: {self.minimizer.label} used its {self.minimizer.maxiter} "
-                        "iterations before the forces balanced to their own mean"
-                    )
-                more = relaxer.relax(result.x, gtol=own, etol=e_min, what=what, maxiter=left)
-                result = replace(
-                    more,
-                    iterations=result.iterations + more.iterations,
-                    evaluations=result.evaluations + more.evaluations,
-                    seconds=result.seconds + more.seconds,
-                )
+        else:  # balanced relative to its own forces (module docstring)
+            result = relaxer.relax_balanced(
+                objective.x0,
+                gtol=force_tolerance(grown, self.model, self.rtol),
+                rtol=self.rtol,
+                etol=e_min,
+                what=what,
+            )
+            saddles = 0
         contacts = find_contacts(result.packing, self.model)
         p = pressure(stress(contacts, self.start.cell))
         return _Outcome(
@@ -452,7 +430,7 @@ def jamming_steps(
     """
     dphi = positive_scalar(dphi, "dphi")
     epsilon = check_epsilon(epsilon)
-    protocol = check_protocol(protocol)
+    choice(protocol, "protocol", JAM_PROTOCOLS)
     if energy_tol is None:
         energy_tol = energy_threshold(start.dim, model.alpha)
     trials = _Trials(
