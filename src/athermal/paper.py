@@ -26,6 +26,7 @@ Table) into the output directory. Every study is an :mod:`athermal.experiments` 
 from __future__ import annotations
 
 import time
+from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -242,10 +243,7 @@ def reproduce(
             except InputError:
                 fit = None
             fits[key][label] = fit
-            left_out: dict[str, int] = {}
-            for one in pooled:
-                for why, count in one.fits.left_out[column].items():
-                    left_out[why] = left_out.get(why, 0) + count
+            left_out = dict(sum((Counter(one.fits.left_out[column]) for one in pooled), Counter()))
             if fit is None:
                 warnings_.append(
                     f"alpha = {alpha:g}: no fit of {QUANTITIES[key][1]} (fewer than 3 points "
@@ -264,11 +262,7 @@ def reproduce(
                 "left_out": left_out,
                 "seed": SEED_EXPONENTS[key][alpha],
             }
-        events: dict[str, int] = {}
-        for one in pooled:
-            for name, count in one.fits.events.items():
-                if count:
-                    events[name] = events.get(name, 0) + count
+        events = dict(sum((Counter(one.fits.events) for one in pooled), Counter()))
         if events:
             warnings_.append(
                 f"alpha = {alpha:g}: compression events "
