@@ -5,14 +5,14 @@ timed by wrappers (about 1 us per call): the compiled energy+gradient kernel, th
 ``Objective.__call__`` (its bookkeeping), the preconditioner's solve and its builds (assembly,
 ``mu``, factorization: a cost per build, left out of the ratios), the L-BFGS direction (its
 compact form), whole L-BFGS or CG iterations run in compiled code (kernels, searches and
-solves included), the compiled line search (its trial points, kernel calls and state machine in
-one call), the line search's Python part (without its evaluations), and the rest. The floor an
+solves included), the line search run from Python (its compiled search included, without the
+evaluations by ``Objective.__call__``), and the rest. The floor an
 iteration should cost is ``evaluations/iteration x kernel + solves/iteration x solve``, with the
 kernel and the solve timed bare, in a loop, on the same configuration, between ``--repeats``
 runs of each method (each run takes the mean of the two around it, each row is the run of the
 median ratio); the issue's target is
 ``ms / iteration <= 1.3 x floor``. ``--compare-search K`` also runs each method ``K`` times with
-the compiled line search and with the Python one (an objective without ``took``), alternating in
+the compiled line search and with the Python one (an objective without ``compiled``), alternating in
 one process, and reports their time ratio (FIRE, which has no line search, is the control).
 
     python -m benchmarks.breakdown                     # N = 4096 Case 1, alpha 2 (~30 s)
@@ -30,9 +30,8 @@ Results: ``benchmarks/results/<name>.md`` and ``.json``.
 A profiler of the minimizers' insides, this is the one benchmark that reaches into them: it
 wraps functions and methods of ``athermal.objective``, ``athermal.precon`` and
 ``athermal.minimize.lbfgs`` / ``cg`` with ``unittest.mock.patch.object`` for the run (no public
-hook reports where an iteration's time goes) and uses the private names ``_Memory``,
-``_iterate`` and ``_rebuild``; ``benchmarks/README.md`` lists them. It follows those modules
-when they change.
+hook reports where an iteration's time goes) and uses the private name ``_rebuild``;
+``benchmarks/README.md`` lists it. It follows those modules when they change.
 """
 
 from __future__ import annotations
@@ -51,8 +50,8 @@ import numpy as np
 
 from athermal.bench import make_case, reference_packing
 from athermal.contact import ContactModel
-from athermal.minimize import RTOL, Minimizer, relax
 from athermal.objective import Objective
+from athermal.relaxation import RTOL, Minimizer, relax_objective
 from benchmarks.machine import ROOT, pin, save
 
 # athermal.minimize is also a function name: the modules by import_module
@@ -74,7 +73,6 @@ PARTS = (
     "kernel",
     "objective",
     "compiled iterations",
-    "compiled search",
     "solve",
     "build",
     "direction",
@@ -143,7 +141,7 @@ def floors(start: Any, model: ContactModel, precons: set[str]) -> dict[str, floa
     out = {"kernel": bare(kernel, repeats)}
     rng = np.random.default_rng(0)
     for label, precon in (("direction", None), ("direction P", object())):
-        memory = lbfgs_module._Memory(10, obj.n_dof, precon)  # a full memory, m = 10
+        memory = lbfgs_module.Memory(10, obj.n_dof, precon)  # a full memory, m = 10
         for _ in range(10):
             step, change = rng.standard_normal(obj.n_dof), rng.standard_normal(obj.n_dof)
             memory.store(x, x + step, grad, grad + step + 0.1 * change, grad, grad + step)
@@ -190,43 +188,32 @@ def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> di
             )
         stack.enter_context(
             mock.patch.object(
-                lbfgs_module._Memory,
+                lbfgs_module.Memory,
                 "direction",
-                clock.wrap("direction", lbfgs_module._Memory.direction),
+                clock.wrap("direction", lbfgs_module.Memory.direction),
             )
         )
-        for module, position in ((lbfgs_module, 11), (cg_module, 12)):  # where counts is
-            if not hasattr(module, "_iterate"):  # older code (--name breakdown_before)
-                continue
-            stack.enter_context(
-                mock.patch.object(
-                    module,
-                    "_iterate",
-                    clock.wrap("compiled iterations", counted(clock, module._iterate, position)),
-                )
+        loop = lbfgs_module.CompiledLoop  # L-BFGS's and CG's compiled iterations
+        stack.enter_context(
+            mock.patch.object(
+                loop, "run", clock.wrap("compiled iterations", counted(clock, loop.run))
             )
+        )
         for module in (lbfgs_module, cg_module):
             stack.enter_context(
                 mock.patch.object(module, "advance", clock.wrap("line search", module.advance))
             )
-        stack.enter_context(
-            mock.patch.object(
-                objective_module.Objective,
-                "search",
-                clock.wrap("compiled search", objective_module.Objective.search),
-            )
-        )
         # what every run pays once before its first iteration (its first evaluation, the
         # neighbour list, the tolerance's mean contact force, buffers, the first build): timed
         # by a run stopped there, so that the steady ratio can leave it out
         t0 = time.perf_counter()
-        opening = relax(Objective(start, model), how, rtol=RTOL, maxiter=0)
+        opening = relax_objective(Objective(start, model), how, rtol=RTOL, maxiter=0)
         opening_seconds = time.perf_counter() - t0
         opening_build, opening_solves = clock.seconds["build"], clock.calls["solve"]
         clock.reset()
         obj = Objective(start, model)
         t0 = time.perf_counter()
-        result = relax(obj, how, rtol=RTOL, maxiter=maxiter)
+        result = relax_objective(obj, how, rtol=RTOL, maxiter=maxiter)
         total = time.perf_counter() - t0
     clock.seconds["other"] = total - sum(clock.seconds[p] for p in PARTS if p != "other")
     iters = max(result.iterations, 1)
@@ -248,23 +235,23 @@ def profile(start: Any, model: ContactModel, how: Minimizer, maxiter: int) -> di
     }
 
 
-def counted(clock: Clock, iterate: Callable[..., Any], position: int) -> Callable[..., Any]:
-    """``iterate`` (a compiled loop) with its solves added to ``clock``'s: ``counts[4]`` of the
-    call, its argument at ``position``."""
+def counted(clock: Clock, run: Callable[..., Any]) -> Callable[..., Any]:
+    """``CompiledLoop.run`` with the run's solves (``counts[4]`` of the loop) added to
+    ``clock``'s."""
 
-    def run(*args: Any) -> Any:
-        out = iterate(*args)
-        clock.calls["solve"] += int(args[position][4])
+    def counting(loop: Any, *args: Any) -> Any:
+        out = run(loop, *args)
+        clock.calls["solve"] += int(loop.counts[4])
         return out
 
-    return run
+    return counting
 
 
 class PythonSearch(Objective):
-    """The objective without its compiled line search (``took`` missing): the minimizers
-    evaluate each trial point through ``__call__``, as before the compiled search."""
+    """The objective without its compiled line search: the minimizers evaluate each trial
+    point through ``__call__``, as before the compiled search."""
 
-    took = None
+    compiled = None  # type: ignore[assignment]
 
 
 def compare_searches(
@@ -280,7 +267,7 @@ def compare_searches(
         for r in range(repeats + 1):
             for name, cls in (("compiled", Objective), ("python", PythonSearch)):
                 t0 = time.perf_counter()
-                res = relax(cls(start, model), how, rtol=RTOL, maxiter=maxiter)
+                res = relax_objective(cls(start, model), how, rtol=RTOL, maxiter=maxiter)
                 if r:  # the first round warms up
                     times[name].append(time.perf_counter() - t0)
                 counts[name] = (res.iterations, res.evaluations)
@@ -401,9 +388,8 @@ def main(argv: list[str] | None = None) -> int:
         "Parts in ms per iteration (objective: Objective.__call__ without the kernel; "
         "compiled iterations: whole L-BFGS or CG iterations in one compiled call, their "
         "kernels, searches and solves included; "
-        "compiled search: the line search's trial points, their kernel calls and its state "
-        "machine in one compiled call; line search: its Python part, without the compiled call and "
-        "the evaluations).",
+        "line search: the search run from Python, its compiled part included, without the "
+        "evaluations by Objective.__call__).",
         "",
         header,
         "|---|" + "---:|" * (10 + len(PARTS)),

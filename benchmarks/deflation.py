@@ -32,10 +32,9 @@ from numpy.typing import NDArray
 
 from athermal.cell import simple_shear
 from athermal.fitting import fit_power_law
-from athermal.minimize import minimize
 from athermal.objective import Objective
 from athermal.precon import ExpPreconditioner
-from athermal.protocols._relax import force_tolerance
+from athermal.relaxation import force_tolerance, minimize_objective
 from benchmarks.machine import save
 from benchmarks.spectrum import DELTA_PHIS, MODEL, ZERO, arguments, compressed_states, hessian
 
@@ -93,7 +92,7 @@ def step_iterations(state_packing: Any, model: Any) -> dict[int, int | None]:
             scale = exp.mu / base.mu  # P here is P of the reference / scale
             chosen = soft[:k]
             precon = Deflated(base, vectors[:, chosen] * np.sqrt(scale), values[chosen] * scale)
-        result = minimize(objective, "lbfgs", precon=precon, gtol=gtol, maxiter=MAXITER)
+        result = minimize_objective(objective, "lbfgs", precon=precon, gtol=gtol, maxiter=MAXITER)
         out[k] = result.iterations if result.converged else None
     return out
 

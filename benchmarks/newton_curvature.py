@@ -37,12 +37,11 @@ from numpy.typing import NDArray
 from athermal.cell import simple_shear
 from athermal.contact import ContactModel
 from athermal.experiments import JamSpec, child_seeds, compression_steps
-from athermal.minimize import Minimizer
 from athermal.moduli import nonaffine_displacement
 from athermal.objective import MAX_STEP_FACTOR, Objective
 from athermal.packing import Packing
 from athermal.protocols import CompressionStep, shear_steps
-from athermal.protocols._relax import Relaxer, force_tolerance
+from athermal.relaxation import Minimizer, Relaxer, force_tolerance
 from benchmarks.machine import pin, save
 from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
 

@@ -26,12 +26,11 @@ from pathlib import Path
 from athermal.cell import simple_shear
 from athermal.contact import ContactModel, find_contacts
 from athermal.experiments import JamSpec, child_seeds, compression_steps
-from athermal.minimize import Minimizer, minimize
 from athermal.objective import Objective
 from athermal.packing import Packing
 from athermal.protocols import finite_strain_shear
-from athermal.protocols._relax import force_tolerance
 from athermal.protocols.finite_strain import DEFAULT_STRAINS
+from athermal.relaxation import Minimizer, force_tolerance, minimize_objective
 from benchmarks.machine import pin, save
 from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
 
@@ -48,7 +47,9 @@ def pair_set(packing: Packing, model: ContactModel) -> set[tuple[int, int]]:
 def one_step(packing: Packing, model: ContactModel, gamma: float) -> dict[str, float]:
     before = pair_set(packing, model)
     sheared = packing.deform(simple_shear(gamma, 2))
-    res = minimize(Objective(sheared, model), "newton", gtol=force_tolerance(sheared, model, 1e-9))
+    res = minimize_objective(
+        Objective(sheared, model), "newton", gtol=force_tolerance(sheared, model, 1e-9)
+    )
     after = pair_set(res.packing, model)
     return {
         "gamma": gamma,

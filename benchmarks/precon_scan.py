@@ -26,10 +26,10 @@ import numpy as np
 
 from athermal.bench import RTOL, make_case, reference_packing
 from athermal.contact import ContactModel
-from athermal.minimize import lbfgs
 from athermal.objective import Objective
 from athermal.packing import Packing
 from athermal.precon import R_CUT_FACTOR, SINE_AMPLITUDE, ContactPreconditioner, ExpPreconditioner
+from athermal.relaxation import minimize_objective
 from benchmarks.machine import ROOT, pin, save
 
 
@@ -98,7 +98,14 @@ def run(start: Packing, model: ContactModel, variant: Variant) -> dict[str, floa
         else kind(objective, A=variant.A, r_cut=r_cut, c_stab=variant.c_stab, mu=mu)
     )
     t0 = time.perf_counter()
-    res = lbfgs(objective, rtol=RTOL, maxiter=50_000, precon=precon, memory=variant.memory)
+    res = minimize_objective(
+        objective,
+        "lbfgs",
+        precon=precon if precon is not None else "none",
+        rtol=RTOL,
+        maxiter=50_000,
+        memory=variant.memory,
+    )
     return {
         "iterations": res.iterations,
         "evaluations": res.evaluations,

@@ -44,10 +44,10 @@ import numpy as np
 from athermal.bench import make_case, reference_packing
 from athermal.cell import Cell
 from athermal.contact import ContactModel
-from athermal.minimize import RTOL, Minimizer, minimize
 from athermal.objective import Objective
 from athermal.packing import Packing
 from athermal.precon import make_preconditioner
+from athermal.relaxation import RTOL, Minimizer, minimize_objective
 from benchmarks.machine import ROOT, pin, save
 
 METHODS = {
@@ -92,7 +92,7 @@ def run_one(k: int, key: str, alpha: float, maxiter: int) -> dict[str, Any]:
     def relax(objective: Objective, limit: int) -> tuple[Any, Any]:
         # as athermal.minimize.relax, keeping the preconditioner for its counters
         pre = make_preconditioner(how.precon, objective, A=how.A, solver=how.solver)
-        res = minimize(
+        res = minimize_objective(
             objective, how.method, precon=pre or "none", rtol=RTOL, maxiter=limit, A=how.A
         )
         return res, pre

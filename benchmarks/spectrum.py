@@ -46,14 +46,13 @@ from athermal.cell import simple_shear
 from athermal.contact import ContactModel, find_contacts
 from athermal.experiments import JamSpec, child_seeds, compression_steps
 from athermal.fitting import fit_power_law
-from athermal.minimize import minimize
 from athermal.minimize.newton import SHIFT_MIN
 from athermal.objective import Objective
 from athermal.observables import rattlers
 from athermal.packing import Packing
 from athermal.precon import ContactPreconditioner, ExpPreconditioner
-from athermal.protocols._relax import force_tolerance
 from athermal.protocols.compress import CompressionStep
+from athermal.relaxation import force_tolerance, minimize_objective
 from benchmarks.machine import pin, save
 from benchmarks.newton_diagnostics import pair_set
 from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
@@ -146,7 +145,7 @@ def step_outliers(packing: Packing, model: ContactModel, gamma: float) -> dict[s
     obj, h0 = hessian(packing, model)
     sheared = packing.deform(simple_shear(gamma, packing.dim))
     gtol = force_tolerance(sheared, model, 1e-9)
-    end = minimize(Objective(sheared, model), "newton", gtol=gtol).packing
+    end = minimize_objective(Objective(sheared, model), "newton", gtol=gtol).packing
     _, h1 = hessian(end, model)
     diagonal = np.diag(h0)
     kappa_d = float(diagonal[diagonal > 0.0].mean())

@@ -52,7 +52,6 @@ from athermal.experiments import (
 from athermal.fitting import fit_power_law
 from athermal.io import read_gsd, write_gsd
 from athermal.linalg import SOLVERS
-from athermal.minimize import Minimizer
 from athermal.moduli import linear_response
 from athermal.packing import Packing
 from athermal.protocols import (
@@ -65,6 +64,7 @@ from athermal.protocols import (
 )
 from athermal.protocols.compress import pooled_fit
 from athermal.protocols.jamming import isostatic_allowance
+from athermal.relaxation import Minimizer
 from benchmarks.machine import ROOT, describe, line, pin, save
 
 RESULTS = ROOT / "benchmarks" / "results" / "protocols"

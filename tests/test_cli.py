@@ -322,16 +322,21 @@ def test_compress_refuses_a_start_not_at_its_jamming_point_unless_asked(tmp_path
     """Unjammed, unrelaxed or far above its phi_c: exit 2, one line, nothing written; with
     --from-unjammed the compression runs with one warning that says why."""
     from athermal.contact import ContactModel
-    from athermal.minimize import minimize
     from athermal.objective import Objective
+    from athermal.relaxation import minimize_objective
 
     model = ContactModel(2.0)
     loose = tmp_path / "loose.gsd"
-    write_gsd(loose, minimize(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing)
+    write_gsd(
+        loose,
+        minimize_objective(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing,
+    )
     raw = tmp_path / "raw.gsd"
     write_gsd(raw, random_packing(64, 0.88, seed=1), model=model)
     dense = tmp_path / "dense.gsd"
-    packing = minimize(Objective(random_packing(64, 0.88, seed=1), model), rtol=1e-10).packing
+    packing = minimize_objective(
+        Objective(random_packing(64, 0.88, seed=1), model), rtol=1e-10
+    ).packing
     write_gsd(dense, packing, model=model)
     cases = [
         (loose, [], "rattlers"),

@@ -10,7 +10,7 @@ import pytest
 from numpy.typing import NDArray
 
 from athermal import ContactModel, InputError, find_contacts, random_packing
-from athermal.minimize import MinimizeResult
+from athermal.minimize import Hooks, MinimizeResult
 from athermal.minimize.fire import default_timesteps, fire
 from athermal.objective import Objective
 
@@ -30,8 +30,9 @@ class FakeObjective:
         self.n_dof = self.x0.size
         self.max_step = 0.1  # FIRE's default cap: an Objective's is 0.1 x the mean radius
         self.function = function
+        self.hooks = Hooks(block=dim, max_step=self.max_step)
+        self.compiled = None
         self.n_evaluations = 0
-        self.n_rebuilds = 0
         self.points: list[NDArray[np.float64]] = []
         self._last: tuple[NDArray[np.float64], tuple[float, NDArray[np.float64]]] | None = None
 
@@ -43,15 +44,6 @@ class FakeObjective:
         value = self.function(x)
         self._last = (x.copy(), value)
         return value
-
-    def max_gradient(self, grad: NDArray[np.float64]) -> float:
-        return float(np.sqrt((grad.reshape(self.n, self.dim) ** 2).sum(axis=1).max()))
-
-    def mean_contact_force(self, x: NDArray[np.float64]) -> float:
-        return 1.0
-
-    def packing(self, x: NDArray[np.float64], *, internal: bool = False) -> None:
-        return None
 
 
 def quadratic(stiffness: NDArray[np.float64], center: NDArray[np.float64]) -> Function:
@@ -82,7 +74,11 @@ class DiagonalPrecon:
     def __init__(self, diagonal: NDArray[np.float64]) -> None:
         self.diagonal = diagonal
         self.n_builds = 0
+        self.n_solves = 0
         self.n_updates = 0
+
+    def compiled_solver(self) -> None:
+        return None
 
     def update(self, x: NDArray[np.float64]) -> None:
         self.n_updates += 1
@@ -281,7 +277,9 @@ def test_non_convex_rosenbrock() -> None:
 def test_relaxes_overlapped_packing() -> None:
     obj = packing_objective()
     f0 = obj.mean_contact_force(obj.x0)
-    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
+    result = fire(
+        obj, obj.x0, gtol=obj.tolerance(None, 1e-8), curvature=obj.curvature_bound(obj.x0)
+    )
     assert result.converged, result.message
     assert result.method == "fire" and result.precon == "none"
     assert result.gtol == pytest.approx(1e-8 * f0, rel=1e-15)
@@ -300,7 +298,9 @@ def test_relaxes_overlapped_packing() -> None:
 
 def test_unjammed_packing_reaches_zero_energy_quickly() -> None:
     obj = packing_objective(phi=0.5)
-    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
+    result = fire(
+        obj, obj.x0, gtol=obj.tolerance(None, 1e-8), curvature=obj.curvature_bound(obj.x0)
+    )
     assert result.converged
     assert result.energy == 0.0 or result.max_gradient <= result.gtol
     assert result.iterations <= 115  # measured 103
@@ -308,7 +308,13 @@ def test_unjammed_packing_reaches_zero_energy_quickly() -> None:
 
 def test_iteration_limit_is_reported_not_raised() -> None:
     obj = packing_objective()
-    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8), maxiter=5)
+    result = fire(
+        obj,
+        obj.x0,
+        gtol=obj.tolerance(None, 1e-8),
+        maxiter=5,
+        curvature=obj.curvature_bound(obj.x0),
+    )
     assert not result.converged
     assert "iteration limit" in result.message
     assert result.iterations == 5
@@ -318,13 +324,19 @@ def test_iteration_limit_is_reported_not_raised() -> None:
 
 def test_maxiter_zero_evaluates_once() -> None:
     obj = packing_objective()
-    result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8), maxiter=0)
+    result = fire(
+        obj,
+        obj.x0,
+        gtol=obj.tolerance(None, 1e-8),
+        maxiter=0,
+        curvature=obj.curvature_bound(obj.x0),
+    )
     assert not result.converged and result.iterations == 0 and result.evaluations == 1
     np.testing.assert_array_equal(result.x, obj.x0)
 
 
 def relax_fire(obj: Objective) -> MinimizeResult:
-    return fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
+    return fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8), curvature=obj.curvature_bound(obj.x0))
 
 
 def test_deterministic() -> None:
@@ -368,15 +380,16 @@ def test_curvature_bound_bounds_the_hessian() -> None:
 
 def test_default_timesteps() -> None:
     obj = packing_objective()
-    dt, dt_max, dt_min = default_timesteps(obj, obj.x0, None, None, None, None)
+    bound = obj.curvature_bound(obj.x0)
+    dt, dt_max, dt_min = default_timesteps(None, None, None, None, bound)
     assert dt_max == pytest.approx(1.6 / np.sqrt(obj.curvature_bound(obj.x0)))
     assert dt == pytest.approx(0.1 * dt_max) and dt_min == pytest.approx(0.02 * dt)
     precon = DiagonalPrecon(np.ones(obj.n_dof))
-    assert default_timesteps(obj, obj.x0, precon, None, None, None) == pytest.approx(
-        (0.025, 0.25, 5e-4)
-    )
+    assert default_timesteps(precon, None, None, None, bound) == pytest.approx((0.025, 0.25, 5e-4))
     # a large dt alone raises the default dt_max to it
-    assert default_timesteps(obj, obj.x0, None, 2.0, None, None)[:2] == (2.0, 2.0)
+    assert default_timesteps(None, 2.0, None, None, bound)[:2] == (2.0, 2.0)
+    with pytest.raises(InputError, match="curvature"):  # nothing to derive dt_max from
+        default_timesteps(None, None, None, None, None)
 
 
 @pytest.mark.parametrize(
@@ -398,7 +411,7 @@ def test_default_timesteps() -> None:
 def test_bad_options_are_rejected(options: dict[str, Any]) -> None:
     with pytest.raises(InputError):
         obj = packing_objective()
-        fire(obj, obj.x0, **options)
+        fire(obj, obj.x0, curvature=obj.curvature_bound(obj.x0), **options)
 
 
 def test_non_finite_step_stops_cleanly() -> None:

@@ -21,17 +21,19 @@ from athermal.forces import (
     histogram_density,
 )
 from athermal.io import write_gsd
-from athermal.minimize import minimize
 from athermal.objective import Objective
 from athermal.observables import measure
 from athermal.packing import Packing, random_packing
+from athermal.relaxation import minimize_objective
 
 
 @pytest.fixture(scope="module")
 def relaxed():
     model = ContactModel()
     packing = random_packing(1024, 0.86, seed=5)
-    return minimize(Objective(packing, model), "lbfgs", precon="exp", rtol=1e-10).packing, model
+    return minimize_objective(
+        Objective(packing, model), "lbfgs", precon="exp", rtol=1e-10
+    ).packing, model
 
 
 def test_the_density_integrates_to_the_fraction_below_the_range():
@@ -89,7 +91,9 @@ def test_a_relaxed_packing_counts_the_forces_of_its_non_rattlers(relaxed):
     # -90 degrees. A relaxed random packing keeps a residual anisotropy (here 0.04-0.08,
     # measured) as large as a 1 % shear adds, and a 1e-3 shear may rearrange contacts, so the
     # change is taken at gamma = 1e-5, in linear response.
-    sheared = minimize(Objective(packing.deform([[1.0, 1e-5], [0.0, 1.0]]), model), rtol=1e-10)
+    sheared = minimize_objective(
+        Objective(packing.deform([[1.0, 1e-5], [0.0, 1.0]]), model), rtol=1e-10
+    )
     after = force_statistics(sheared.packing, model)
     change = anisotropy_vector(after.force_anisotropy, after.force_axis) - anisotropy_vector(
         stats.force_anisotropy, stats.force_axis

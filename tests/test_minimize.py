@@ -6,42 +6,20 @@ import pytest
 from athermal.cell import Cell
 from athermal.contact import ContactModel
 from athermal.errors import InputError
-from athermal.minimize import Status, minimize
+from athermal.minimize import Function, Hooks, Status
 from athermal.minimize._step import advance
 from athermal.minimize.cg import cg
 from athermal.minimize.lbfgs import lbfgs
 from athermal.minimize.newton import newton
 from athermal.objective import Objective
 from athermal.packing import Packing, random_packing
+from athermal.relaxation import minimize_objective
 
 
-class FunctionObjective:
-    """A smooth test function on ``n`` two-component 'particles', Objective's interface."""
-
-    def __init__(self, fun, x0):
-        self.fun, self.x0 = fun, np.asarray(x0, dtype=float)
-        self.dim, self.n = 2, self.x0.size // 2
-        self.n_dof = self.x0.size
-        self.n_evaluations = self.n_rebuilds = 0
-
-    def __call__(self, x):
-        self.n_evaluations += 1
-        return self.fun(x)
-
-    def max_gradient(self, g):
-        return float(np.sqrt((g.reshape(-1, 2) ** 2).sum(axis=1)).max())
-
-    def mean_contact_force(self, x):
-        return 1.0
-
-    def energy_noise(self, energy):
-        return 0.0  # only the relative round-off of the line search
-
-    def step_limit(self, direction):
-        return 1.0 / self.max_gradient(direction)  # per-iteration moves capped at 1
-
-    def packing(self, x, internal=False):
-        return None
+def two_component(fun, x0):
+    """A smooth test function on two-component blocks, each move capped at 1 per iteration
+    (only the relative round-off of the line search)."""
+    return Function(fun, np.size(x0), Hooks(block=2, max_step=1.0))
 
 
 def quadratic(x):
@@ -63,7 +41,10 @@ def rosenbrock(x):
 
 
 class Identity:
-    name, n_builds = "identity", 0
+    name, n_builds, n_solves = "identity", 0, 0
+
+    def compiled_solver(self):
+        return None
 
     def update(self, x):
         pass
@@ -78,11 +59,12 @@ class Identity:
 @pytest.mark.parametrize("method", ["lbfgs", "cg-fr", "cg-pr+"])
 @pytest.mark.parametrize(("fun", "limit"), [(quadratic, 300), (rosenbrock, 3000)])
 def test_methods_reach_the_known_minimum(method, fun, limit):
-    obj = FunctionObjective(fun, np.full(10, -1.2))
+    start = np.full(10, -1.2)
+    obj = two_component(fun, start)
     if method == "lbfgs":
-        res = lbfgs(obj, obj.x0, gtol=1e-9, maxiter=limit)
+        res = lbfgs(obj, start, gtol=1e-9, maxiter=limit)
     else:
-        res = cg(obj, obj.x0, gtol=1e-9, maxiter=limit * 3, variant=method[3:])
+        res = cg(obj, start, gtol=1e-9, maxiter=limit * 3, variant=method[3:])
     assert res.converged, res.message
     np.testing.assert_allclose(res.x, 1.0, atol=1e-7)
     assert res.max_gradient <= 1e-9
@@ -92,8 +74,8 @@ def test_methods_reach_the_known_minimum(method, fun, limit):
 def test_lbfgs_with_identity_preconditioner_equals_plain_lbfgs_when_b0_is_identity():
     """On a function with unit Hessian the seed's scaling s.y / y.y is exactly 1."""
     start = np.linspace(-2.0, 3.0, 12)
-    plain = lbfgs(FunctionObjective(unit_quadratic, start), start, gtol=1e-12)
-    pre = lbfgs(FunctionObjective(unit_quadratic, start), start, gtol=1e-12, precon=Identity())
+    plain = lbfgs(two_component(unit_quadratic, start), start, gtol=1e-12)
+    pre = lbfgs(two_component(unit_quadratic, start), start, gtol=1e-12, precon=Identity())
     assert plain.iterations == pre.iterations
     np.testing.assert_array_equal(plain.x, pre.x)
     np.testing.assert_array_equal(plain.history_energy, pre.history_energy)
@@ -111,7 +93,7 @@ PINNED = {"lbfgs": 585, "cg": 675, "fire": 1140}
 def test_small_packings_relax_to_a_tight_tolerance(method):
     obj = Objective(overlapped(), ContactModel(2.0))
     e0, _ = obj(obj.x0)
-    res = minimize(obj, method, rtol=1e-9)
+    res = minimize_objective(obj, method, rtol=1e-9)
     assert res.converged, res.message
     assert res.max_gradient <= res.gtol
     assert res.energy < e0
@@ -128,37 +110,37 @@ def test_hertzian_packing_and_three_dimensions():
         (overlapped(seed=2), ContactModel(2.5)),
         (random_packing(96, 0.7, dim=3, seed=3), ContactModel(2.0)),
     ]:
-        res = minimize(Objective(packing, model), "lbfgs", rtol=1e-9)
+        res = minimize_objective(Objective(packing, model), "lbfgs", rtol=1e-9)
         assert res.converged, res.message
 
 
 def test_unjammed_packing_ends_with_zero_energy():
     obj = Objective(random_packing(128, 0.5, seed=4), ContactModel(2.0))
-    res = minimize(obj, "lbfgs", rtol=1e-9)
+    res = minimize_objective(obj, "lbfgs", rtol=1e-9)
     assert res.converged and res.energy == 0.0
-    done = minimize(Objective(res.packing, ContactModel(2.0)), "lbfgs", gtol=1e-12)
+    done = minimize_objective(Objective(res.packing, ContactModel(2.0)), "lbfgs", gtol=1e-12)
     assert done.converged and done.iterations == 0 and done.evaluations == 1
 
 
 @pytest.mark.parametrize("method", ["lbfgs", "cg", "fire"])
 def test_energy_tolerance_ends_the_run_at_the_first_iterate_below_it(method):
     obj = Objective(random_packing(128, 0.5, seed=4), ContactModel(2.0))
-    res = minimize(obj, method, gtol=0.0, etol=1e-12)
+    res = minimize_objective(obj, method, gtol=0.0, etol=1e-12)
     assert res.converged and res.energy <= 1e-12
     assert np.all(res.history_energy[:-1] > 1e-12)
     with pytest.raises(InputError, match="etol"):
-        minimize(obj, method, gtol=0.0, etol=-1.0)
+        minimize_objective(obj, method, gtol=0.0, etol=-1.0)
 
 
 def test_non_convergence_is_reported_not_raised():
     obj = Objective(overlapped(), ContactModel(2.0))
-    res = minimize(obj, "lbfgs", rtol=1e-12, maxiter=3)
+    res = minimize_objective(obj, "lbfgs", rtol=1e-12, maxiter=3)
     assert not res.converged and "limit" in res.message and res.iterations == 3
 
 
 def test_runs_are_reproducible():
-    a = minimize(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
-    b = minimize(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
+    a = minimize_objective(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
+    b = minimize_objective(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
     np.testing.assert_array_equal(a.x, b.x)
     assert a.iterations == b.iterations
 
@@ -166,16 +148,16 @@ def test_runs_are_reproducible():
 def test_option_errors_name_the_choices():
     obj = Objective(overlapped(), ContactModel(2.0))
     with pytest.raises(InputError, match="'lbfgs'"):
-        minimize(obj, "bfgs", rtol=1e-9)
+        minimize_objective(obj, "bfgs", rtol=1e-9)
     with pytest.raises(InputError, match="precon"):
-        minimize(obj, "lbfgs", precon="jacobi", rtol=1e-9)
+        minimize_objective(obj, "lbfgs", precon="jacobi", rtol=1e-9)
     with pytest.raises(InputError, match="exactly one"):
-        minimize(obj, "lbfgs")
+        minimize_objective(obj, "lbfgs")
 
 
 def test_two_disks_relax_to_touching():
     p = Packing(np.array([[0.0, 0.0], [0.15, 0.0]]), np.array([0.1, 0.1]), Cell.box([1.0, 1.0]))
-    res = minimize(Objective(p, ContactModel(2.0)), "lbfgs", gtol=1e-14)
+    res = minimize_objective(Objective(p, ContactModel(2.0)), "lbfgs", gtol=1e-14)
     assert res.converged
     sep = p.cell.minimum_image(res.packing.positions[0] - res.packing.positions[1])
     assert np.linalg.norm(sep) >= 0.2 - 1e-12
@@ -184,12 +166,12 @@ def test_two_disks_relax_to_touching():
 @pytest.mark.parametrize("seed", [1, 2])
 def test_preconditioners_cut_iterations_on_a_compressed_relaxed_packing(seed):
     """The seed's Case 1 in small: a relaxed packing with radii grown by 5e-5."""
-    relaxed = minimize(
+    relaxed = minimize_objective(
         Objective(random_packing(256, 0.86, seed=seed), ContactModel(2.0)), "lbfgs", rtol=1e-12
     ).packing
     start = relaxed.scale_radii(1.0 + 5e-5)
     iterations = {
-        pre: minimize(Objective(start, ContactModel(2.0)), "lbfgs", precon=pre, rtol=1e-9)
+        pre: minimize_objective(Objective(start, ContactModel(2.0)), "lbfgs", precon=pre, rtol=1e-9)
         for pre in ("none", "exp", "contact")
     }
     assert all(res.converged for res in iterations.values())
@@ -205,7 +187,7 @@ def test_preconditioners_cut_iterations_on_a_compressed_relaxed_packing(seed):
     assert iterations["exp"].precon_builds >= 1
     # "auto" factors the Exp matrix incompletely (IC(0)) and keeps the gain: measured 267 and
     # 247 iterations against the exact factor's 243 and 251 (Intel Xeon)
-    direct = minimize(
+    direct = minimize_objective(
         Objective(start, ContactModel(2.0)), "lbfgs", precon="exp", solver="direct", rtol=1e-9
     )
     assert direct.converged and direct.iterations <= 300
@@ -214,21 +196,21 @@ def test_preconditioners_cut_iterations_on_a_compressed_relaxed_packing(seed):
 
 def test_status_says_why_a_run_stopped():
     obj = Objective(overlapped(), ContactModel(2.0))
-    assert minimize(obj, "lbfgs", rtol=1e-9).status is Status.CONVERGED
-    limited = minimize(obj, "cg", rtol=1e-12, maxiter=3)
+    assert minimize_objective(obj, "lbfgs", rtol=1e-9).status is Status.CONVERGED
+    limited = minimize_objective(obj, "cg", rtol=1e-12, maxiter=3)
     assert limited.status is Status.ITERATION_LIMIT and not limited.converged
-    assert minimize(obj, "fire", rtol=1e-12, maxiter=3).status is Status.ITERATION_LIMIT
+    assert minimize_objective(obj, "fire", rtol=1e-12, maxiter=3).status is Status.ITERATION_LIMIT
 
 
 def test_explicit_start_is_where_the_run_begins_and_x0_is_left_alone():
     obj = Objective(overlapped(), ContactModel(2.0))
-    first = minimize(obj, "lbfgs", rtol=1e-6)
+    first = minimize_objective(obj, "lbfgs", rtol=1e-6)
     before = obj.x0.copy()
-    again = minimize(obj, "lbfgs", x0=first.x, gtol=first.gtol)
+    again = minimize_objective(obj, "lbfgs", x0=first.x, gtol=first.gtol)
     assert again.iterations == 0 and again.evaluations <= 1
     np.testing.assert_array_equal(obj.x0, before)
     with pytest.raises(InputError, match="x0"):
-        minimize(obj, "lbfgs", x0=first.x[:-1], rtol=1e-9)
+        minimize_objective(obj, "lbfgs", x0=first.x[:-1], rtol=1e-9)
 
 
 def test_step_limit_caps_the_largest_particle_move():
@@ -255,12 +237,12 @@ def two_loop_reference(grad, pairs, precon_solve):
 
 
 def test_compiled_compact_form_matches_the_textbook_two_loop_recursion():
-    from athermal.minimize.lbfgs import _Memory
+    from athermal.minimize._memory import Memory
 
     rng = np.random.default_rng(5)
     n, diag = 40, np.linspace(1.0, 5.0, 40)
     solve = lambda v: v / diag  # noqa: E731  # a diagonal P
-    memory = _Memory(4, n, Identity())
+    memory = Memory(4, n, Identity())
     pairs = []
     for _ in range(6):  # more pairs than the memory: the ring drops the oldest
         s = rng.standard_normal(n)
@@ -280,7 +262,10 @@ class Rebuilding:
     name = "rebuilding"
 
     def __init__(self, n):
-        self.n_builds, self.updates, self.diag = 0, 0, np.ones(n)
+        self.n_builds, self.n_solves, self.updates, self.diag = 0, 0, 0, np.ones(n)
+
+    def compiled_solver(self):
+        return None
 
     def update(self, x):
         if self.updates % 5 == 0:
@@ -296,12 +281,12 @@ class Rebuilding:
 
 
 def test_pairs_are_refreshed_when_the_preconditioner_is_rebuilt():
-    from athermal.minimize.lbfgs import _Memory
+    from athermal.minimize._memory import Memory
 
     start = np.linspace(-2.0, 3.0, 40)
-    res = lbfgs(FunctionObjective(quadratic, start), start, gtol=1e-10, precon=Rebuilding(40))
+    res = lbfgs(two_component(quadratic, start), start, gtol=1e-10, precon=Rebuilding(40))
     assert res.converged and res.precon_builds > 3
-    memory, pre = _Memory(3, 40, Rebuilding(40)), Rebuilding(40)
+    memory, pre = Memory(3, 40, Rebuilding(40)), Rebuilding(40)
     rng = np.random.default_rng(2)
     for _ in range(3):
         s = rng.standard_normal(40)
@@ -325,12 +310,12 @@ def test_pairs_are_refreshed_when_the_preconditioner_is_rebuilt():
 class PythonOnly:
     """An objective without its compiled energy: the minimizers' generic (Python) search."""
 
+    compiled = None
+
     def __init__(self, objective):
         self._objective = objective
 
     def __getattr__(self, name):
-        if name in ("search", "took", "search_arguments", "search_constants"):
-            raise AttributeError(name)
         return getattr(self._objective, name)
 
     def __call__(self, x):
@@ -374,8 +359,9 @@ def test_a_compiled_search_out_of_reach_leaves_the_last_point_it_evaluated():
     """A search that extrapolates beyond the Verlet list's reach stops at the first trial point
     out of reach, after evaluations, with ``trial`` and its gradient those of the last point it
     evaluated (the one the objective takes back as its cached evaluation)."""
-    from athermal import _wolfe
+    from athermal.minimize import _wolfe
     from athermal.minimize.linesearch import C1, EPS
+    from athermal.objective import energy_search
 
     objective = Objective(random_packing(96, 0.88, seed=7), ContactModel(2.0))
     x = objective.x0
@@ -386,8 +372,8 @@ def test_a_compiled_search_out_of_reach_leaves_the_last_point_it_evaluated():
     state = np.empty(_wolfe.STATE_SIZE)
     code = _wolfe.begin(state, energy, grad @ direction, 1.0, C1, 0.9, np.inf, EPS, 0.0, 30)
     trial, trial_grad = np.empty_like(x), np.empty_like(x)
-    code, evaluations, last, _, stale = _wolfe.energy_search(
-        state, code, x, direction, trial, trial_grad, *arguments
+    code, evaluations, last, _, stale = energy_search(
+        state, code, x, direction, trial, trial_grad, arguments
     )
     assert stale and evaluations >= 1 and code == _wolfe.GO_ON
     moves = (state[_wolfe.TRIAL] * direction).reshape(-1, 2)
@@ -473,3 +459,55 @@ def test_compiled_iterations_stop_at_the_iteration_limit(method):
     res = method(obj, obj.x0, gtol=1e-14, maxiter=23)
     assert res.status is Status.ITERATION_LIMIT and res.iterations == 23
     assert res.history_energy.size == 24
+
+
+@pytest.mark.parametrize("method", ["lbfgs", "cg", "fire", "newton"])
+def test_the_library_minimizes_a_plain_function(method):
+    """Issue 36: the 100-dimensional Rosenbrock function, a plain callable, to gtol = 1e-10
+    through the public call (FIRE given a bound on the Hessian's largest eigenvalue, 1802 at
+    the minimum; Newton the Hessian)."""
+    from scipy.optimize import rosen, rosen_der, rosen_hess
+
+    from athermal.minimize import minimize as library
+
+    result = library(
+        lambda x: (rosen(x), rosen_der(x)),
+        np.zeros(100),
+        method=method,
+        gtol=1e-10,
+        hess=rosen_hess if method == "newton" else None,
+        options={"curvature": 2500.0} if method == "fire" else None,
+    )
+    assert result.success and result.status is Status.CONVERGED, result.message
+    assert np.abs(rosen_der(result.x)).max() <= 1e-10
+    np.testing.assert_allclose(result.x, 1.0, atol=1e-8)
+    assert result.fun == rosen(result.x) and result.nit == result.iterations
+    np.testing.assert_array_equal(result.jac, rosen_der(result.x))
+    assert result.nfev >= result.nit
+
+
+def test_the_library_refuses_what_it_cannot_use():
+    from athermal.minimize import minimize as library
+
+    quadratic_ = lambda x: (0.5 * float(x @ x), x.copy())  # noqa: E731
+    with pytest.raises(InputError, match="x0 is the start vector"):
+        library(Objective(overlapped(), ContactModel(2.0)), "lbfgs")
+    with pytest.raises(InputError, match="curvature"):
+        library(quadratic_, np.ones(4), method="fire")
+    with pytest.raises(InputError, match="hess"):
+        library(quadratic_, np.ones(4), method="newton")
+    with pytest.raises(InputError, match="block"):
+        library(quadratic_, np.ones(5), hooks=Hooks(block=2))
+    with pytest.raises(InputError, match="'lbfgs'"):
+        library(quadratic_, np.ones(4), method="plbfgs")
+
+
+def test_the_old_top_level_call_still_works_with_a_deprecation_warning():
+    import athermal
+
+    obj = Objective(overlapped(), ContactModel(2.0))
+    with pytest.warns(DeprecationWarning, match="athermal.relax"):
+        old = athermal.minimize(obj, "lbfgs", rtol=1e-9)
+    new = minimize_objective(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
+    assert old.converged and old.iterations == new.iterations and old.energy == new.energy
+    np.testing.assert_array_equal(old.packing.positions, new.packing.positions)

@@ -12,7 +12,6 @@ from athermal.cli import main
 from athermal.contact import ContactModel
 from athermal.errors import InputError
 from athermal.io import write_gsd
-from athermal.minimize import minimize
 from athermal.modes import (
     density_of_states,
     plateau_edge,
@@ -22,12 +21,15 @@ from athermal.modes import (
 )
 from athermal.objective import Objective
 from athermal.packing import Packing, random_packing
+from athermal.relaxation import minimize_objective
 
 
 def relaxed(n, phi, dim, seed):
     model = ContactModel()
     packing = random_packing(n, phi, dim=dim, seed=seed)
-    return minimize(Objective(packing, model), "lbfgs", precon="exp", rtol=1e-12).packing, model
+    return minimize_objective(
+        Objective(packing, model), "lbfgs", precon="exp", rtol=1e-12
+    ).packing, model
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,6 @@ from athermal.contact import (
     total_energy,
 )
 from athermal.errors import InputError
-from athermal.minimize import minimize
 from athermal.moduli import (
     _cholesky_solve,
     _solve,
@@ -27,6 +26,7 @@ from athermal.objective import Objective
 from athermal.observables import rattlers
 from athermal.packing import Packing, random_packing
 from athermal.protocols import Minimizer, finite_strain_bulk, finite_strain_shear
+from athermal.relaxation import minimize_objective
 
 
 def assert_second_order(err_h, err_h2, scale, tol=1e-6):
@@ -129,7 +129,9 @@ def test_strain_terms_follow_the_deformed_packing_with_its_cell():
 
 def relaxed(n, phi, dim, alpha, seed=1):
     model = ContactModel(alpha)
-    result = minimize(Objective(random_packing(n, phi, dim=dim, seed=seed), model), rtol=1e-12)
+    result = minimize_objective(
+        Objective(random_packing(n, phi, dim=dim, seed=seed), model), rtol=1e-12
+    )
     assert result.converged
     return result.packing, model
 
@@ -169,7 +171,7 @@ def test_pure_shear_curvature_against_relaxed_energy_differences():
     h = 1e-5
 
     def energy(s):
-        result = minimize(Objective(p.deform(pure_shear(s)), model), gtol=1e-15)
+        result = minimize_objective(Objective(p.deform(pure_shear(s)), model), gtol=1e-15)
         return result.energy
 
     fd = (energy(h) - 2.0 * total_energy(find_contacts(p, model)) + energy(-h)) / h**2
@@ -358,7 +360,9 @@ def test_a_relaxed_packing_is_stable():
     from athermal.moduli import stability
 
     model = ContactModel(2.0)
-    relaxed = minimize(Objective(random_packing(128, 0.88, seed=2), model), rtol=1e-12).packing
+    relaxed = minimize_objective(
+        Objective(random_packing(128, 0.88, seed=2), model), rtol=1e-12
+    ).packing
     check = stability(relaxed, model)
     assert check.stable and check.mode is None
 
@@ -366,7 +370,7 @@ def test_a_relaxed_packing_is_stable():
 def test_a_protocol_relaxation_leaves_the_saddle_for_a_minimum():
     from athermal.moduli import stability
     from athermal.protocols import Minimizer
-    from athermal.protocols._relax import Relaxer
+    from athermal.relaxation import Relaxer
 
     square, model = _square_lattice(), ContactModel(2.0)
     objective = Objective(square, model)
@@ -387,7 +391,7 @@ def test_nonaffine_displacement_is_the_relaxation_to_first_order():
     errors = []
     for gamma in (1e-5, 1e-6):
         sheared = p.deform(np.eye(2) + gamma * d1)
-        res = minimize(Objective(sheared, model), "newton", gtol=1e-14)
+        res = minimize_objective(Objective(sheared, model), "newton", gtol=1e-14)
         moved = sheared.cell.minimum_image(res.packing.positions - sheared.positions)[live]
         predicted = gamma * u[live]
         moved -= moved.mean(axis=0)  # the relaxation is defined up to a translation

@@ -97,20 +97,20 @@ def test_list_built_with_skin_stays_complete_within_half_skin():
 def test_row_maxima_match_numpy(dim, rows):
     """The compiled row maxima (four rows at a time, 2D and 3D specialized) against numpy, for
     row counts that leave every remainder of four."""
-    from athermal import _kernels
-    from athermal._wolfe import _place_trial
+    from athermal import _blocks
+    from athermal.objective import _place_trial
 
     rng = np.random.default_rng(rows * dim)
     x, direction = rng.normal(size=(2, rows * dim))
     reference = rng.normal(size=(rows, dim))
     flat = x.reshape(rows, dim)
-    assert _kernels.max_row_norm(x, dim) == pytest.approx(np.linalg.norm(flat, axis=1).max())
+    assert _blocks.max_row_norm(x, dim) == pytest.approx(np.linalg.norm(flat, axis=1).max())
     moved = ((flat - reference) ** 2).sum(axis=1).max()
-    assert _kernels.max_displacement_sq(flat, reference) == pytest.approx(moved)
+    assert _blocks.max_displacement_sq(flat, reference) == pytest.approx(moved)
     moved = ((flat + 0.3 * direction.reshape(rows, dim) - reference) ** 2).sum(axis=1).max()
     trial = np.empty_like(x)
     assert _place_trial(x, direction, 0.3, reference, trial) == pytest.approx(moved)
-    assert _kernels.step_limit(0.5, x, dim) == pytest.approx(
+    assert _blocks.step_limit(0.5, x, dim) == pytest.approx(
         0.5 / np.linalg.norm(flat, axis=1).max()
     )
     # the search writes the point numpy computes (no fused multiply-add) and its reach test
@@ -119,4 +119,4 @@ def test_row_maxima_match_numpy(dim, rows):
         point = x + a * direction
         reach = _place_trial(x, direction, a, reference, trial)
         assert np.array_equal(trial, point)
-        assert reach == _kernels.max_displacement_sq(point.reshape(rows, dim), reference)
+        assert reach == _blocks.max_displacement_sq(point.reshape(rows, dim), reference)

@@ -10,9 +10,10 @@ from athermal.bench import make_case, reference_packing
 from athermal.cell import Cell, simple_shear
 from athermal.contact import ContactModel, find_contacts, hessian
 from athermal.errors import InputError
-from athermal.minimize import Minimizer, Status, minimize
+from athermal.minimize import Hooks, Status
 from athermal.objective import Objective
 from athermal.packing import Packing, random_packing
+from athermal.relaxation import Minimizer, minimize_objective
 
 newton_module = importlib.import_module("athermal.minimize.newton")
 
@@ -52,6 +53,8 @@ def test_hessian_products_match_finite_differences_of_the_gradient(alpha, dim):
 class MatrixHessian:
     """A Hessian given as a sparse matrix ``a``."""
 
+    pairs = None  # no pair terms: the factor does not follow contacts
+
     def __init__(self, a):
         self.a = a
 
@@ -72,7 +75,8 @@ class Quadratic:
         main = np.linspace(1.0, 1e4, n)
         self.a = sp.diags([main, -0.3 * np.ones(n - 1), -0.3 * np.ones(n - 1)], [0, -1, 1]).tocsr()
         self.n_dof, self.dim = n, 2
-        self.n_evaluations = self.n_rebuilds = 0
+        self.hooks, self.compiled = Hooks(block=2), None
+        self.n_evaluations = 0
 
     def __call__(self, x):
         self.n_evaluations += 1
@@ -81,18 +85,6 @@ class Quadratic:
 
     def hessian(self, x):
         return MatrixHessian(self.a)
-
-    def max_gradient(self, g):
-        return float(np.sqrt((g.reshape(-1, 2) ** 2).sum(axis=1)).max())
-
-    def energy_noise(self, energy):
-        return 0.0
-
-    def step_limit(self, direction):
-        return np.inf
-
-    def packing(self, x, internal=False):
-        return None
 
 
 def test_a_quadratic_is_solved_in_one_newton_step():
@@ -115,9 +107,9 @@ def test_a_build_starts_above_the_negative_diagonal_blocks():
     assert factor.n_failed == 0 and factor.n_builds == 1
     assert factor.shift * factor.scale == pytest.approx(newton_module.BLOCK_MARGIN)
     np.testing.assert_allclose(factor.solve(np.ones(10)), 1.0 / (a.diagonal() + 2.0))
-    # a Hessian without the method (it is optional) is factored as before, from SHIFT_MIN up
+    # a Hessian that knows no bound (a plain sparse matrix) is factored from SHIFT_MIN up
     plain = newton_module.LaggedFactor()
-    plain.build(type("PlainHessian", (), {"dot": a.dot, "matrix": lambda self: a})())
+    plain.build(newton_module.SparseHessian(a))
     assert plain.n_failed == 4 and plain.shift == pytest.approx(0.1)
 
 
@@ -130,7 +122,7 @@ PINNED = {(2.0, 2): 200, (2.5, 2): 170, (2.0, 3): 200}
 def test_small_packings_relax_to_a_tight_tolerance(alpha, dim):
     packing = overlapped() if dim == 2 else random_packing(96, 0.7, dim=3, seed=3)
     obj = Objective(packing, ContactModel(alpha))
-    res = minimize(obj, "newton", rtol=1e-9)
+    res = minimize_objective(obj, "newton", rtol=1e-9)
     assert res.converged, res.message
     assert res.max_gradient <= res.gtol
     assert res.iterations <= PINNED[alpha, dim]
@@ -144,7 +136,7 @@ def test_a_table_case_converges_in_few_iterations():
     """The seed's Case 3 (alpha = 2, N = 4096): L-BFGS needs ~1560 iterations."""
     alpha = 2.0
     start = make_case(reference_packing(alpha), 3)
-    res = minimize(Objective(start, ContactModel(alpha)), "newton", rtol=1e-9)
+    res = minimize_objective(Objective(start, ContactModel(alpha)), "newton", rtol=1e-9)
     assert res.converged, res.message
     assert res.iterations <= 40  # measured 24-25
 
@@ -153,12 +145,12 @@ def test_a_quasi_static_step_near_jamming_takes_few_iterations():
     """A compressed packing, sheared by 1e-4: the contact network holds, Newton converges
     quadratically from the lagged factor."""
     model = ContactModel(2.0)
-    relaxed = minimize(
+    relaxed = minimize_objective(
         Objective(random_packing(256, 0.87, seed=5), model), "lbfgs", rtol=1e-12
     ).packing
     sheared = relaxed.deform(simple_shear(1e-4, 2))
-    res = minimize(Objective(sheared, model), "newton", rtol=1e-9)
-    plain = minimize(Objective(sheared, model), "lbfgs", rtol=1e-9)
+    res = minimize_objective(Objective(sheared, model), "newton", rtol=1e-9)
+    plain = minimize_objective(Objective(sheared, model), "lbfgs", rtol=1e-9)
     assert res.converged and plain.converged
     assert res.iterations <= 10 < plain.iterations  # measured 2-3 against ~200
     assert res.energy == pytest.approx(plain.energy, rel=1e-8)
@@ -169,24 +161,24 @@ def test_packings_without_energy_end_at_once():
     dilute = Packing(grid, np.full(64, 0.03), Cell.box([1.0, 1.0]))
     model = ContactModel(2.0)
     assert find_contacts(dilute, model).i.size == 0
-    res = minimize(Objective(dilute, model), "newton", gtol=1e-12)
+    res = minimize_objective(Objective(dilute, model), "newton", gtol=1e-12)
     assert res.converged and res.iterations == 0 and res.evaluations == 1
     assert res.precon_builds == 0
     # an unjammed packing relaxes to (almost) zero energy, and from there ends at once
     start = random_packing(128, 0.5, seed=4)
     e0, _ = Objective(start, model)(start.positions.ravel())
-    unjammed = minimize(Objective(start, model), "newton", rtol=1e-9)
+    unjammed = minimize_objective(Objective(start, model), "newton", rtol=1e-9)
     assert unjammed.converged and unjammed.energy <= 1e-12 * e0
-    again = minimize(Objective(unjammed.packing, model), "newton", gtol=unjammed.gtol)
+    again = minimize_objective(Objective(unjammed.packing, model), "newton", gtol=unjammed.gtol)
     assert again.iterations == 0
     # with an energy tolerance the run ends at the first iterate below it
-    stopped = minimize(Objective(start, model), "newton", gtol=0.0, etol=1e-12)
+    stopped = minimize_objective(Objective(start, model), "newton", gtol=0.0, etol=1e-12)
     assert stopped.converged and stopped.energy <= 1e-12
 
 
 def test_runs_are_reproducible():
-    a = minimize(Objective(overlapped(), ContactModel(2.0)), "newton", rtol=1e-9)
-    b = minimize(Objective(overlapped(), ContactModel(2.0)), "newton", rtol=1e-9)
+    a = minimize_objective(Objective(overlapped(), ContactModel(2.0)), "newton", rtol=1e-9)
+    b = minimize_objective(Objective(overlapped(), ContactModel(2.0)), "newton", rtol=1e-9)
     np.testing.assert_array_equal(a.x, b.x)
     assert a.iterations == b.iterations and a.linear_iterations == b.linear_iterations
 
@@ -194,7 +186,7 @@ def test_runs_are_reproducible():
 def test_newton_takes_no_preconditioner():
     obj = Objective(overlapped(), ContactModel(2.0))
     with pytest.raises(InputError, match="newton"):
-        minimize(obj, "newton", precon="exp", rtol=1e-9)
+        minimize_objective(obj, "newton", precon="exp", rtol=1e-9)
     with pytest.raises(InputError, match="newton"):
         Minimizer("newton", "contact")
     assert Minimizer("newton").name == "Newton-CG" and Minimizer("newton").label == "newton"
@@ -218,7 +210,8 @@ class Channel(Quadratic):
 
     def __init__(self):
         self.n_dof, self.dim = 2, 2
-        self.n_evaluations = self.n_rebuilds = 0
+        self.hooks, self.compiled = Hooks(block=2), None
+        self.n_evaluations = 0
 
     def __call__(self, v):
         self.n_evaluations += 1

@@ -23,7 +23,7 @@ MODEL = athermal.ContactModel()
 def jammed() -> athermal.Packing:
     """A small packing above jamming, relaxed so its contact forces are balanced."""
     start = athermal.random_packing(64, 0.9, seed=1)
-    return athermal.minimize(athermal.Objective(start, MODEL), "lbfgs", rtol=1e-9).packing
+    return athermal.relax(start, MODEL).packing
 
 
 @pytest.fixture(scope="module")

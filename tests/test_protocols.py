@@ -7,7 +7,7 @@ import pytest
 from athermal.cell import pure_shear
 from athermal.contact import ContactModel
 from athermal.errors import ConvergenceError, InputError
-from athermal.minimize import Status, minimize
+from athermal.minimize import Status
 from athermal.moduli import linear_response
 from athermal.objective import Objective
 from athermal.observables import measure
@@ -24,9 +24,9 @@ from athermal.protocols import (
     scaling_exponents,
     shear_steps,
 )
-from athermal.protocols._relax import energy_scale, force_tolerance
 from athermal.protocols.compress import UNJAMMED_FORCE, is_unjammed, pooled_fit
 from athermal.protocols.jamming import JammingCheck, _next_trial, isostatic_allowance
+from athermal.relaxation import energy_scale, force_tolerance, minimize_objective
 
 
 @pytest.fixture(scope="module")
@@ -166,7 +166,9 @@ def test_jam_checks_its_packing_as_a_referee_would(jammed_256):
 
 def test_check_jammed_flags_a_packing_far_above_jamming():
     model = ContactModel(2.0)
-    far = minimize(Objective(random_packing(128, 0.86, seed=3), model), rtol=1e-10).packing
+    far = minimize_objective(
+        Objective(random_packing(128, 0.86, seed=3), model), rtol=1e-10
+    ).packing
     check = check_jammed(far, model, epsilon=1e-6)
     assert not check.unjams and check.overlap_dphi > 1e-3
     assert any("decompressed" in p for p in check.problems())
@@ -297,12 +299,12 @@ def test_pure_shear_reaches_the_final_strain_exactly_and_flags_stress_drops():
 def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
     """A line-search failure near the minimum is handed to FIRE; counts add up, the message
     says so, and a plain non-convergence still raises."""
+    from athermal import relaxation
     from athermal.errors import ConvergenceError
     from athermal.objective import Objective
-    from athermal.protocols import _relax
 
     packing, model = random_packing(64, 0.9, seed=1), ContactModel(2.0)
-    real = _relax.minimize
+    real = relaxation.minimize_objective
     calls = []
 
     def failing_lbfgs(objective, method, **kw):
@@ -314,16 +316,16 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
             )
         return real(objective, method, **kw)
 
-    monkeypatch.setattr(_relax, "minimize", failing_lbfgs)
-    relaxer = _relax.Relaxer(Objective(packing, model), Minimizer("lbfgs"))
+    monkeypatch.setattr(relaxation, "minimize_objective", failing_lbfgs)
+    relaxer = relaxation.Relaxer(Objective(packing, model), Minimizer("lbfgs"))
     result = relaxer.relax(relaxer.objective.x0, gtol=1e-12)
     assert calls == ["lbfgs", "fire"] and result.converged and result.max_gradient <= 1e-12
     assert result.method == "lbfgs+fire" and "FIRE after" in result.message
     assert result.iterations == result.history_energy.size - 1 > 5
 
-    monkeypatch.setattr(_relax, "minimize", real)
+    monkeypatch.setattr(relaxation, "minimize_objective", real)
     with pytest.raises(ConvergenceError, match="did not converge"):
-        _relax.Relaxer(Objective(packing, model), Minimizer("lbfgs", maxiter=3)).relax(
+        relaxation.Relaxer(Objective(packing, model), Minimizer("lbfgs", maxiter=3)).relax(
             relaxer.objective.x0, gtol=1e-14
         )
 
@@ -331,15 +333,15 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
 def test_a_newton_relaxation_that_crawls_goes_on_with_plbfgs(monkeypatch):
     """Past NEWTON_PATIENCE iterations Newton-CG hands over to P-L-BFGS; counts add up, the
     message says so; within it, or with maxiter at or below it, Newton alone."""
-    from athermal.protocols import _relax
+    from athermal import relaxation
 
     packing, model = random_packing(64, 0.9, seed=1), ContactModel(2.0)
-    alone = _relax.Relaxer(Objective(packing, model), Minimizer("newton"))
+    alone = relaxation.Relaxer(Objective(packing, model), Minimizer("newton"))
     plain = alone.relax(alone.objective.x0, gtol=1e-12)
     assert plain.method == "newton" and plain.converged and plain.iterations > 3
 
-    monkeypatch.setattr(_relax, "NEWTON_PATIENCE", 3)
-    relaxer = _relax.Relaxer(Objective(packing, model), Minimizer("newton"))
+    monkeypatch.setattr(relaxation, "NEWTON_PATIENCE", 3)
+    relaxer = relaxation.Relaxer(Objective(packing, model), Minimizer("newton"))
     result = relaxer.relax(relaxer.objective.x0, gtol=1e-12)
     assert result.converged and result.max_gradient <= 1e-12
     assert result.method == "newton+lbfgs" and "P-L-BFGS after" in result.message
@@ -348,7 +350,7 @@ def test_a_newton_relaxation_that_crawls_goes_on_with_plbfgs(monkeypatch):
     # another minimum than Newton's alone (a random start has many), reached downhill
     assert result.energy < relaxer.objective(relaxer.objective.x0)[0]
     with pytest.raises(ConvergenceError, match="did not converge"):
-        _relax.Relaxer(Objective(packing, model), Minimizer("newton", maxiter=3)).relax(
+        relaxation.Relaxer(Objective(packing, model), Minimizer("newton", maxiter=3)).relax(
             relaxer.objective.x0, gtol=1e-12
         )
 
@@ -418,7 +420,7 @@ def test_a_refuted_jammed_verdict_reopens_the_bracket_and_resumes_identically(mo
 def test_the_final_relaxation_balances_forces_relative_to_the_packings_own(jammed_256):
     """max_i |grad_i| <= 1e-10 x the mean contact force, or the round-off floor when larger."""
     from athermal.contact import find_contacts
-    from athermal.protocols._relax import round_off_floor
+    from athermal.relaxation import round_off_floor
 
     packing, model = jammed_256.packing, ContactModel(2.0)
     obs = measure(packing, model)
@@ -433,7 +435,7 @@ def test_round_off_floor_is_reachable_and_follows_the_contact_stiffness(alpha):
     unscaled estimate), and for Hertzian contacts near jamming far below a floor fixed in units
     of k <r>^(alpha-1) (the old 1e-13 k <r>^(alpha-1) was ~1e-3 of the mean force there)."""
     from athermal.contact import find_contacts
-    from athermal.protocols._relax import round_off_floor
+    from athermal.relaxation import round_off_floor
 
     model = ContactModel(alpha)
     near = jam(random_packing(64, 0.8, seed=5), model, epsilon=1e-6).packing
@@ -442,7 +444,7 @@ def test_round_off_floor_is_reachable_and_follows_the_contact_stiffness(alpha):
     kappa = (alpha - 1.0) * contacts.overlap ** (alpha - 2.0)
     eps = np.finfo(float).eps
     assert floor == pytest.approx(10 * eps * (kappa.max() + contacts.force_magnitude.max()))
-    result = minimize(Objective(near, model), "lbfgs", gtol=floor, maxiter=20_000)
+    result = minimize_objective(Objective(near, model), "lbfgs", gtol=floor, maxiter=20_000)
     assert result.converged and result.max_gradient <= floor
     if alpha > 2.0:
         assert floor < 1e-2 * 1e-13 * np.mean(near.radii) ** (alpha - 1.0)
@@ -450,7 +452,7 @@ def test_round_off_floor_is_reachable_and_follows_the_contact_stiffness(alpha):
 
 def test_compression_refuses_an_unjammed_start():
     model = ContactModel(2.0)
-    loose = minimize(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing
+    loose = minimize_objective(Objective(random_packing(64, 0.6, seed=1), model), rtol=1e-9).packing
     with pytest.raises(InputError, match="not jammed"):
         next(compression_steps(loose, model))
 

@@ -27,7 +27,7 @@ def numbers(line: str, *names: str) -> list[float]:
 
 def test_there_are_three_examples():
     assert len(BLOCKS) == 3
-    assert "at.minimize" in BLOCKS[0] and "at.jam" in BLOCKS[1] and "freud" in BLOCKS[2]
+    assert "at.relax" in BLOCKS[0] and "at.jam" in BLOCKS[1] and "freud" in BLOCKS[2]
 
 
 def test_relaxation_example_prints_a_relaxed_jammed_packing(tmp_path):

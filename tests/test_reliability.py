@@ -15,9 +15,9 @@ import pytest
 from athermal.cli import main
 from athermal.contact import ContactModel
 from athermal.io import count_frames, read_gsd, write_gsd
-from athermal.minimize import minimize
 from athermal.objective import Objective
 from athermal.packing import Packing, random_packing
+from athermal.relaxation import minimize_objective
 
 JAM = ["jam", "--n", "64", "--seed", "1", "--epsilon", "1e-5", "--picture", "none", "--quiet"]
 LONG_JAM = [*JAM, "--n", "512", "--epsilon", "1e-8"]  # runs for seconds: time to interfere
@@ -38,7 +38,9 @@ def files(tmp_path_factory):
     file and a folder."""
     folder = tmp_path_factory.mktemp("files")
     assert main([*JAM, "-o", str(folder / "j.gsd")]) == 0
-    loose = minimize(Objective(random_packing(64, 0.6, seed=2), ContactModel()), rtol=1e-9)
+    loose = minimize_objective(
+        Objective(random_packing(64, 0.6, seed=2), ContactModel()), rtol=1e-9
+    )
     write_gsd(folder / "r.gsd", loose.packing)  # relaxed and unjammed
     (folder / "bad.gsd").write_bytes(b"GSD but not really" * 10)
     (folder / "sub").mkdir()

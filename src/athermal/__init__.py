@@ -7,7 +7,7 @@ from .errors import ConvergenceError, FileFormatError, InputError
 from .fitting import PowerLaw, fit_power_law
 from .forces import ForceStatistics, force_statistics
 from .io import Frame, append_gsd, count_frames, read_gsd, write_gsd
-from .minimize import MinimizeResult, minimize
+from .minimize import MinimizeResult
 from .modes import Modes, vibrational_modes
 from .moduli import LinearResponse, Stability, linear_response, stability
 from .neighbors import NeighborList, build_neighbor_list
@@ -28,6 +28,7 @@ from .protocols import (
     scaling_exponents,
     shear_steps,
 )
+from .relaxation import Relaxation, minimize, relax
 
 __all__ = [
     "Cell",
@@ -49,6 +50,7 @@ __all__ = [
     "Observables",
     "Packing",
     "PowerLaw",
+    "Relaxation",
     "Stability",
     "append_gsd",
     "bidisperse_radii",
@@ -74,6 +76,7 @@ __all__ = [
     "pure_shear",
     "random_packing",
     "read_gsd",
+    "relax",
     "relax_at_pressure",
     "scaling_exponents",
     "shear_steps",

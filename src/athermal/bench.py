@@ -23,9 +23,9 @@ import scipy.optimize
 from .cell import Cell, simple_shear
 from .contact import ContactModel
 from .errors import InputError
-from .minimize import RTOL, Minimizer, relax
 from .objective import Objective
 from .packing import Packing
+from .relaxation import RTOL, Minimizer, relax_objective
 
 CASES = (1, 2, 3)
 ALPHAS = (2.0, 2.5)
@@ -141,7 +141,7 @@ def run(start: Packing, model: ContactModel, method: Minimizer | None) -> Row:
             gmax / f0,
             gmax <= RTOL * f0,
         )
-    out = relax(objective, method, rtol=RTOL, maxiter=50_000)
+    out = relax_objective(objective, method, rtol=RTOL, maxiter=50_000)
     seconds = time.perf_counter() - t0
     return Row(
         0,

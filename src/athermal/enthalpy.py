@@ -36,10 +36,10 @@ from ._validate import choice, positive_scalar
 from .cell import Cell
 from .contact import ContactModel, find_contacts, gradient, total_energy
 from .errors import InputError
+from .minimize import CompiledSearch, Hooks, MinimizeResult
 from .minimize.cg import cg
 from .minimize.fire import fire
 from .minimize.lbfgs import lbfgs
-from .minimize.result import MinimizeResult
 from .objective import MAX_STEP_FACTOR, Objective
 from .observables import stress
 from .packing import Packing
@@ -56,7 +56,7 @@ CELL_REBUILD = 0.05
 
 class Enthalpy:
     """``H = U + P V`` of ``packing`` as a function of ``(u, c)`` ``((N + d) d,)``, the
-    :class:`~athermal.minimize.result.Problem` the minimizers need (module docstring).
+    :class:`~athermal.minimize.Problem` the minimizers need (module docstring).
 
     Parameters
     ----------
@@ -80,14 +80,22 @@ class Enthalpy:
         self.scale = self.v0 ** (1.0 / d) * self.n ** ((d - 2.0) / (2.0 * d))
         self.x0 = np.concatenate([packing.positions.ravel(), np.zeros(d * d)])
         self.max_step = MAX_STEP_FACTOR * float(np.mean(self.radii))
+        eps = float(np.finfo(np.float64).eps)
+        self.hooks = Hooks(d, self.max_step, (10.0 * eps, 1.0, 1.0))
+        """Blocks of ``d``: a particle's gradient or a row of the cell block; steps capped at
+        :attr:`max_step` per block; round-off ``10 eps H`` (``P V`` dominates ``H > 0``)."""
         self.n_evaluations = 0
-        self.n_rebuilds = 0
         self._upper = np.triu(np.ones((d, d), dtype=bool))
 
     @property
     def n_dof(self) -> int:
         """``(N + d) d``: the positions, then the ``d x d`` cell block."""
         return (self.n + self.dim) * self.dim
+
+    @property
+    def compiled(self) -> CompiledSearch | None:
+        """None: the enthalpy is evaluated from Python."""
+        return None
 
     def deformation(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """``F`` ``(d, d)`` of the cell block of ``x``."""
@@ -111,7 +119,6 @@ class Enthalpy:
         packing = self.packing(x)
         contacts = find_contacts(packing, self.model)
         self.n_evaluations += 1
-        self.n_rebuilds += 1
         volume = packing.cell.volume
         sigma = stress(contacts, packing.cell)
         grad = np.empty(self.n_dof)
@@ -125,21 +132,6 @@ class Enthalpy:
             cell_grad[0, 0] = np.trace(d_f) / self.scale
         grad[self.n * d :] = cell_grad.ravel()
         return total_energy(contacts) + self.pressure * volume, grad
-
-    def max_gradient(self, grad: NDArray[np.float64]) -> float:
-        """The largest Euclidean norm of a particle's gradient or of a row of the cell block."""
-        return float(np.sqrt((np.asarray(grad).reshape(-1, self.dim) ** 2).sum(axis=1)).max())
-
-    def step_limit(self, direction: NDArray[np.float64]) -> float:
-        """Largest ``a`` for which ``a direction`` moves no particle, nor a cell row, more than
-        :attr:`max_step`."""
-        longest = self.max_gradient(direction)
-        return self.max_step / longest if longest > 0.0 else float("inf")
-
-    def energy_noise(self, energy: float) -> float:
-        """Round-off of ``H`` near ``energy``: ``10 eps |H|`` (``P V`` dominates ``H``)."""
-        eps = float(np.finfo(np.float64).eps)
-        return 10.0 * eps * abs(energy)
 
     def curvature_bound(self, x: NDArray[np.float64]) -> float:
         """The particles' Gershgorin bound (:meth:`Objective.curvature_bound`, for FIRE's
@@ -162,6 +154,7 @@ class EnthalpyPreconditioner:
     def __init__(self, problem: Enthalpy) -> None:
         self.problem = problem
         self.n_builds = 0
+        self.n_solves = 0
         self._exp: ExpPreconditioner | None = None
         self._cell_stiffness = 1.0
         self._reference: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
@@ -188,8 +181,13 @@ class EnthalpyPreconditioner:
             raise RuntimeError("enthalpy preconditioner: call update(x) first")
         return self._exp, self.problem.n * self.problem.dim
 
+    def compiled_solver(self) -> None:
+        """None: solved from Python."""
+        return None
+
     def solve(self, g: NDArray[np.float64]) -> NDArray[np.float64]:
         """``P^-1 g``."""
+        self.n_solves += 1
         exp, k = self._split(g)
         return np.concatenate([exp.solve(g[:k]), g[k:] / self._cell_stiffness])
 
@@ -232,10 +230,10 @@ def relax_at_pressure(
     volume and shape) from ``packing``, by ``method`` (``lbfgs``, ``cg`` or ``fire``) with
     ``precon`` ``"none"`` or ``"exp"`` (:class:`EnthalpyPreconditioner`).
 
-    The tolerance is ``gtol`` on :meth:`Enthalpy.max_gradient`, or ``rtol`` x ``P <2r>^(d-1)``,
-    the contact force a pressure ``P`` implies (measured: the mean contact force at the minimum
-    is 0.92 x that, N = 128, 2D, P = 1e-3). An unjammed start shrinks until it jams at
-    pressure ``P``.
+    The tolerance is ``gtol`` on the largest block of the gradient (:attr:`Enthalpy.hooks`), or
+    ``rtol`` x ``P <2r>^(d-1)``, the contact force a pressure ``P`` implies (measured: the mean
+    contact force at the minimum is 0.92 x that, N = 128, 2D, P = 1e-3). An unjammed start shrinks
+    until it jams at pressure ``P``.
 
     Examples
     --------
@@ -258,7 +256,10 @@ def relax_at_pressure(
     elif method == "cg":
         result = cg(problem, problem.x0, gtol=gtol, maxiter=maxiter, precon=pre)
     else:
-        result = fire(problem, problem.x0, gtol=gtol, maxiter=maxiter, precon=pre)
+        curvature = problem.curvature_bound(problem.x0) if pre is None else None
+        result = fire(
+            problem, problem.x0, gtol=gtol, maxiter=maxiter, precon=pre, curvature=curvature
+        )
     final = problem.packing(result.x)
     sigma = stress(find_contacts(final, model), final.cell)
     return EnthalpyResult(

@@ -22,7 +22,6 @@ from numpy.typing import NDArray
 from ._validate import choice
 from .contact import ContactModel
 from .errors import InputError
-from .minimize import RTOL, Minimizer, relax
 from .objective import Objective
 from .packing import POLYDISPERSITY, Packing, SizeDistribution, check_width, random_packing
 from .protocols import (
@@ -48,6 +47,7 @@ from .protocols import (
 from .protocols.compress import FIT_LOWER
 from .protocols.finite_strain import DEFAULT_STRAINS, StepStart
 from .protocols.jamming import JAM_PROTOCOLS, check_epsilon
+from .relaxation import RTOL, Minimizer, relax_objective
 
 ITERATION_METHODS = (
     Minimizer("lbfgs"),
@@ -325,7 +325,7 @@ def convergence(jammed: Packing, model: ContactModel, spec: ConvergenceSpec) -> 
     histories = {}
     tolerance = float("nan")
     for method in spec.methods:
-        result = relax(Objective(grown, model), method, rtol=spec.rtol)
+        result = relax_objective(Objective(grown, model), method, rtol=spec.rtol)
         histories[method.name] = result.history_max_gradient
         tolerance = result.gtol
     return Convergence(grown, histories, tolerance)

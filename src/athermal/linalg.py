@@ -27,7 +27,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
-from . import _kernels
+from ._jit import _jit
 from ._validate import choice
 from .errors import InputError
 
@@ -172,9 +172,7 @@ class IncompleteCholeskyFactor:
             raise InputError("ic0: the matrix needs every diagonal entry")
         self.shift = 0.0
         while True:
-            values, ok = _kernels.incomplete_cholesky(
-                self._indptr, self._indices, lower.data, self.shift
-            )
+            values, ok = incomplete_cholesky(self._indptr, self._indices, lower.data, self.shift)
             if ok:
                 break
             self.shift = 1e-3 if self.shift == 0.0 else 10.0 * self.shift
@@ -187,14 +185,14 @@ class IncompleteCholeskyFactor:
         b = np.ascontiguousarray(rhs, dtype=np.float64)
         columns = b.reshape(b.shape[0], -1)
         out = np.empty_like(columns)
-        _kernels.cholesky_solve_columns(*self.arrays(), columns, out)
+        cholesky_solve_columns(*self.arrays(), columns, out)
         return out.reshape(b.shape)
 
     def arrays(
         self,
     ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.float64], NDArray[np.float64]]:
         """``(indptr, indices, lower, inverse_diagonal)``: ``L`` in CSR, its diagonal last in
-        each row, for :func:`~athermal._kernels.cholesky_solve_columns`."""
+        each row, for :func:`~athermal.cholesky_solve_columns`."""
         return self._indptr, self._indices, self._lower, self._inverse_diagonal
 
 
@@ -269,3 +267,73 @@ def c_output_silenced() -> Iterator[None]:
         for fd, copy in zip((1, 2), saved, strict=True):
             os.dup2(copy, fd)
             os.close(copy)
+
+
+@_jit
+def incomplete_cholesky(indptr, indices, data, shift):  # type: ignore[no-untyped-def]
+    """IC(0) of a symmetric matrix from its lower triangle in CSR (sorted columns, the
+    diagonal last in each row, every diagonal present), diagonal scaled by ``1 + shift``: the
+    values of ``L`` on that pattern (``L L^T`` equals the matrix there), and whether every
+    pivot was positive (the factor is meaningless otherwise)."""
+    n = indptr.size - 1
+    lower = data.copy()
+    for i in range(n):
+        a, b = indptr[i], indptr[i + 1]
+        for p in range(a, b - 1):  # L_ij, j < i: the entries of rows i and j left of j
+            j = indices[p]
+            value = lower[p]
+            q, r, r_end = a, indptr[j], indptr[j + 1] - 1
+            while q < p and r < r_end:
+                if indices[q] == indices[r]:
+                    value -= lower[q] * lower[r]
+                    q += 1
+                    r += 1
+                elif indices[q] < indices[r]:
+                    q += 1
+                else:
+                    r += 1
+            lower[p] = value / lower[indptr[j + 1] - 1]
+        pivot = lower[b - 1] * (1.0 + shift)
+        for p in range(a, b - 1):
+            pivot -= lower[p] * lower[p]
+        if not pivot > 0.0:
+            return lower, False
+        lower[b - 1] = np.sqrt(pivot)
+    return lower, True
+
+
+@_jit
+def cholesky_solve_columns(indptr, indices, lower, inverse_diagonal, rhs, out):  # type: ignore[no-untyped-def]
+    """``out = (L L^T)^-1 rhs`` for every column of ``rhs`` ``(n, k)``, in interleaved pairs
+    (:func:`cholesky_solve_pair`; an odd last column alone)."""
+    last = rhs.shape[1] - 1
+    for c in range(0, last + 1, 2):
+        cholesky_solve_pair(indptr, indices, lower, inverse_diagonal, rhs, out, c, min(c + 1, last))
+
+
+@_jit
+def cholesky_solve_pair(  # type: ignore[no-untyped-def]
+    indptr, indices, lower, inverse_diagonal, rhs, out, c0, c1
+):
+    """Columns ``c0`` and ``c1`` of ``out = (L L^T)^-1 rhs`` (``rhs``, ``out`` ``(n, k)``), ``L``
+    lower triangular in CSR (diagonal last in each row, ``inverse_diagonal`` its reciprocal):
+    forward substitution by rows, then back substitution by the same rows read as the columns
+    of ``L^T``. Two interleaved columns keep two independent chains in flight (a substitution
+    is latency-bound: one column costs about as much as two); ``c0 == c1`` solves one."""
+    n = rhs.shape[0]
+    for i in range(n):
+        s0, s1 = rhs[i, c0], rhs[i, c1]
+        for p in range(indptr[i], indptr[i + 1] - 1):
+            j, value = indices[p], lower[p]
+            s0 -= value * out[j, c0]
+            s1 -= value * out[j, c1]
+        out[i, c0], out[i, c1] = s0 * inverse_diagonal[i], s1 * inverse_diagonal[i]
+    for i in range(n - 1, -1, -1):
+        s0, s1 = out[i, c0] * inverse_diagonal[i], out[i, c1] * inverse_diagonal[i]
+        out[i, c0], out[i, c1] = s0, s1
+        if c1 == c0:  # one column: its updates below must not be applied twice
+            s1 = 0.0
+        for p in range(indptr[i], indptr[i + 1] - 1):
+            j, value = indices[p], lower[p]
+            out[j, c0] -= value * s0
+            out[j, c1] -= value * s1

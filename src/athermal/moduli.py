@@ -195,10 +195,9 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
     Examples
     --------
     >>> from athermal.contact import ContactModel
-    >>> from athermal.minimize import minimize
-    >>> from athermal.objective import Objective
     >>> from athermal.packing import random_packing
-    >>> p = minimize(Objective(random_packing(64, 0.88, seed=1), ContactModel()), rtol=1e-12)
+    >>> from athermal.relaxation import relax
+    >>> p = relax(random_packing(64, 0.88, seed=1), ContactModel(), rtol=1e-12)
     >>> lr = linear_response(p.packing, ContactModel())
     >>> bool(0.0 < lr.shear < lr.shear_affine)
     True

@@ -14,10 +14,20 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from . import _kernels
-from ._wolfe import energy_search
-from .contact import ContactModel, HessianOperator, energy_gradient_contacts, find_contacts
+from . import _blocks
+from ._jit import _jit
+from .contact import (
+    ContactModel,
+    HessianOperator,
+    count_overlaps,
+    energy_gradient_contacts,
+    evaluate,
+    find_contacts,
+    hessian_terms,
+)
 from .errors import InputError
+from .minimize import CompiledSearch, Hooks, compiled_function
+from .minimize._wolfe import GO_ON, STATE_SIZE, TRIAL, feed
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
 
@@ -58,12 +68,17 @@ class Objective:
         self.n_evaluations = 0
         self.n_rebuilds = 0
         self.max_step = MAX_STEP_FACTOR * float(np.mean(self.radii))
-        self._noise_scale = (
+        noise_scale = (
             0.25
             * float(np.finfo(np.float64).eps)
             * float(self.cell.widths.max())
             * float(model.kmat.max()) ** (1.0 / model.alpha)
         )
+        alpha = float(model.alpha)
+        self.hooks = Hooks(self.dim, self.max_step, (noise_scale, alpha, 1.0 - 1.0 / alpha))
+        """The minimizers' hooks: blocks of ``d`` coordinates (one particle each), the step cap
+        :attr:`max_step` and the round-off of the energy (:meth:`energy_noise`)."""
+        self._compiled: CompiledSearch | None = None
 
     @property
     def n_dof(self) -> int:
@@ -88,7 +103,7 @@ class Objective:
     def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         """Energy and gradient ``(N d,)`` at ``x``; repeated calls at the same ``x`` are free."""
         x = np.ascontiguousarray(x, dtype=np.float64)
-        if x.shape == self._last_x.shape and _kernels.same_values(x, self._last_x):
+        if x.shape == self._last_x.shape and _blocks.same_values(x, self._last_x):
             return self._last
         nlist = self.neighbor_list(x)
         grad = np.empty(self.n_dof)
@@ -106,34 +121,35 @@ class Objective:
         self._last = (energy, grad)
         return self._last
 
-    def search(
-        self,
-        state: NDArray[np.float64],
-        code: int,
-        x: NDArray[np.float64],
-        direction: NDArray[np.float64],
-        trial: NDArray[np.float64],
-        grad: NDArray[np.float64],
-    ) -> tuple[int, int, float, int, bool]:
-        """Run a line search's state machine on the energy in compiled code, for the minimizers.
-
-        Trial points ``x + a direction`` ``(N d,)`` are evaluated (into ``trial`` and
-        ``grad``) by :func:`~athermal._wolfe.energy_search` over the current Verlet list until
-        the search ends or a trial point moves a particle more than ``skin / 2`` from the
-        list's build; returns the code, the evaluations, the last energy and contact count,
-        and whether it stopped there (the caller then evaluates that point by ``self(...)``,
-        which rebuilds the list). :meth:`took` takes the evaluations back."""
-        code, evaluations, energy, contacts, stale = energy_search(
-            state, code, x, direction, trial, grad, *self.search_arguments(x)
-        )
-        return int(code), int(evaluations), float(energy), int(contacts), bool(stale)
+    @property
+    def compiled(self) -> CompiledSearch:
+        """The energy's line search in compiled code, for the minimizers
+        (:class:`~athermal.minimize.CompiledSearch`): :func:`energy_search` over the current
+        Verlet list, until the search ends or a trial point moves a particle more than
+        ``skin / 2`` from the list's build (the minimizer then evaluates that point by
+        ``self(...)``, which rebuilds the list); :meth:`took` takes its evaluations back."""
+        if self._compiled is None:
+            x = self.x0
+            self._compiled = CompiledSearch(
+                compiled_function(
+                    energy_search,
+                    np.empty(STATE_SIZE),
+                    GO_ON,
+                    x,
+                    x,
+                    x,
+                    x,
+                    self.search_arguments(x),
+                ),
+                self.search_arguments,
+                self.took,
+            )
+        return self._compiled
 
     def search_arguments(self, x: NDArray[np.float64]) -> tuple[Any, ...]:
-        """The arguments of the compiled search of the energy, for compiled minimizer loops.
-
-        Those of :func:`~athermal._wolfe.energy_search` after ``(state, code, x, direction,
-        trial, grad)``: the radii, the current Verlet list (built at ``x`` ``(N d,)`` if there
-        is none) with the positions it was built at and its reach."""
+        """The last argument of :func:`energy_search`: the radii, the current Verlet list (built
+        at ``x`` ``(N d,)`` if there is none) with the positions it was built at and its
+        reach."""
         nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
         return (*self._pair_arguments(nlist), nlist.reference, nlist.reach_sq)
 
@@ -150,12 +166,6 @@ class Objective:
             self.model.kmat,
             self.model.alpha,
         )
-
-    def search_constants(self) -> tuple[int, float, float, float]:
-        """What compiled code needs for :meth:`step_limit` and :meth:`energy_noise`.
-
-        ``(d, max_step, noise scale, alpha)``."""
-        return self.dim, self.max_step, self._noise_scale, float(self.model.alpha)
 
     def took(
         self,
@@ -185,19 +195,19 @@ class Objective:
         coef = np.empty((size, 2))
         positions_2d = positions.reshape(self.n, self.dim)
         arguments = (positions_2d, *self._pair_arguments(nlist), pairs, sep, coef)
-        m = _kernels.hessian_terms(*arguments)
+        m = hessian_terms(*arguments)
         return HessianOperator(self.n, pairs[:m], sep[:m], coef[:m])
 
     def count_contacts(self, x: NDArray[np.float64]) -> int:
         """Number of overlapping pairs at ``x``: counted by the last evaluation when ``x`` is
         its point, else by a compiled pass (the Verlet list is kept fresh)."""
         positions = np.ascontiguousarray(x, dtype=np.float64)
-        if positions.shape == self._last_x.shape and _kernels.same_values(positions, self._last_x):
+        if positions.shape == self._last_x.shape and _blocks.same_values(positions, self._last_x):
             return self._last_contacts
         nlist = self.neighbor_list(positions)
         positions = positions.reshape(self.n, self.dim)
         return int(
-            _kernels.count_overlaps(
+            count_overlaps(
                 positions, self.radii, nlist.first, nlist.second, nlist.code, self._shifts
             )
         )
@@ -211,16 +221,16 @@ class Objective:
         the measured scatter (``E`` under global translations of a packing jammed at
         ``Delta phi ~ 1e-4``, N = 1024) about 20x; a quarter of it is returned.
         """
-        return float(_kernels.energy_noise(self._noise_scale, self.model.alpha, energy))
+        return self.hooks.energy_noise(energy)
 
     def max_gradient(self, grad: NDArray[np.float64]) -> float:
         """``max_i |grad_i|``: the largest Euclidean norm of one particle's gradient."""
-        return float(_kernels.max_row_norm(grad, self.dim))
+        return self.hooks.max_gradient(grad)
 
     def step_limit(self, direction: NDArray[np.float64]) -> float:
         """Largest ``a`` for which ``x + a direction`` moves no particle more than
         :attr:`max_step` (``MAX_STEP_FACTOR`` x the mean radius); ``inf`` for a zero direction."""
-        return float(_kernels.step_limit(self.max_step, direction, self.dim))
+        return self.hooks.step_limit(direction)
 
     def tolerance(
         self, gtol: float | None, rtol: float | None, x: NDArray[np.float64] | None = None
@@ -274,3 +284,49 @@ class Objective:
             radii[self.order] = self.radii
             return Packing(positions, radii, self.cell)
         return Packing(positions, self.radii, self.cell)
+
+
+@_jit
+def energy_search(state, code, x, direction, trial, grad, arguments):  # type: ignore[no-untyped-def]
+    """Run the search of ``state`` (last code ``code``) on the contact energy along
+    ``direction`` from ``x`` ``(N d,)``: each trial point is written into ``trial``, its
+    gradient into ``grad``, by the energy kernel over the Verlet list in ``arguments``
+    (:meth:`Objective.search_arguments`: the radii, ``first``, ``second``, ``images`` and the
+    rest as :func:`~athermal.contact.energy_gradient_2d` takes them, then the positions
+    ``reference`` ``(N, d)`` the list was built at and its reach ``reach_sq``), until the
+    search ends or a trial point is farther than ``sqrt(reach_sq)`` from ``reference``.
+    Returns the code, the evaluations made, the last energy and contact count, and whether it
+    stopped at a trial point out of reach (not evaluated: ``trial`` holds the last point
+    evaluated here, or, when none was, the point out of reach).
+
+    Energies and gradients are :func:`evaluate`'s, as in :meth:`Objective.__call__`."""
+    radii, first, second, images, shift, typeid, kmat, alpha, reference, reach_sq = arguments
+    n, dim = reference.shape
+    points = trial.reshape(n, dim)
+    gradient = grad.reshape(n, dim)
+    evaluations = 0
+    energy = 0.0
+    contacts = 0
+    last = 0.0  # the step of the last point evaluated here
+    while code == GO_ON:
+        a = state[TRIAL]
+        if _place_trial(x, direction, a, reference, trial) > reach_sq:
+            if evaluations:
+                _place_trial(x, direction, last, reference, trial)
+            return code, evaluations, energy, contacts, True
+        energy, contacts = evaluate(
+            points, gradient, radii, first, second, images, shift, typeid, kmat, alpha
+        )
+        evaluations += 1
+        last = a
+        code = feed(state, energy, np.dot(grad, direction))
+    return code, evaluations, energy, contacts, False
+
+
+@_jit
+def _place_trial(x, direction, a, reference, trial):  # type: ignore[no-untyped-def]
+    """Write the trial point ``x + a direction`` into ``trial`` (all flat) and return
+    ``max_i |trial_i - reference_i|^2`` over the ``(n, d)`` rows of ``reference``: one pass
+    over the vectors for the point and its reach test, which sees the very point evaluated."""
+    flat = reference.reshape(reference.size)
+    return _blocks.max_row_sq(x, direction, a, flat, trial, reference.shape[1], _blocks.PLACE)

@@ -52,7 +52,6 @@ from .experiments import (
     shear,
 )
 from .fitting import PowerLaw
-from .minimize import RTOL
 from .protocols import EPSILON
 from .protocols.compress import (
     FINITE_SIZE,
@@ -61,6 +60,7 @@ from .protocols.compress import (
     fit_reasons,
     pooled_fit,
 )
+from .relaxation import RTOL
 
 SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
 """The exponents the seed reports (approximately) for alpha = 2 and 2.5."""

@@ -1,6 +1,6 @@
 """Preconditioners ``P`` approximating the Hessian, and the sparse solvers that apply ``P^-1``.
 
-Two preconditioners satisfy :class:`~athermal.minimize.result.Preconditioner`:
+Two preconditioners satisfy :class:`~athermal.minimize.Preconditioner`:
 
 * :class:`ExpPreconditioner`, the seed's universal preconditioner (section 3.2.2, after Packwood
   et al. 2016): ``u^T P u = mu sum_{0<|r_ij|<r_cut} c_ij |u_i - u_j|^2 + mu C_stab |u|^2`` with
@@ -20,13 +20,13 @@ from __future__ import annotations
 
 import time
 from abc import ABC, abstractmethod
-from typing import TYPE_CHECKING, Any, Literal
+from typing import Any, Literal
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from . import _kernels
+from . import _blocks
 from ._validate import choice, positive_scalar
 from .contact import assemble_blocks, find_contacts
 from .errors import InputError
@@ -38,11 +38,9 @@ from .linalg import (
     factorize,
     resolve_solver,
 )
+from .minimize import Preconditioner
 from .neighbors import build_neighbor_list
 from .objective import Objective
-
-if TYPE_CHECKING:  # the protocol lives with its users, above this module
-    from .minimize.result import Preconditioner
 
 PreconName = Literal["none", "exp", "contact"]
 PRECONDITIONERS: tuple[str, ...] = ("none", "exp", "contact")
@@ -187,9 +185,19 @@ class _PairPreconditioner(ABC):
         if self._reference is None or self._stale(positions):
             self._rebuild(positions)
 
+    def compiled_solver(
+        self,
+    ) -> tuple[tuple[NDArray[Any], ...], NDArray[np.float64], float] | None:
+        """The incomplete factor's arrays (:meth:`~athermal.linalg.IncompleteCholeskyFactor
+        .arrays`), the positions ``(N, d)`` of the last build and the squared displacement up
+        to which it holds, for a solve in compiled code; None unless built with ``ic0``."""
+        if not isinstance(self._factor, IncompleteCholeskyFactor) or self._reference is None:
+            return None
+        return self._factor.arrays(), self._reference, self._reach_sq
+
     def _stale(self, positions: NDArray[np.float64]) -> bool:
         """True when a particle moved more than ``r_cut / 4`` since the last build."""
-        moved_sq = _kernels.max_displacement_sq(positions, self._reference)
+        moved_sq = _blocks.max_displacement_sq(positions, self._reference)
         return bool(moved_sq > self._reach_sq)
 
     @property
@@ -333,16 +341,6 @@ class ExpPreconditioner(_PairPreconditioner):
         self.n_solves += 1
         rhs = np.asarray(g, dtype=np.float64).reshape(self.objective.n, self.objective.dim)
         return factor.solve(rhs).ravel()
-
-    def compiled_solver(
-        self,
-    ) -> tuple[tuple[NDArray[Any], ...], NDArray[np.float64], float] | None:
-        """The incomplete factor's arrays (:meth:`~athermal.linalg.IncompleteCholeskyFactor
-        .arrays`), the positions ``(N, d)`` of the last build and the squared displacement up
-        to which it holds, for a solve in compiled code; None unless built with ``ic0``."""
-        if not isinstance(self._factor, IncompleteCholeskyFactor) or self._reference is None:
-            return None
-        return self._factor.arrays(), self._reference, self._reach_sq
 
     def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
         """``P v = (L (x) I_d) v`` ``(N d,)``."""

@@ -13,12 +13,12 @@ from .. import bench as table1
 from ..enthalpy import relax_at_pressure
 from ..forces import ForceStatistics, force_statistics
 from ..io import read_gsd, write_gsd
-from ..minimize import RTOL
-from ..minimize import relax as minimize_with
+from ..minimize import MinimizeResult
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import random_packing
 from ..plot import force_distribution_figure, save
+from ..relaxation import RTOL, relax_objective
 from .common import file_observables, minimizer_from, model_from, sizes_from
 from .printer import emit
 
@@ -121,10 +121,12 @@ def relax(args: argparse.Namespace) -> None:
     measure(frame.packing, model)  # refuses coincident particles before any work
     rtol = RTOL if args.gtol is None and args.rtol is None else args.rtol
     at_pressure: dict[str, Any] = {}
+    res: MinimizeResult
     if args.pressure is None:
-        res = minimize_with(
+        relaxed = relax_objective(
             Objective(frame.packing, model), minimizer_from(args), gtol=args.gtol, rtol=rtol
         )
+        res, final = relaxed, relaxed.packing
     else:
         found = relax_at_pressure(
             frame.packing,
@@ -137,17 +139,15 @@ def relax(args: argparse.Namespace) -> None:
             rtol=rtol,
             maxiter=args.maxiter,
         )
-        res = found.result
+        res, final = found.result, found.packing
         at_pressure = {
             "target_pressure": found.target,
             "cell": args.cell,
             "deformation": found.deformation.tolist(),
             "enthalpy": res.energy,
         }
-    obs = measure(res.packing, model)
-    write_gsd(
-        args.output, res.packing, model=model, seed=frame.seed, observables=file_observables(obs)
-    )
+    obs = measure(final, model)
+    write_gsd(args.output, final, model=model, seed=frame.seed, observables=file_observables(obs))
     summary = {
         "method": res.method,
         "precon": res.precon,

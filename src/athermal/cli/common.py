@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from ..contact import ContactModel
-from ..minimize import Minimizer
 from ..observables import Observables
+from ..relaxation import Minimizer
 
 
 class Progress:

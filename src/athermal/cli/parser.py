@@ -11,9 +11,10 @@ from typing import Any, NoReturn
 
 from .. import bench
 from ..linalg import SOLVERS
-from ..minimize import METHODS, PRECONDITIONERS, RTOL
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
+from ..precon import PRECONDITIONERS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
+from ..relaxation import METHODS, RTOL
 
 
 class _Help(argparse.HelpFormatter):

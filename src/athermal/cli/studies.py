@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from ..experiments import CompressSpec, JamSpec, ShearSpec
-from ..minimize import Minimizer
+from ..relaxation import Minimizer
 from .common import Progress, precon_from, sizes_from
 from .printer import emit
 

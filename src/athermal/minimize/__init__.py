@@ -1,140 +1,181 @@
-"""Energy minimizers on an :class:`~athermal.objective.Objective`: one entry, a registry.
+"""Minimizers of a smooth function of a flat float64 vector, in scipy's vocabulary.
 
-Methods: ``"lbfgs"`` (seed Algorithm 2), ``"cg"`` (Fletcher-Reeves, seed Algorithms 3-4, or
-Polak-Ribiere+), ``"fire"`` (FIRE 2.0, the community's baseline), ``"newton"`` (truncated Newton
-with a lagged Cholesky factor of the Hessian, beyond the seed: for quasi-static steps near
-jamming); ``"plbfgs"`` and ``"pcg"`` are the seed's names for ``lbfgs`` and ``cg`` with the Exp
-preconditioner. Preconditioners: ``"none"``, ``"exp"`` (the seed's universal preconditioner,
-parameter ``A``) and ``"contact"`` (contact stiffness + Exp stabilization).
+:func:`minimize` takes ``fun(x) -> (f, grad)`` and a start ``x0``. Methods: ``"lbfgs"`` (seed
+Algorithm 2), ``"cg"`` (Fletcher-Reeves, seed Algorithms 3-4, or Polak-Ribiere+), ``"fire"``
+(FIRE 2.0, the community's baseline), ``"newton"`` (truncated Newton with a lagged Cholesky
+factor of the Hessian, for quasi-static steps near jamming). A preconditioner is any object with
+``update(x)``, ``solve(r)`` and ``dot(v)`` (:class:`Preconditioner`). What only the caller knows
+(blocks of coordinates, the step cap, the round-off of ``f``) comes as :class:`Hooks`.
+
+Nothing here knows particles: :mod:`athermal.relaxation` minimizes a packing's energy with
+these, the preconditioners of :mod:`athermal.precon` and the physics' hooks.
 """
 
 from __future__ import annotations
 
-from typing import Literal
+from collections.abc import Callable
+from typing import Any, Literal
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from .._validate import choice
 from ..errors import InputError
-from ..objective import Objective
-from ..precon import PRECONDITIONERS, PreconName, SolverName, make_preconditioner
 from .cg import cg
 from .fire import fire
+from .function import Function, compiled_function
+from .hooks import Hooks
 from .lbfgs import lbfgs
-from .newton import newton
-from .result import MinimizeResult, Preconditioner, Problem, Status
-from .spec import METHODS, NEWTON_TAKES_NO_PRECON, RTOL, Method, Minimizer, resolve_method
+from .newton import Hessian, SecondOrderProblem, SparseHessian, newton
+from .result import CompiledSearch, MinimizeResult, Preconditioner, Problem, Status
+
+Method = Literal["lbfgs", "cg", "fire", "newton"]
+METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton")
+NEWTON_TAKES_NO_PRECON = "precon: newton preconditions with its own Hessian factor; give none"
+
+
+class _SecondOrder(Function):
+    """A :class:`Function` that also gives its Hessian (a :class:`Hessian`, or a sparse matrix
+    wrapped in :class:`SparseHessian`)."""
+
+    def __init__(
+        self,
+        fun: Callable[[NDArray[np.float64]], tuple[float, NDArray[np.float64]]],
+        n_dof: int,
+        hooks: Hooks,
+        hess: Callable[[NDArray[np.float64]], Any],
+    ) -> None:
+        super().__init__(fun, n_dof, hooks)
+        self._hess = hess
+
+    def hessian(self, x: NDArray[np.float64]) -> Hessian:
+        """The Hessian at ``x``."""
+        h = self._hess(x)
+        if sp.issparse(h) or isinstance(h, np.ndarray):
+            return SparseHessian(sp.csr_matrix(h), self.hooks.block)
+        hessian: Hessian = h
+        return hessian
 
 
 def minimize(
-    objective: Objective,
-    method: Method = "lbfgs",
+    fun: Callable[[NDArray[np.float64]], tuple[float, NDArray[np.float64]]] | Problem,
+    x0: NDArray[np.float64],
     *,
-    x0: NDArray[np.float64] | None = None,
-    precon: PreconName | Preconditioner = "none",
-    A: float = 0.0,
-    solver: SolverName = "auto",
-    gtol: float | None = None,
-    rtol: float | None = None,
+    method: Method = "lbfgs",
+    precon: Preconditioner | None = None,
+    gtol: float = 1e-5,
     maxiter: int = 100_000,
     etol: float = 0.0,
+    hooks: Hooks | None = None,
+    hess: Callable[[NDArray[np.float64]], Any] | None = None,
     memory: int = 10,
     cg_variant: Literal["fr", "pr+"] = "fr",
+    options: dict[str, Any] | None = None,
 ) -> MinimizeResult:
-    """Relax ``objective`` from ``x0`` to ``max_i |grad_i| <= gtol``.
+    """Minimize ``fun`` from ``x0`` to a gradient whose largest block is ``<= gtol``.
 
     Parameters
     ----------
-    method : ``lbfgs``, ``cg``, ``fire``, ``newton``, or the seed's ``plbfgs`` / ``pcg``
-        (``newton`` takes no ``precon``: its inner CG uses its own factored Hessian).
-    x0 : the start ``(N d,)`` in the objective's internal order; default ``objective.x0``.
-    precon : preconditioner name, or a ready :class:`Preconditioner` (reused across calls,
-        e.g. by the quasi-static protocols).
-    A, solver : parameter of the Exp weights and the linear solver (``direct`` Cholesky,
-        ``amg``, incomplete Cholesky ``ic0``, or ``auto`` by size), used when ``precon`` is a name.
-    gtol, rtol : absolute tolerance on ``max_i |grad_i|``, or relative to the mean contact
-        force at the start (give exactly one).
-    maxiter : iteration limit (non-convergence is reported in the result).
-    etol : the run also stops, converged, once the energy is ``<= etol`` (absolute, energy
-        units; default 0: only an exactly zero energy). The jamming protocol uses it to end the
-        relaxation of an unjammed packing.
+    fun : ``fun(x) -> (f, grad)`` of a flat float64 vector ``(n,)``; or a ready
+        :class:`Problem` (its own hooks and compiled line search: the physics' objective).
+    x0 : the start ``(n,)``.
+    method : ``lbfgs``, ``cg``, ``fire`` or ``newton``.
+    precon : a :class:`Preconditioner` (``update(x)`` at each iterate, ``solve(r) = P^-1 r``);
+        not for ``newton``, which preconditions with its own Hessian factor.
+    gtol : absolute tolerance on the largest Euclidean norm of a block of ``grad``
+        (:class:`Hooks`; single coordinates by default: ``max_i |grad_i|``).
+    maxiter : iteration limit (non-convergence is reported in the result, not raised).
+    etol : the run also stops, converged, once ``f <= etol`` (default 0: for a function
+        bounded below by 0, such as a contact energy, only at exactly 0; give ``-inf`` for
+        none).
+    hooks : blocks, step cap and round-off of ``f`` (:class:`Hooks`); not with a
+        :class:`Problem`, which has its own.
+    hess : for ``newton``: ``hess(x)``, the Hessian as a sparse matrix or a :class:`Hessian`.
     memory : L-BFGS memory ``m``.
     cg_variant : ``fr`` (Fletcher-Reeves) or ``pr+`` (Polak-Ribiere+).
+    options : more keywords of the method (:func:`~.fire.fire`: ``dt_max`` or ``curvature``,
+        a bound on the Hessian's largest eigenvalue, without a preconditioner; ``dt``,
+        ``n_delay``, ...).
 
-    The result's ``status`` (:class:`Status`) says why the run stopped.
+    Returns
+    -------
+    :class:`MinimizeResult` (``x``, ``fun``, ``jac``, ``nit``, ``nfev``, ``status``,
+    ``success``, ``message``, histories and counters).
+
+    Examples
+    --------
+    The 100-dimensional Rosenbrock function, its minimum at ``x = 1`` (FIRE is given a bound on
+    the Hessian's largest eigenvalue, 1802 at the minimum, for its time step):
+
+    >>> import numpy as np
+    >>> from scipy.optimize import rosen, rosen_der
+    >>> from athermal.minimize import minimize
+    >>> fun = lambda x: (rosen(x), rosen_der(x))
+    >>> for method, options in [("lbfgs", None), ("cg", None), ("fire", {"curvature": 2500.0})]:
+    ...     result = minimize(fun, np.zeros(100), method=method, gtol=1e-10, options=options)
+    ...     print(method, result.success, bool(np.allclose(result.x, 1.0)))
+    lbfgs True True
+    cg True True
+    fire True True
     """
-    start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
-    if start.shape != (objective.n_dof,):
-        raise InputError(f"x0: expected shape ({objective.n_dof},), got {start.shape}")
-    base, name = resolve_method(method, precon if isinstance(precon, str) else "none")
-    if base == "newton" and not isinstance(precon, str):
-        raise InputError(NEWTON_TAKES_NO_PRECON)
-    tol = objective.tolerance(gtol, rtol, start)
-    if base == "newton":
-        return newton(objective, start, gtol=tol, maxiter=maxiter, etol=etol)
-    pre = (
-        make_preconditioner(name, objective, A=A, solver=solver)
-        if isinstance(precon, str)
-        else precon
-    )
-    if base == "lbfgs":
-        return lbfgs(
-            objective,
-            start,
-            gtol=tol,
-            maxiter=maxiter,
-            etol=etol,
-            precon=pre,
-            memory=memory,
+    choice(method, "method", METHODS)
+    if isinstance(x0, str) or x0 is None:
+        raise InputError(
+            "minimize(fun, x0, *, method=...): x0 is the start vector; to relax a packing's "
+            "energy use athermal.relaxation.minimize_objective(objective, method, ...) or "
+            "athermal.relax(packing, model)"
         )
-    if base == "cg":
+    start = np.array(x0, dtype=np.float64, copy=True).reshape(-1)
+    if isinstance(fun, Problem):
+        if hooks is not None or hess is not None:
+            raise InputError("hooks, hess: a Problem brings its own")
+        problem: Problem = fun
+        if start.shape != (problem.n_dof,):
+            raise InputError(f"x0: expected shape ({problem.n_dof},), got {np.shape(x0)}")
+    elif method == "newton":
+        if hess is None:
+            raise InputError("hess: newton needs the Hessian, hess(x)")
+        problem = _SecondOrder(fun, start.size, hooks or Hooks(), hess)
+    else:
+        problem = Function(fun, start.size, hooks)
+    extra = dict(options or {})
+    if method == "newton":
+        if precon is not None:
+            raise InputError(NEWTON_TAKES_NO_PRECON)
+        if not isinstance(problem, SecondOrderProblem):
+            raise InputError("hess: newton needs the Hessian of the problem, hessian(x)")
+        return newton(problem, start, gtol=gtol, maxiter=maxiter, etol=etol, **extra)
+    if method == "lbfgs":
+        return lbfgs(
+            problem, start, gtol=gtol, maxiter=maxiter, etol=etol, precon=precon, memory=memory
+        )
+    if method == "cg":
         return cg(
-            objective,
+            problem,
             start,
-            gtol=tol,
+            gtol=gtol,
             maxiter=maxiter,
             etol=etol,
-            precon=pre,
+            precon=precon,
             variant=cg_variant,
         )
-    return fire(objective, start, gtol=tol, maxiter=maxiter, etol=etol, precon=pre)
-
-
-def relax(
-    objective: Objective,
-    how: Minimizer,
-    *,
-    gtol: float | None = None,
-    rtol: float | None = None,
-    maxiter: int | None = None,
-    x0: NDArray[np.float64] | None = None,
-) -> MinimizeResult:
-    """:func:`minimize` from ``x0`` with the method, preconditioner, ``A``, solver and (unless
-    given) ``maxiter`` of ``how``."""
-    return minimize(
-        objective,
-        how.method,
-        x0=x0,
-        precon=how.precon,
-        A=how.A,
-        solver=how.solver,
-        gtol=gtol,
-        rtol=rtol,
-        maxiter=how.maxiter if maxiter is None else maxiter,
-    )
+    return fire(problem, start, gtol=gtol, maxiter=maxiter, etol=etol, precon=precon, **extra)
 
 
 __all__ = [
     "METHODS",
-    "PRECONDITIONERS",
-    "RTOL",
+    "CompiledSearch",
+    "Function",
+    "Hessian",
+    "Hooks",
     "Method",
     "MinimizeResult",
-    "Minimizer",
     "Preconditioner",
     "Problem",
+    "SecondOrderProblem",
+    "SparseHessian",
     "Status",
+    "compiled_function",
     "minimize",
-    "relax",
-    "resolve_method",
 ]

@@ -33,16 +33,16 @@ Measurements (this, the norms of the preconditioned variant, :data:`DT_MAX_PRECO
 
 from __future__ import annotations
 
-import numba as nb
 import numpy as np
 from numpy.typing import NDArray
 
+from .._jit import _jit
 from .._validate import positive_scalar
 from ..errors import InputError
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
 
-#: Default largest time step, in units of ``1 / sqrt(lambda_G)`` (see
-#: :meth:`~athermal.objective.Objective.curvature_bound`).
+#: Default largest time step, in units of ``1 / sqrt(curvature)``, ``curvature`` an upper bound
+#: on the Hessian's largest eigenvalue (the physics: a Gershgorin bound).
 DT_MAX_FACTOR = 1.6
 #: Default first time step, as a fraction of the largest (FIRE 2.0: dt_max = 10 dt).
 DT_START_FRACTION = 0.1
@@ -54,25 +54,25 @@ DT_MAX_PRECON = 0.25
 
 
 def default_timesteps(
-    problem: Problem,
-    x0: NDArray[np.float64],
     precon: Preconditioner | None,
     dt: float | None,
     dt_max: float | None,
     dt_min: float | None,
+    curvature: float | None = None,
 ) -> tuple[float, float, float]:
     """``(dt, dt_max, dt_min)`` with the defaults filled in (see :func:`fire`), validated.
 
-    The default ``dt_max`` without a preconditioner needs ``problem.curvature_bound(x0)``
-    (:meth:`~athermal.objective.Objective.curvature_bound`)."""
+    The default ``dt_max`` without a preconditioner is ``DT_MAX_FACTOR / sqrt(curvature)``."""
     if dt_max is None:
         if precon is not None:
             dt_max = DT_MAX_PRECON
         else:
-            bound = getattr(problem, "curvature_bound", None)
-            if bound is None:
-                raise InputError("dt_max: give it, or minimize an Objective (curvature bound)")
-            dt_max = DT_MAX_FACTOR / np.sqrt(bound(x0))
+            if curvature is None:
+                raise InputError(
+                    "dt_max: give FIRE's largest time step, or curvature (a bound on the "
+                    "Hessian's largest eigenvalue) to derive it"
+                )
+            dt_max = DT_MAX_FACTOR / np.sqrt(positive_scalar(curvature, "curvature"))
         if dt is not None:
             dt_max = max(dt_max, positive_scalar(dt, "dt"))
     dt_max = positive_scalar(dt_max, "dt_max")
@@ -83,8 +83,16 @@ def default_timesteps(
     return float(dt), float(dt_max), float(dt_min)
 
 
-@nb.njit(cache=True, nogil=True, error_model="numpy", boundscheck=False)
-def _move(x, v, slope, dt, alpha, max_step, dim):  # type: ignore[no-untyped-def]
+@_jit
+def _move(
+    x: NDArray[np.float64],
+    v: NDArray[np.float64],
+    slope: NDArray[np.float64],
+    dt: float,
+    alpha: float,
+    max_step: float,
+    dim: int,
+) -> tuple[NDArray[np.float64], bool]:
     """One semi-implicit Euler step with the FIRE mixing, in three passes over the arrays.
 
     ``v += -dt slope``; ``v = (1 - alpha) v + alpha |v| (-slope) / |slope|``; ``v`` scaled so
@@ -142,26 +150,24 @@ def fire(
     alpha_start: float = 0.25,
     f_alpha: float = 0.99,
     max_step: float | None = None,
+    curvature: float | None = None,
 ) -> MinimizeResult:
-    """Minimize ``problem`` from ``x0`` ``(N d,)`` by FIRE 2.0 (see the module docstring).
+    """Minimize ``problem`` from ``x0`` ``(n_dof,)`` by FIRE 2.0 (see the module docstring).
 
     Parameters
     ----------
-    problem : energy and gradient of a flat ``(N d,)`` vector; unit masses.
+    problem : energy and gradient of a flat vector; unit masses.
     x0 : the start.
-    gtol : absolute tolerance on ``max_i |grad_i E|`` (force units ``k`` x length^(alpha-1)).
+    gtol : absolute tolerance on the largest block of the gradient
+        (:meth:`~.hooks.Hooks.max_gradient`).
         The run also stops, converged, when the energy is ``<= etol`` (default 0: no overlaps).
     etol : energy tolerance (absolute, energy units).
     maxiter : the most steps (one energy+gradient evaluation each).
     precon : preconditioner; the dynamics then follow ``F_p = -P^-1 grad E``.
-    dt_max : largest time step (time units ``sqrt(m / k)``, m = 1). Default
-        ``1.6 / sqrt(lambda_G)`` with ``lambda_G`` the Gershgorin bound on the Hessian at ``x0``
-        (:meth:`~athermal.objective.Objective.curvature_bound`; ``2 k z_max`` for Hooke
-        contacts, so about 0.4 for a 2D packing with ``k = 1``): semi-implicit Euler is stable
-        for ``dt < 2 / sqrt(lambda_max)``,
-        and FIRE ran fastest with ``dt_max`` near ``1 / sqrt(lambda_max)`` (``lambda_G`` is
-        2-3.5 ``lambda_max`` in the packings measured) but stalled above
-        ~``1.3 / sqrt(lambda_max)``.
+    dt_max : largest time step (time units, unit masses). Default ``1.6 / sqrt(curvature)``
+        (``DT_MAX_FACTOR``): semi-implicit Euler is stable for ``dt < 2 / sqrt(lambda_max)``,
+        and FIRE ran fastest with ``dt_max`` near ``1 / sqrt(lambda_max)`` but stalled above
+        ~``1.3 / sqrt(lambda_max)`` (a packing's Gershgorin bound is 2-3.5 ``lambda_max``).
         With a preconditioner the default is 0.25 (``DT_MAX_PRECON``, measured).
         When only ``dt`` is given the default is raised to at least ``dt``.
     dt : first time step; default ``dt_max / 10`` (the FIRE 2.0 ratio).
@@ -170,10 +176,11 @@ def fire(
         1 to ``n_delay - 1`` an uphill step does not shrink it (nor reset the mixing).
     f_inc, f_dec : growth (> 1) and shrink (< 1) factors of the time step.
     alpha_start, f_alpha : initial mixing parameter and its decay factor per step downhill.
-    max_step : largest displacement of one particle in one step (length units); default
-        ``problem.max_step`` (an Objective's: ``0.1 x`` the mean radius). A step that would
-        move a particle further is scaled down, velocity included. FIRE also reads
-        ``problem.dim``, the length of one particle's block of ``x``.
+    max_step : largest Euclidean move of one block of ``x`` in one step; default the
+        problem's :attr:`~.hooks.Hooks.max_step`. A step that would move a block further is
+        scaled down, velocity included.
+    curvature : an upper bound on the Hessian's largest eigenvalue at ``x0``, for the default
+        ``dt_max`` (the physics passes a Gershgorin bound: ``2 k z_max`` for Hooke contacts).
 
     Returns
     -------
@@ -182,10 +189,10 @@ def fire(
 
     Examples
     --------
-    >>> from athermal import ContactModel, random_packing
-    >>> from athermal.objective import Objective
-    >>> obj = Objective(random_packing(64, 0.88, seed=1), ContactModel(2.0))
-    >>> result = fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8))
+    >>> import numpy as np
+    >>> from athermal.minimize.function import Function
+    >>> quadratic = Function(lambda x: (0.5 * x @ x, x.copy()), 3)
+    >>> result = fire(quadratic, np.ones(3), gtol=1e-8, curvature=1.0)
     >>> result.converged, result.evaluations == result.iterations + 1
     (True, True)
     """
@@ -202,11 +209,10 @@ def fire(
     if max_step is not None:
         max_step = positive_scalar(max_step, "max_step")
     tracker = Tracker.start(problem, "fire", precon, gtol, maxiter, etol)
-    dt, dt_max, dt_min = default_timesteps(problem, x0, precon, dt, dt_max, dt_min)
+    dt, dt_max, dt_min = default_timesteps(precon, dt, dt_max, dt_min, curvature)
     if max_step is None:
-        max_step = float(problem.max_step)  # type: ignore[attr-defined]
-
-    dim = problem.dim  # type: ignore[attr-defined]
+        max_step = problem.hooks.max_step
+    dim = problem.hooks.block
     x = np.array(x0, dtype=np.float64, copy=True)
     energy, grad = problem(x)
     if tracker.record(energy, grad):

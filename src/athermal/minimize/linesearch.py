@@ -9,9 +9,9 @@ the caller) energy comparisons are not trusted: sufficient decrease is
 judged by Hager & Zhang's approximate Wolfe condition ``phi'(a) <= (1 - 2 c1) |phi'(0)|``
 (exact for a quadratic) and interpolation falls back to the secant of ``phi'``.
 
-The search itself is a compiled state machine (:mod:`athermal._wolfe`): :func:`strong_wolfe`
-drives it with a Python ``phi``, an objective's compiled search
-(:meth:`athermal.objective.Objective.search`) without leaving compiled code.
+The search itself is a compiled state machine (:mod:`._wolfe`): :func:`strong_wolfe`
+drives it with a Python ``phi``, a function's compiled line search
+(:class:`~.result.CompiledSearch`) without leaving compiled code.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .._wolfe import (
+from ._wolfe import (
     ACCEPTED,
     EVALUATIONS,
     GO_ON,
@@ -58,7 +58,7 @@ class LineSearchResult:
     @classmethod
     def of(cls, state: NDArray[np.float64], code: int) -> LineSearchResult:
         """The result an ended search's ``state`` holds (``code`` from
-        :func:`~athermal._wolfe.feed`)."""
+        :func:`~._wolfe.feed`)."""
         return cls(
             float(state[STEP]),
             float(state[VALUE]),
@@ -93,7 +93,7 @@ def strong_wolfe(
         of ``eps |phi(0)|`` and ``noise`` are not trusted.
     max_evaluations : budget of ``phi`` calls.
 
-    :func:`~athermal._wolfe.feed` says what ends a search.
+    :func:`~._wolfe.feed` says what ends a search.
     """
     state, code = started(f0, g0, step, c1, c2, step_max, eps, noise, max_evaluations)
     while code == GO_ON:
@@ -113,7 +113,7 @@ def started(
     noise: float,
     max_evaluations: int,
 ) -> tuple[NDArray[np.float64], int]:
-    """A new state vector after :func:`~athermal._wolfe.begin`, and its code; ``ValueError``
+    """A new state vector after :func:`~._wolfe.begin`, and its code; ``ValueError``
     unless ``g0 < 0``."""
     if not g0 < 0.0:
         raise ValueError(f"phi'(0) = {g0} is not a descent direction")

@@ -38,7 +38,7 @@ Near jamming a quasi-static shear step takes tens of iterations where the L-BFGS
 thousands. Where contacts keep breaking and forming over a long rearrangement (``shear_steps`` to
 large strain, the jamming protocol's trials near ``phi_c``) it is slower than L-BFGS and
 P-L-BFGS; the protocols hand a Newton relaxation on to P-L-BFGS after
-:data:`~athermal.protocols._relax.NEWTON_PATIENCE` iterations.
+:data:`~athermal.relaxation.NEWTON_PATIENCE` iterations.
 
 Measurements (iterations and time per step, each choice above, and what was tried and not
 kept): ``docs/decisions.md``, section "Newton-CG".
@@ -46,7 +46,7 @@ kept): ``docs/decisions.md``, section "Newton-CG".
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import scipy.sparse as sp
@@ -86,8 +86,25 @@ ETA_MAX = 0.5
 
 
 class Hessian(Protocol):
-    """``d^2 f / dx dx`` ``(n_dof, n_dof)`` at one point (e.g.
-    :class:`~athermal.contact.HessianOperator`)."""
+    """``d^2 f / dx dx`` ``(n_dof, n_dof)`` at one point, over ``n`` blocks of ``d``
+    coordinates; a sum of pair terms when :attr:`pairs` is given (the physics'
+    :class:`~athermal.contact.HessianOperator`: one term per contact), which lets
+    :class:`LaggedFactor` follow the pairs that form (:meth:`LaggedFactor.follow`).
+    :class:`SparseHessian` is one for any sparse matrix."""
+
+    n: int
+
+    @property
+    def pairs(self) -> NDArray[np.int64] | None:
+        """``(M, 2)`` blocks ``(i, j)`` coupled by a ``d x d`` term ``K_p`` (``+K_p`` on the
+        diagonal blocks ``(i, i)`` and ``(j, j)``, ``-K_p`` on ``(i, j)`` and ``(j, i)``;
+        ``i == j``: no coupling), or None when ``H`` is not given as such a sum."""
+        ...
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(n_dof, n_dof)``."""
+        ...
 
     def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
         """``H v`` ``(n_dof,)``."""
@@ -97,23 +114,59 @@ class Hessian(Protocol):
         """``H`` as a symmetric sparse matrix."""
         ...
 
-    # optional (:class:`~athermal.contact.HessianOperator` has them): ``lowest_block_eigenvalue()
-    # -> float``, the smallest eigenvalue of the diagonal blocks of ``H`` (one per particle),
-    # which spares :class:`LaggedFactor` factorizations bound to fail; and its contacts, ``n``
-    # (particles), ``pairs`` ``(M, 2)`` and ``contact_blocks(rows) -> (m, d, d)``, which let it
-    # follow the contacts that form (:meth:`LaggedFactor.follow`)
+    def lowest_block_eigenvalue(self) -> float:
+        """An upper bound on the lowest eigenvalue of ``H`` (the physics: the smallest
+        eigenvalue of its diagonal blocks), which spares :class:`LaggedFactor` factorizations
+        bound to fail; ``inf`` when nothing is known."""
+        ...
+
+    def contact_blocks(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """The terms ``K_p`` ``(m, d, d)`` of the pairs ``rows`` of :attr:`pairs`."""
+        ...
+
+
+class SparseHessian:
+    """A symmetric sparse matrix as a :class:`Hessian` of ``n`` blocks (no pair terms)."""
+
+    pairs = None
+
+    def __init__(self, matrix: sp.spmatrix, block: int = 1) -> None:
+        self._matrix = sp.csr_matrix(matrix, dtype=np.float64)
+        self.n = self._matrix.shape[0] // block
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(n_dof, n_dof)``."""
+        rows, cols = self._matrix.shape
+        return int(rows), int(cols)
+
+    def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``H v``."""
+        return np.asarray(self._matrix @ v, dtype=np.float64)
+
+    def matrix(self) -> sp.csr_matrix:
+        """``H``."""
+        return self._matrix
+
+    def lowest_block_eigenvalue(self) -> float:
+        """``inf``: no bound known."""
+        return float("inf")
+
+    def contact_blocks(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """No pair terms: an empty ``(0, 0, 0)`` array."""
+        return np.zeros((0, 0, 0))
 
 
 def _contacts(hessian: Hessian) -> tuple[NDArray[np.int64], NDArray[np.int64]] | None:
     """The keys ``lo n + hi`` of the contacts of ``hessian`` between two particles ``lo < hi``,
     sorted, and their rows in its ``pairs``; None when it does not give its contacts or a pair
     occurs twice (periodic images of a small cell)."""
-    pairs = getattr(hessian, "pairs", None)
+    pairs = hessian.pairs
     if pairs is None:
         return None
     rows = np.flatnonzero(pairs[:, 0] != pairs[:, 1])
     first, second = pairs[rows, 0], pairs[rows, 1]
-    keys = np.minimum(first, second) * hessian.n + np.maximum(first, second)  # type: ignore[attr-defined]
+    keys = np.minimum(first, second) * hessian.n + np.maximum(first, second)
     order = np.argsort(keys, kind="stable")
     keys = keys[order]
     if np.any(keys[1:] == keys[:-1]):
@@ -129,6 +182,7 @@ def _members(keys: NDArray[np.int64], sorted_keys: NDArray[np.int64]) -> NDArray
     return sorted_keys[at] == keys
 
 
+@runtime_checkable
 class SecondOrderProblem(Problem, Protocol):
     """A :class:`Problem` that also gives its Hessian."""
 
@@ -167,9 +221,7 @@ class LaggedFactor:
         identity = sp.identity(matrix.shape[0], format="csr")
         failed = self.n_failed
         shift = max(SHIFT_MIN, 0.1 * self.shift) if self._lowered_ok else self.shift
-        lowest_block = getattr(hessian, "lowest_block_eigenvalue", None)
-        if lowest_block is not None:
-            shift = max(shift, -BLOCK_MARGIN * lowest_block() / self.scale)
+        shift = max(shift, -BLOCK_MARGIN * hessian.lowest_block_eigenvalue() / self.scale)
         while True:
             self._factor = cholesky(matrix + (shift * self.scale) * identity)
             if self._factor is not None or shift >= SHIFT_MAX:
@@ -203,7 +255,7 @@ class LaggedFactor:
         keys, rows = contacts
         formed = ~_members(keys, self._keys)
         count = int(formed.sum())
-        n, d = hessian.n, hessian.shape[0] // hessian.n  # type: ignore[attr-defined]
+        n, d = hessian.n, hessian.shape[0] // hessian.n
         if count == 0 or count > min(CORRECTION_MAX, CORRECTION_BYTES // (16 * n * d * d)):
             self._correction = None
             return True
@@ -211,13 +263,13 @@ class LaggedFactor:
         if self._correction is not None and np.array_equal(new, self._correction[0]):
             return True  # the same contacts as at the last iteration: M is as it was
         self._columns = {key: self._columns[key] for key in new.tolist() if key in self._columns}
-        blocks = hessian.contact_blocks(rows[formed])  # type: ignore[attr-defined]
+        blocks = hessian.contact_blocks(rows[formed])
         lo, hi = new // n, new % n
         self._solve_columns(new, lo, hi, n, d)
         w = np.concatenate([self._columns[key] for key in new.tolist()], axis=1)
         ends = w.reshape(n, d, d * count)
         x = (ends[lo] - ends[hi]).reshape(d * count, d * count)
-        c = np.zeros((count, d, count, d))
+        c: NDArray[np.float64] = np.zeros((count, d, count, d))
         c[np.arange(count), :, np.arange(count), :] = blocks
         c = c.reshape(d * count, d * count)
         capacitance = np.eye(d * count) + c @ (0.5 * (x + x.T))

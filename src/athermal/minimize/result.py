@@ -1,55 +1,72 @@
 """What every minimizer is given and returns, and the bookkeeping they share.
 
-The minimizers know a :class:`Problem`: ``f`` and ``grad f`` of a flat vector ``x``, a norm
-of the gradient, the longest step allowed along a direction and the round-off of ``f``. An
-:class:`~athermal.objective.Objective` is one; the packing-aware parts (the ``rtol`` of the
-mean contact force, the per-particle step cap, FIRE's curvature bound) live there.
+The minimizers know a :class:`Problem`: ``f`` and ``grad f`` of a flat vector ``x``, its
+:class:`~.hooks.Hooks` (the norm of the gradient, the longest step allowed along a direction,
+the round-off of ``f``) and, optionally, a line search of ``f`` in compiled code
+(:class:`CompiledSearch`).
+Nothing here knows particles: the physics builds its problems above this package.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from enum import StrEnum
-from typing import Protocol
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 from numpy.typing import NDArray
 
 from ..errors import InputError
-from ..packing import Packing
+from .hooks import Hooks
 
 
+@dataclass(frozen=True)
+class CompiledSearch:
+    """A function's line search in compiled code, for the minimizers' compiled iterations.
+
+    ``search`` is a compiled first-class function (:func:`~.function.compiled_function`)
+    ``search(state, code, x, direction, trial, grad, arguments) -> (code, evaluations, f,
+    tag, stale)``: it feeds the line search ``state`` (:mod:`._wolfe`, last code ``code``) the
+    values ``phi(a) = f(x + a direction)`` and ``phi'(a)``, writing each trial point into
+    ``trial`` and its gradient into ``grad``, until the search ends or a trial point is one it
+    cannot evaluate in compiled code (``stale``; ``trial`` then holds the last point evaluated,
+    or that point when none was). ``tag`` is an integer the function keeps of its last
+    evaluation (the physics: its contact count). ``arguments(x)`` gives the last argument,
+    valid near ``x``; ``took(x, f, grad, tag, evaluations)`` takes back what compiled code
+    evaluated, the last at ``x``."""
+
+    search: Any
+    arguments: Callable[[NDArray[np.float64]], tuple[Any, ...]]
+    took: Callable[[NDArray[np.float64], float, NDArray[np.float64], int, int], None]
+
+
+@runtime_checkable
 class Problem(Protocol):
-    """A function to minimize, as the minimizers see it (:class:`~athermal.objective.Objective`
-    is one; a test may pass any object with these members)."""
+    """A function to minimize, as the minimizers see it: :func:`~athermal.minimize.minimize`
+    wraps a plain callable in one (:class:`~athermal.minimize.function.Function`); a caller
+    may pass its own (the physics' :class:`~athermal.objective.Objective` is one)."""
 
     n_evaluations: int
-    n_rebuilds: int
 
     @property
     def n_dof(self) -> int:
         """Length of ``x``."""
         ...
 
+    @property
+    def hooks(self) -> Hooks:
+        """The stop rule's norm, the step cap and the round-off of ``f``."""
+        ...
+
+    @property
+    def compiled(self) -> CompiledSearch | None:
+        """The function's own compiled line search, or None (every evaluation from Python)."""
+        ...
+
     def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         """``f(x)`` and ``grad f(x)`` ``(n_dof,)``."""
-        ...
-
-    def max_gradient(self, grad: NDArray[np.float64]) -> float:
-        """The norm the tolerance is stated in (``max_i |grad_i|``)."""
-        ...
-
-    def step_limit(self, direction: NDArray[np.float64]) -> float:
-        """Largest step ``a`` allowed along ``direction`` in one iteration."""
-        ...
-
-    def energy_noise(self, energy: float) -> float:
-        """Absolute round-off of ``f`` near ``energy``."""
-        ...
-
-    def packing(self, x: NDArray[np.float64], *, internal: bool = False) -> Packing | None:
-        """The configuration at ``x`` for the result (``None`` for a plain function)."""
         ...
 
 
@@ -74,12 +91,19 @@ class Preconditioner(Protocol):
 
     name: str
     n_builds: int
+    n_solves: int
 
     def update(self, x: NDArray[np.float64]) -> None: ...
 
     def solve(self, g: NDArray[np.float64]) -> NDArray[np.float64]: ...
 
     def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]: ...
+
+    def compiled_solver(self) -> tuple[Any, ...] | None:
+        """The factor as compiled code applies it (:func:`~._compiled.solve_at`: the incomplete
+        Cholesky factor's arrays, the point it was built at ``(n, d)`` and the squared
+        distance within which it holds), or None: solved from Python."""
+        ...
 
 
 class Counted(Protocol):
@@ -93,17 +117,19 @@ class Counted(Protocol):
 class MinimizeResult:
     """Outcome of one minimization.
 
-    ``x`` is the final flat vector (the objective's internal order) and ``packing`` the final
-    configuration in the caller's order; ``status`` says why the run stopped (``converged`` is
-    ``status is Status.CONVERGED``). ``history_energy`` and ``history_max_gradient`` have one
+    ``x`` is the final flat vector, ``jac`` the gradient there; ``status`` says why the run
+    stopped (``converged`` is ``status is Status.CONVERGED``). scipy's names ``fun``, ``nit``,
+    ``nfev`` and ``success`` read ``energy``, ``iterations``, ``evaluations`` and
+    ``converged``. ``history_energy`` and ``history_max_gradient`` have one
     entry per iteration plus the start (index 0). ``max_gradient`` is ``max_i |grad_i|``
-    (Euclidean norm per particle); ``gtol`` the absolute tolerance on it that was used.
+    (Euclidean norm per block of coordinates); ``gtol`` the absolute tolerance on it that was
+    used.
     ``precon_builds`` counts preconditioner builds (Hessian factorizations for ``newton``),
     ``linear_iterations`` the inner CG iterations of ``newton`` (0 for the other methods).
     """
 
     x: NDArray[np.float64]
-    packing: Packing
+    jac: NDArray[np.float64]
     converged: bool
     status: Status
     message: str
@@ -117,9 +143,28 @@ class MinimizeResult:
     gtol: float
     history_energy: NDArray[np.float64]
     history_max_gradient: NDArray[np.float64]
-    neighbor_rebuilds: int
     precon_builds: int
     linear_iterations: int = 0
+
+    @property
+    def fun(self) -> float:
+        """scipy's name of :attr:`energy`."""
+        return self.energy
+
+    @property
+    def nit(self) -> int:
+        """scipy's name of :attr:`iterations`."""
+        return self.iterations
+
+    @property
+    def nfev(self) -> int:
+        """scipy's name of :attr:`evaluations`."""
+        return self.evaluations
+
+    @property
+    def success(self) -> bool:
+        """scipy's name of :attr:`converged`."""
+        return self.converged
 
 
 @dataclass
@@ -136,8 +181,8 @@ class Tracker:
     gradients: list[float] = field(default_factory=list)
     start_time: float = field(default_factory=time.perf_counter)
     start_evaluations: int = 0
-    start_rebuilds: int = 0
     linear_iterations: int = 0
+    last_gradient: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def start(
@@ -165,19 +210,26 @@ class Tracker:
             int(maxiter),
             float(etol),
             start_evaluations=objective.n_evaluations,
-            start_rebuilds=objective.n_rebuilds,
         )
 
     def record(self, energy: float, grad: NDArray[np.float64]) -> bool:
         """Log an iterate; True when it meets the tolerance or its energy is ``<= etol``."""
-        gmax = self.objective.max_gradient(grad)
+        gmax = self.objective.hooks.max_gradient(grad)
+        self.last_gradient = grad
         self.energies.append(energy)
         self.gradients.append(gmax)
         return gmax <= self.gtol or energy <= self.etol
 
-    def extend(self, energies: NDArray[np.float64], gradients: NDArray[np.float64]) -> None:
+    def extend(
+        self,
+        energies: NDArray[np.float64],
+        gradients: NDArray[np.float64],
+        grad: NDArray[np.float64],
+    ) -> None:
         """Log iterates recorded elsewhere (compiled code): their energies and largest
-        gradients ``(k,)``."""
+        gradients ``(k,)``, and the gradient ``grad`` of the last."""
+        if energies.size:
+            self.last_gradient = grad
         self.energies.extend(energies.tolist())
         self.gradients.extend(gradients.tolist())
 
@@ -191,7 +243,7 @@ class Tracker:
         obj = self.objective
         return MinimizeResult(
             x=x,
-            packing=obj.packing(x),  # type: ignore[arg-type]
+            jac=self.last_gradient,
             converged=status is Status.CONVERGED,
             status=status,
             message=message,
@@ -205,7 +257,6 @@ class Tracker:
             gtol=self.gtol,
             history_energy=np.array(self.energies),
             history_max_gradient=np.array(self.gradients),
-            neighbor_rebuilds=obj.n_rebuilds - self.start_rebuilds,
             precon_builds=self.precon.n_builds if self.precon is not None else 0,
             linear_iterations=self.linear_iterations,
         )

@@ -1,6 +1,6 @@
 """Quasi-static protocols, each a generator of relaxed steps: jamming, compression, shear."""
 
-from ..minimize import Minimizer
+from ..relaxation import Minimizer
 from .compress import (
     EVENTS,
     CompressionStep,

@@ -29,19 +29,18 @@ from .._validate import float_array
 from ..contact import ContactModel, find_contacts
 from ..errors import InputError
 from ..fitting import PowerLaw, fit_jamming_point, fit_power_law
-from ..minimize import RTOL, MinimizeResult
 from ..moduli import linear_response
 from ..objective import Objective
 from ..observables import Observables, isostatic_contacts, measure
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, force_tolerance
+from ..relaxation import RTOL, Minimizer, Relaxation, Relaxer, force_tolerance
 from .jamming import EPSILON, overlap_distance
 
 Event = Literal["unjammed", "pressure drop", "saddle left", "unstable to shear"]
 EVENTS: tuple[Event, ...] = get_args(Event)
 """What a compression step reports when it happens (``CompressionStep.events``): no load borne
 (:func:`is_unjammed`); a pressure below the previous step's; a saddle left along its negative
-mode (:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`); a minimum with a negative
+mode (:meth:`~athermal.relaxation.Relaxer.relax_to_minimum`); a minimum with a negative
 linear-response shear modulus, unstable to shear at fixed cell (Dagois-Bohy et al., PRL 109,
 095703 (2012): physical near jamming, where ``p N^2`` is small)."""
 MAX_SPLITS = 4
@@ -164,7 +163,7 @@ def compression_steps(
     delta_phis : increasing ``Delta phi > 0`` ``(k,)``; default :func:`log_spaced`.
     minimizer : how each step is relaxed (default L-BFGS).
     rtol : tolerance relative to the mean contact force at each step's start, floored at
-        round-off (:func:`~athermal.protocols._relax.round_off_floor`). Every step is checked to
+        round-off (:func:`~athermal.relaxation.round_off_floor`). Every step is checked to
         be a local minimum; a saddle is left along its negative mode (``saddles``, ``events``).
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one. Each step builds its objective from the previous step's
@@ -199,7 +198,7 @@ def compression_steps(
 
     def advance(
         packing: Packing, p_start: float, phi: float, depth: int, index: int
-    ) -> tuple[MinimizeResult, int, int]:
+    ) -> tuple[Relaxation, int, int]:
         """Grow ``packing`` (pressure ``p_start``) to ``phi`` and relax; on a pressure drop or
         unjamming of a jammed start, redo it in two halves (to depth :data:`MAX_SPLITS`).
         Returns the last relaxation (iterations and evaluations summed over the substeps), the

@@ -21,12 +21,11 @@ from .._validate import choice, float_array
 from ..cell import isotropic, simple_shear
 from ..contact import ContactModel, Contacts, find_contacts
 from ..errors import InputError
-from ..minimize import RTOL
 from ..moduli import nonaffine_displacement
 from ..objective import MAX_STEP_FACTOR, Objective
 from ..observables import pressure, shear_stress, stress
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, force_tolerance
+from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
 """The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
@@ -36,7 +35,7 @@ STEP_STARTS: tuple[str, ...] = ("linear", "affine")
 FINITE_STRAIN_MINIMIZER = Minimizer("newton")
 """Default minimizer of the finite-strain steps: truncated Newton (:mod:`athermal.minimize.newton`),
 which near jamming takes tens of iterations per step where the L-BFGS family and FIRE take
-thousands. A step still unconverged after :data:`~athermal.protocols._relax.NEWTON_PATIENCE`
+thousands. A step still unconverged after :data:`~athermal.relaxation.NEWTON_PATIENCE`
 iterations goes on with P-L-BFGS. Measurements: ``docs/decisions.md``, section "Finite-strain
 moduli", ``FINITE_STRAIN_MINIMIZER``."""
 
@@ -95,7 +94,7 @@ def finite_strain_shear(
     minimizer : how each step is relaxed (default :data:`FINITE_STRAIN_MINIMIZER`, truncated
         Newton); its iteration limit is fatal (:class:`~athermal.errors.ConvergenceError`).
     rtol : tolerance relative to the mean contact force at the start of each relaxation,
-        floored at round-off (:func:`~athermal.protocols._relax.round_off_floor`).
+        floored at round-off (:func:`~athermal.relaxation.round_off_floor`).
     start : where each relaxation starts: ``"affine"``, the deformed previous configuration
         (the seed's), or ``"linear"``, that moved by the linear-response displacement
         (:func:`~athermal.moduli.nonaffine_displacement`, one sparse solve with the previous

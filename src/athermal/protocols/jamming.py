@@ -30,7 +30,7 @@ told apart by the configuration's own scales:
   packing ``~RESOLUTION / 10`` above jamming (``RESOLUTION`` is the smallest ``epsilon``
   accepted);
 - *jammed*: ``max_i |grad_i| <= rtol`` (1e-6) x the packing's own mean contact force, or the
-  round-off floor (:func:`~athermal.protocols._relax.round_off_floor`) where that is larger,
+  round-off floor (:func:`~athermal.relaxation.round_off_floor`) where that is larger,
   with a positive pressure. A relaxation that meets its tolerance relative to its start's
   forces, but not to its own (forces that fell on the way down, as an unjammed packing's do),
   relaxes on. An unjammed packing cannot balance its contact forces (it has no state of
@@ -80,7 +80,7 @@ from ..observables import (
     stress,
 )
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, energy_scale, force_tolerance
+from ..relaxation import Minimizer, Relaxer, energy_scale, force_tolerance
 
 JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
 """Default minimizer of the jamming protocol: P-L-BFGS, its Exp preconditioner factored

@@ -8,7 +8,7 @@ from ``phi_low`` than the last (4 per decade, as the compression protocol), unti
 pressure exceeds ``P``; then it closes the bracket by the Illinois variant of regula falsi until
 ``|p / P - 1| <= rtol``. Every trial scales the radii of the relaxed state at the bracket's low
 end and relaxes it to a local minimum
-(:meth:`~athermal.protocols._relax.Relaxer.relax_to_minimum`): the packing is only ever
+(:meth:`~athermal.relaxation.Relaxer.relax_to_minimum`): the packing is only ever
 compressed quasi-statically from below ``P`` (never decompressed from an overshoot, which would
 move its jamming point), and the packings of several pressures from one start follow one branch
 of states. A target below the jammed packing's own pressure is reached by decompressing it,
@@ -26,11 +26,10 @@ from dataclasses import dataclass
 from .._validate import positive_scalar
 from ..contact import ContactModel
 from ..errors import ConvergenceError, InputError
-from ..minimize import RTOL
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, force_tolerance
+from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 from .jamming import DPHI, EPSILON, JAMMING_MINIMIZER, JammingResult, JammingStep, jam
 
 PRESSURE_RTOL = 1e-3

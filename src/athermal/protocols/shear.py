@@ -27,11 +27,10 @@ from .._validate import choice, positive_scalar
 from ..cell import pure_shear, simple_shear
 from ..contact import ContactModel
 from ..errors import InputError
-from ..minimize import RTOL
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import Packing
-from ._relax import Minimizer, Relaxer, force_tolerance
+from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 
 ShearMode = Literal["simple", "pure"]
 SHEAR_MODES: tuple[str, ...] = ("simple", "pure")
@@ -115,7 +114,7 @@ def shear_steps(
         shortened to end exactly at ``strain``.
     minimizer : how each step is relaxed (default L-BFGS).
     rtol : tolerance relative to the mean contact force at each step's start (floored at
-        round-off, :func:`~athermal.protocols._relax.round_off_floor`). Every step is checked to
+        round-off, :func:`~athermal.relaxation.round_off_floor`). Every step is checked to
         be a local minimum; a saddle is left along its negative mode (``saddles``).
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one, bit for bit as an uninterrupted run.

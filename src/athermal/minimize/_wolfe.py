@@ -1,19 +1,18 @@
-"""The strong-Wolfe line search of :mod:`athermal.minimize.linesearch` as a compiled state
-machine, and a search along a line of the contact energy that runs it without leaving compiled
-code.
+"""The strong-Wolfe line search of :mod:`.linesearch` as a compiled state machine.
 
 Reverse communication: :func:`begin` sets the search up and names the first trial step, each
 :func:`feed` of ``phi(a), phi'(a)`` at the trial step ``state[TRIAL]`` names the next one or
-ends the search. :func:`~athermal.minimize.linesearch.strong_wolfe` drives it with a Python
-``phi``; :func:`energy_search` (through :meth:`athermal.objective.Objective.search`) with the
-energy kernels, so that one minimizer iteration costs a few calls from Python, not dozens.
+ends the search. :func:`~.linesearch.strong_wolfe` drives it with a Python ``phi``; a
+function's compiled line search (:class:`~.result.CompiledSearch`, e.g.
+:func:`athermal.objective.energy_search`) with its own compiled energy, so that one minimizer
+iteration costs a few calls from Python, not dozens.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ._kernels import PLACE, _jit, energy_gradient_2d, energy_gradient_3d, max_row_sq
+from .._jit import _jit
 
 # The state vector's fields (float64, ``STATE_SIZE``).
 (_F0, _G0, _C1, _C2, _EPS, _NOISE, _STEP_MAX, _MAX_EVALS, EVALUATIONS, _ZOOM) = range(10)
@@ -29,7 +28,7 @@ sufficient decrease, or 0)."""
 
 
 @_jit
-def begin(state, f0, g0, step, c1, c2, step_max, eps, noise, max_evaluations):  # type: ignore[no-untyped-def]
+def begin(state, f0, g0, step, c1, c2, step_max, eps, noise, max_evaluations):
     """Start a search from ``phi(0) = f0``, ``phi'(0) = g0 < 0`` with the first trial step
     ``min(step, step_max)`` (parameters as :func:`~athermal.minimize.linesearch.strong_wolfe`);
     returns :data:`GO_ON`, or :data:`FAILED` for a zero budget."""
@@ -45,7 +44,7 @@ def begin(state, f0, g0, step, c1, c2, step_max, eps, noise, max_evaluations):  
 
 
 @_jit
-def _end(state, a, f, df, code):  # type: ignore[no-untyped-def]
+def _end(state, a, f, df, code):
     state[STEP], state[VALUE], state[SLOPE], state[_CODE] = a, f, df, code
     return code
 
@@ -56,25 +55,25 @@ def resumed(state: np.ndarray) -> int:
 
 
 @_jit
-def _resolved(state, f, f_ref):  # type: ignore[no-untyped-def]
+def _resolved(state, f, f_ref):
     """True when ``f`` and ``f_ref`` differ by more than the energy round-off."""
     return abs(f - f_ref) > max(state[_EPS] * abs(state[_F0]), state[_NOISE])
 
 
 @_jit
-def _decrease(state, a, f, df):  # type: ignore[no-untyped-def]
+def _decrease(state, a, f, df):
     if _resolved(state, f, state[_F0]):
         return f <= state[_F0] + state[_C1] * a * state[_G0]
     return df <= (1.0 - 2.0 * state[_C1]) * abs(state[_G0])
 
 
 @_jit
-def _curvature(state, df):  # type: ignore[no-untyped-def]
+def _curvature(state, df):
     return abs(df) <= state[_C2] * abs(state[_G0])
 
 
 @_jit
-def _zoom_next(state):  # type: ignore[no-untyped-def]
+def _zoom_next(state):
     """The next trial inside ``[lo, hi]``, or the end of the budget at ``lo``."""
     if state[EVALUATIONS] >= state[_MAX_EVALS]:
         return _end(state, state[_LO], state[_F_LO], state[_DF_LO], FAILED)
@@ -83,12 +82,12 @@ def _zoom_next(state):  # type: ignore[no-untyped-def]
 
 
 @_jit
-def _set(state, at, a, f, df):  # type: ignore[no-untyped-def]
+def _set(state, at, a, f, df):
     state[at], state[at + 1], state[at + 2] = a, f, df
 
 
 @_jit
-def feed(state, f, df):  # type: ignore[no-untyped-def]
+def feed(state, f, df):
     """Take ``phi, phi'`` at ``state[TRIAL]``; returns :data:`GO_ON` (the next trial is in
     ``state[TRIAL]``), :data:`ACCEPTED` or :data:`FAILED`.
 
@@ -136,7 +135,7 @@ def feed(state, f, df):  # type: ignore[no-untyped-def]
 
 
 @_jit
-def _interpolate(state):  # type: ignore[no-untyped-def]
+def _interpolate(state):
     """Cubic minimizer of the bracket's end points (secant of ``phi'`` below round-off), kept
     inside the middle 80 % of the bracket."""
     lo, f_lo, df_lo = state[_LO], state[_F_LO], state[_DF_LO]
@@ -158,76 +157,3 @@ def _interpolate(state):  # type: ignore[no-untyped-def]
     if not np.isfinite(trial):
         return lo + 0.5 * width
     return min(max(trial, low), high)
-
-
-@_jit
-def energy_search(  # type: ignore[no-untyped-def]
-    state,
-    code,
-    x,
-    direction,
-    trial,
-    grad,
-    radii,
-    first,
-    second,
-    images,
-    shift,
-    typeid,
-    kmat,
-    alpha,
-    reference,
-    reach_sq,
-):
-    """Run the search of ``state`` (last code ``code``) on the contact energy along
-    ``direction`` from ``x`` ``(N d,)``: each trial point is written into ``trial``, its
-    gradient into ``grad``, by the energy kernel over the Verlet list ``first``, ``second``,
-    ``images`` (arguments as :func:`~athermal._kernels.energy_gradient_2d`), until the search
-    ends or a trial point is farther than ``sqrt(reach_sq)`` from ``reference`` ``(N, d)``, the
-    positions the list was built at. Returns the code, the evaluations made, the last energy
-    and contact count, and whether it stopped at a trial point out of reach (not evaluated:
-    ``trial`` holds the last point evaluated here, or, when none was, the point out of reach).
-
-    Energies and gradients are :func:`evaluate`'s, as in
-    :meth:`~athermal.objective.Objective.__call__`."""
-    n, dim = reference.shape
-    points = trial.reshape(n, dim)
-    gradient = grad.reshape(n, dim)
-    evaluations = 0
-    energy = 0.0
-    contacts = 0
-    last = 0.0  # the step of the last point evaluated here
-    while code == GO_ON:
-        a = state[TRIAL]
-        if _place_trial(x, direction, a, reference, trial) > reach_sq:
-            if evaluations:
-                _place_trial(x, direction, last, reference, trial)
-            return code, evaluations, energy, contacts, True
-        energy, contacts = evaluate(
-            points, gradient, radii, first, second, images, shift, typeid, kmat, alpha
-        )
-        evaluations += 1
-        last = a
-        code = feed(state, energy, np.dot(grad, direction))
-    return code, evaluations, energy, contacts, False
-
-
-@_jit
-def evaluate(points, gradient, radii, first, second, images, shift, typeid, kmat, alpha):  # type: ignore[no-untyped-def]
-    """The contact energy and overlapping pairs at ``points`` ``(N, d)``, its gradient written
-    into ``gradient`` ``(N, d)``, by the kernel of the dimension (arguments as
-    :func:`~athermal._kernels.energy_gradient_2d`): the one evaluation every caller uses, so
-    that the energy at a point is the same bits from Python and from compiled loops."""
-    args = (radii, first, second, images, shift, typeid, kmat, alpha, gradient)
-    if points.shape[1] == 2:
-        return energy_gradient_2d(points, *args)
-    return energy_gradient_3d(points, *args)
-
-
-@_jit
-def _place_trial(x, direction, a, reference, trial):  # type: ignore[no-untyped-def]
-    """Write the trial point ``x + a direction`` into ``trial`` (all flat) and return
-    ``max_i |trial_i - reference_i|^2`` over the ``(n, d)`` rows of ``reference``: one pass
-    over the vectors for the point and its reach test, which sees the very point evaluated."""
-    flat = reference.reshape(reference.size)
-    return max_row_sq(x, direction, a, flat, trial, reference.shape[1], PLACE)

@@ -1,29 +1,247 @@
-"""What the quasi-static protocols share: how a step is relaxed, and the energy and force scales
-their tolerances are stated in."""
+"""Relaxing a packing: how (:class:`Minimizer`, the seed's method names and the force tolerance
+:data:`RTOL`) and doing it (:func:`relax`), on the minimizers of :mod:`athermal.minimize`.
+
+The physics above the minimizer library: the tolerance relative to the mean contact force
+(``rtol``), the preconditioners by name (:mod:`athermal.precon`), the hooks of an
+:class:`~athermal.objective.Objective` (particles of ``d`` coordinates, the step cap, the
+round-off of the contact energy, its compiled line search, FIRE's curvature bound) and the
+packing at the result (:class:`Relaxation`).
+"""
 
 from __future__ import annotations
 
-from dataclasses import replace
-from typing import Literal
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from typing import Any, Literal, cast
 
 import numpy as np
 from numpy.typing import NDArray
 
-from ..cell import Cell
-from ..contact import ContactModel, Contacts, find_contacts
-from ..errors import ConvergenceError
-from ..minimize import (
-    Minimizer,
-    MinimizeResult,
-    Preconditioner,
-    Status,
-    minimize,
-    resolve_method,
-)
-from ..moduli import stability
-from ..objective import Objective
-from ..packing import Packing
-from ..precon import make_preconditioner
+from . import minimize as library
+from ._validate import choice
+from .cell import Cell
+from .contact import ContactModel, Contacts, find_contacts
+from .errors import ConvergenceError, InputError
+from .linalg import SOLVERS, SolverName
+from .minimize import MinimizeResult, Preconditioner, Status
+from .moduli import stability
+from .objective import Objective
+from .packing import Packing
+from .precon import PRECONDITIONERS, PreconName, make_preconditioner
+
+Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
+METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
+_ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
+_NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE", "newton": "Newton-CG"}
+NEWTON_TAKES_NO_PRECON = "precon: newton preconditions with its own Hessian factor; give 'none'"
+RTOL = 1e-9
+"""The seed's tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at the start of a
+relaxation (the Table, every quasi-static step)."""
+
+
+def resolve_method(method: str, precon: PreconName = "none") -> tuple[str, PreconName]:
+    """The base method (``lbfgs``, ``cg``, ``fire``, ``newton``) and preconditioner that
+    ``method`` with ``precon`` names: ``plbfgs`` and ``pcg`` imply ``exp`` unless another is
+    given; ``newton`` takes none (its own factored Hessian preconditions its inner CG)."""
+    choice(method, "method", METHODS)
+    choice(precon, "precon", PRECONDITIONERS)
+    if method == "newton" and precon != "none":
+        raise InputError(f"{NEWTON_TAKES_NO_PRECON}; got {precon!r}")
+    base, implied = _ALIASES.get(method, (method, "none"))
+    return base, implied if precon == "none" else precon
+
+
+@dataclass(frozen=True)
+class Minimizer:
+    """The energy minimizer of a relaxation: the one spelling used by the protocols, the
+    benchmarks, ``paper`` and ``ensemble``.
+
+    Parameters
+    ----------
+    method : ``lbfgs``, ``cg``, ``fire``, ``newton`` or the seed's ``plbfgs`` / ``pcg``.
+    precon : ``none``, ``exp`` (the seed's, weights parameter ``A``) or ``contact``.
+    A : Exp weight decay (dimensionless, >= 0).
+    solver : ``auto``, ``direct``, ``amg`` or ``ic0`` for the preconditioner's linear solves.
+    maxiter : iteration limit of one relaxation; a protocol that reaches it stops with a
+        :class:`~athermal.errors.ConvergenceError`.
+    """
+
+    method: Method = "lbfgs"
+    precon: PreconName = "none"
+    A: float = 0.0
+    solver: SolverName = "auto"
+    maxiter: int = 1_000_000
+
+    def __post_init__(self) -> None:
+        resolve_method(self.method, self.precon)
+        choice(self.solver, "solver", SOLVERS)
+        if int(self.maxiter) != self.maxiter or self.maxiter < 1:
+            raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
+        if not self.A >= 0.0:
+            raise InputError(f"A: must be >= 0, got {self.A!r}")
+
+    @property
+    def label(self) -> str:
+        """Machine label ``method`` or ``method+precon``, e.g. ``lbfgs+exp`` (``--json``)."""
+        base, precon = resolve_method(self.method, self.precon)
+        return base if precon == "none" else f"{base}+{precon}"
+
+    @property
+    def name(self) -> str:
+        """Display name as in the seed: ``L-BFGS``, ``P-L-BFGS``, ``P-FR-CG``, ``contact
+        P-L-BFGS``, ``FIRE``; a non-zero ``A`` or a chosen solver is added in brackets."""
+        base, precon = resolve_method(self.method, self.precon)
+        name = _NAMES[base]
+        if precon == "exp":
+            name = f"P-{name}"
+        elif precon == "contact":
+            name = f"contact P-{name}"
+        extras = [f"A={self.A:g}"] if precon == "exp" and self.A != 0.0 else []
+        if precon != "none" and self.solver != "auto":
+            extras.append(self.solver)
+        return f"{name} ({', '.join(extras)})" if extras else name
+
+
+@dataclass(frozen=True, eq=False)
+class Relaxation(MinimizeResult):
+    """A :class:`~athermal.minimize.MinimizeResult` of a packing's energy: ``x`` in the
+    objective's internal order, ``packing`` the final configuration in the caller's order,
+    ``neighbor_rebuilds`` the Verlet list's builds during the run."""
+
+    packing: Packing = field(kw_only=True)
+    neighbor_rebuilds: int = field(default=0, kw_only=True)
+
+    @classmethod
+    def of(cls, result: MinimizeResult, objective: Objective, rebuilds: int) -> Relaxation:
+        """``result`` of minimizing ``objective``, with its packing and ``rebuilds``."""
+        fields = {k: getattr(result, k) for k in MinimizeResult.__dataclass_fields__}
+        return cls(**fields, packing=objective.packing(result.x), neighbor_rebuilds=rebuilds)
+
+
+def minimize_objective(
+    objective: Objective,
+    method: Method = "lbfgs",
+    *,
+    x0: NDArray[np.float64] | None = None,
+    precon: PreconName | Preconditioner = "none",
+    A: float = 0.0,
+    solver: SolverName = "auto",
+    gtol: float | None = None,
+    rtol: float | None = None,
+    maxiter: int = 100_000,
+    etol: float = 0.0,
+    memory: int = 10,
+    cg_variant: Literal["fr", "pr+"] = "fr",
+) -> Relaxation:
+    """Relax ``objective`` from ``x0`` to ``max_i |grad_i| <= gtol``.
+
+    Parameters
+    ----------
+    method : ``lbfgs``, ``cg``, ``fire``, ``newton``, or the seed's ``plbfgs`` / ``pcg``
+        (``newton`` takes no ``precon``: its inner CG uses its own factored Hessian).
+    x0 : the start ``(N d,)`` in the objective's internal order; default ``objective.x0``.
+    precon : preconditioner name, or a ready :class:`~athermal.minimize.Preconditioner`
+        (reused across calls, e.g. by the quasi-static protocols).
+    A, solver : parameter of the Exp weights and the linear solver (``direct`` Cholesky,
+        ``amg``, incomplete Cholesky ``ic0``, or ``auto`` by size), used when ``precon`` is a
+        name.
+    gtol, rtol : absolute tolerance on ``max_i |grad_i|``, or relative to the mean contact
+        force at the start (give exactly one).
+    maxiter : iteration limit (non-convergence is reported in the result).
+    etol : the run also stops, converged, once the energy is ``<= etol`` (absolute, energy
+        units; default 0: only an exactly zero energy). The jamming protocol uses it to end the
+        relaxation of an unjammed packing.
+    memory : L-BFGS memory ``m``.
+    cg_variant : ``fr`` (Fletcher-Reeves) or ``pr+`` (Polak-Ribiere+).
+
+    The result's ``status`` (:class:`~athermal.minimize.Status`) says why the run stopped.
+    """
+    start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
+    if start.shape != (objective.n_dof,):
+        raise InputError(f"x0: expected shape ({objective.n_dof},), got {start.shape}")
+    base, name = resolve_method(method, precon if isinstance(precon, str) else "none")
+    if base == "newton" and not isinstance(precon, str):
+        raise InputError(NEWTON_TAKES_NO_PRECON)
+    tol = objective.tolerance(gtol, rtol, start)
+    pre = None
+    if base != "newton":
+        pre = (
+            make_preconditioner(name, objective, A=A, solver=solver)
+            if isinstance(precon, str)
+            else precon
+        )
+    options: dict[str, Any] = {}
+    if base == "fire" and pre is None:
+        options["curvature"] = objective.curvature_bound(start)
+    rebuilds = objective.n_rebuilds
+    result = library.minimize(
+        objective,
+        start,
+        method=cast(library.Method, base),
+        precon=pre,
+        gtol=tol,
+        maxiter=maxiter,
+        etol=etol,
+        memory=memory,
+        cg_variant=cg_variant,
+        options=options,
+    )
+    return Relaxation.of(result, objective, objective.n_rebuilds - rebuilds)
+
+
+def relax_objective(
+    objective: Objective,
+    how: Minimizer,
+    *,
+    gtol: float | None = None,
+    rtol: float | None = None,
+    maxiter: int | None = None,
+    x0: NDArray[np.float64] | None = None,
+) -> Relaxation:
+    """:func:`minimize_objective` from ``x0`` with the method, preconditioner, ``A``, solver
+    and (unless given) ``maxiter`` of ``how``."""
+    return minimize_objective(
+        objective,
+        how.method,
+        x0=x0,
+        precon=how.precon,
+        A=how.A,
+        solver=how.solver,
+        gtol=gtol,
+        rtol=rtol,
+        maxiter=how.maxiter if maxiter is None else maxiter,
+    )
+
+
+def relax(
+    packing: Packing,
+    model: ContactModel,
+    how: Minimizer | None = None,
+    *,
+    gtol: float | None = None,
+    rtol: float | None = None,
+    maxiter: int | None = None,
+) -> Relaxation:
+    """Relax ``packing`` (radii and cell fixed) under ``model`` by ``how`` (default L-BFGS) to
+    ``max_i |grad_i| <= gtol``, or ``rtol`` x the mean contact force at the start (default
+    :data:`RTOL` when neither is given). Returns the :class:`Relaxation` (its ``packing`` in
+    the caller's order).
+
+    Examples
+    --------
+    >>> from athermal import ContactModel, random_packing
+    >>> from athermal.relaxation import Minimizer, relax
+    >>> result = relax(random_packing(64, 0.88, seed=1), ContactModel(2.0), Minimizer("fire"))
+    >>> result.converged, result.packing.n
+    (True, 64)
+    """
+    if gtol is None and rtol is None:
+        rtol = RTOL
+    return relax_objective(
+        Objective(packing, model), how or Minimizer(), gtol=gtol, rtol=rtol, maxiter=maxiter
+    )
+
 
 MAX_ESCAPES = 3
 """How often :meth:`Relaxer.relax_to_minimum` leaves a saddle along its negative mode before it
@@ -33,7 +251,7 @@ NEWTON_PATIENCE = 300
 jamming a quasi-static step that rearranges can send Newton crawling (CG meeting negative
 curvature, the line search cutting its steps to a few per cent) for thousands of iterations,
 where P-L-BFGS takes many more but much cheaper ones; ordinary steps take 1-150
-(``athermal.minimize.newton``). Measurements: ``docs/decisions.md``, section "Relaxing a
+(:mod:`athermal.minimize.newton`). Measurements: ``docs/decisions.md``, section "Relaxing a
 protocol step", ``NEWTON_PATIENCE``."""
 ROUND_OFF_MARGIN = 10.0
 """:func:`round_off_floor` is this many times the round-off estimate ``eps (L kappa + f)``."""
@@ -68,15 +286,15 @@ class Relaxer:
         etol: float = 0.0,
         what: str = "step",
         maxiter: int | None = None,
-    ) -> MinimizeResult:
+    ) -> Relaxation:
         """Minimize from ``x`` ``(N d,)`` (internal order) to ``max_i |grad_i| <= gtol`` or
         energy ``<= etol`` within ``maxiter`` iterations (default the minimizer's); raises
         :class:`ConvergenceError` naming ``what`` otherwise."""
         maxiter = self.minimizer.maxiter if maxiter is None else maxiter
         patience = NEWTON_PATIENCE if self.method == "newton" else maxiter
-        result = minimize(
+        result = minimize_objective(
             self.objective,
-            self.method,  # type: ignore[arg-type]
+            cast(Method, self.method),
             x0=x,
             precon=self.precon if self.precon is not None else "none",
             gtol=gtol,
@@ -98,7 +316,7 @@ class Relaxer:
 
     def relax_to_minimum(
         self, x: NDArray[np.float64], *, gtol: float, etol: float = 0.0, what: str = "step"
-    ) -> tuple[MinimizeResult, int]:
+    ) -> tuple[Relaxation, int]:
         """:meth:`relax`, then check that the result is a local minimum
         (:func:`~athermal.moduli.stability`); a saddle is left along its negative mode and
         relaxed again. Returns the last result and how many saddles were left; raises
@@ -141,7 +359,7 @@ class Relaxer:
         rtol: float,
         etol: float = 0.0,
         what: str = "step",
-    ) -> MinimizeResult:
+    ) -> Relaxation:
         """:meth:`relax` to ``gtol``, then on until ``max_i |grad_i|`` is also within
         :func:`force_tolerance` (``rtol``) of the result's own forces, or the energy is
         ``<= etol``, all within the minimizer's ``maxiter``: a relaxation stopped relative to
@@ -188,17 +406,17 @@ class Relaxer:
 
     def _go_on(
         self,
-        first: MinimizeResult,
+        first: Relaxation,
         method: Literal["lbfgs", "fire"],
         label: str,
         precon: Preconditioner | None,
         gtol: float,
         etol: float,
         maxiter: int,
-    ) -> MinimizeResult:
+    ) -> Relaxation:
         """Relax on from where ``first`` stopped by ``method`` (called ``label`` in the message)
         with ``precon``, within what is left of ``maxiter``; the result counts both."""
-        rest = minimize(
+        rest = minimize_objective(
             self.objective,
             method,
             x0=first.x,
@@ -227,7 +445,7 @@ class Relaxer:
         )
 
 
-def _summed(first: MinimizeResult, then: MinimizeResult) -> MinimizeResult:
+def _summed(first: Relaxation, then: Relaxation) -> Relaxation:
     """``then``, a relaxation that went on from where ``first`` stopped, counting both runs'
     iterations, evaluations and seconds."""
     return replace(
@@ -273,3 +491,24 @@ def force_tolerance(packing: Packing, model: ContactModel, rtol: float) -> float
 def energy_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
     """``k_max <r>^alpha``: the energy of an overlap of one mean radius (energy units)."""
     return float(model.kmat.max()) * float(np.mean(radii)) ** model.alpha
+
+
+def minimize(
+    fun: Callable[[NDArray[np.float64]], tuple[float, NDArray[np.float64]]] | Objective,
+    *args: Any,
+    **kwargs: Any,
+) -> MinimizeResult:
+    """``athermal.minimize``: :func:`athermal.minimize.minimize` (``fun(x) -> (f, grad)``,
+    ``x0``); the old call on an :class:`~athermal.objective.Objective`, ``minimize(objective,
+    method, ...)``, still works for one release, with a DeprecationWarning: it is
+    :func:`minimize_objective` (or :func:`relax` on a packing)."""
+    if isinstance(fun, Objective):
+        warnings.warn(
+            "athermal.minimize(objective, method, ...) is deprecated: use "
+            "athermal.relax(packing, model, Minimizer(...)) or "
+            "athermal.relaxation.minimize_objective(objective, method, ...)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return minimize_objective(fun, *args, **kwargs)
+    return library.minimize(fun, *args, **kwargs)
