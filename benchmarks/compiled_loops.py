@@ -3,9 +3,10 @@
 Each realization is jammed (``athermal.experiments.jam_packing``, the protocol's defaults:
 P-L-BFGS with the Exp preconditioner's incomplete factor) alternately with the compiled loops
 (L-BFGS iterations and line searches in compiled code, :mod:`athermal.minimize.lbfgs`) and with
-the Python loops (the objective's ``took`` hidden, so that the minimizers evaluate every trial
-point through ``Objective.__call__``), ``--repeats`` times each after a warm-up, in one process:
-the medians and the median of the per-pair time ratios, and the iterations, which must agree.
+the Python loops (the objective's compiled search hidden, so that the minimizers evaluate
+every trial point through ``Objective.__call__``), ``--repeats`` times each after a warm-up, in
+one process: the medians and the median of the per-pair time ratios, and the iterations, which
+must agree.
 
     python -m benchmarks.compiled_loops                      # N = 1024, realizations 0-2 (~3 min)
     python -m benchmarks.compiled_loops --n 4096 --realizations 0 --repeats 1
@@ -29,19 +30,20 @@ from benchmarks.machine import ROOT, pin, save
 
 def jam_both_ways(spec: JamSpec, seed: int, repeats: int) -> dict[str, Any]:
     """Jam ``seed`` with the compiled and the Python loops alternately; times and iterations."""
-    took = Objective.took
+    compiled_search = Objective.compiled_search
     times: dict[str, list[float]] = {"compiled": [], "python": []}
     results: dict[str, tuple[float, int]] = {}
     try:
         for _ in range(repeats):
             for name in ("compiled", "python"):
-                Objective.took = took if name == "compiled" else None  # type: ignore[assignment,method-assign]
+                hidden = compiled_search if name == "compiled" else (lambda self: None)
+                Objective.compiled_search = hidden  # type: ignore[method-assign]
                 t0 = time.perf_counter()
                 result = jam_packing(spec, seed)
                 times[name].append(time.perf_counter() - t0)
                 results[name] = (result.phi_c, result.iterations)
     finally:
-        Objective.took = took  # type: ignore[method-assign]
+        Objective.compiled_search = compiled_search  # type: ignore[method-assign]
     ratios = [a / b for a, b in zip(times["compiled"], times["python"], strict=True)]
     return {
         "seed": seed,

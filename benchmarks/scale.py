@@ -90,7 +90,7 @@ def run_one(k: int, key: str, alpha: float, maxiter: int) -> dict[str, Any]:
     how, model = METHODS[key], ContactModel(alpha)
 
     def relax(objective: Objective, limit: int) -> tuple[Any, Any]:
-        # as athermal.minimize.relax, keeping the preconditioner for its counters
+        # as athermal.relaxation.relax_objective, keeping the preconditioner for its counters
         pre = make_preconditioner(how.precon, objective, A=how.A, solver=how.solver)
         res = minimize_objective(
             objective, how.method, precon=pre or "none", rtol=RTOL, maxiter=limit, A=how.A

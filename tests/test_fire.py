@@ -31,10 +31,12 @@ class FakeObjective:
         self.max_step = 0.1  # FIRE's default cap: an Objective's is 0.1 x the mean radius
         self.function = function
         self.hooks = Hooks(block=dim, max_step=self.max_step)
-        self.compiled = None
         self.n_evaluations = 0
         self.points: list[NDArray[np.float64]] = []
         self._last: tuple[NDArray[np.float64], tuple[float, NDArray[np.float64]]] | None = None
+
+    def compiled_search(self) -> None:
+        return None  # evaluated from Python
 
     def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         if self._last is not None and np.array_equal(x, self._last[0]):

@@ -217,9 +217,9 @@ def test_step_limit_caps_the_largest_particle_move():
     obj = Objective(overlapped(), ContactModel(2.0))
     direction = np.zeros(obj.n_dof)
     direction[4:6] = [3.0, 4.0]  # particle 2 moves 5 per unit step
-    assert obj.step_limit(direction) == pytest.approx(obj.max_step / 5.0)
+    assert obj.hooks.step_limit(direction) == pytest.approx(obj.max_step / 5.0)
     assert obj.max_step == pytest.approx(0.1 * obj.radii.mean())
-    assert obj.step_limit(np.zeros(obj.n_dof)) == np.inf
+    assert obj.hooks.step_limit(np.zeros(obj.n_dof)) == np.inf
 
 
 def two_loop_reference(grad, pairs, precon_solve):
@@ -310,13 +310,14 @@ def test_pairs_are_refreshed_when_the_preconditioner_is_rebuilt():
 class PythonOnly:
     """An objective without its compiled energy: the minimizers' generic (Python) search."""
 
-    compiled = None
-
     def __init__(self, objective):
         self._objective = objective
 
     def __getattr__(self, name):
         return getattr(self._objective, name)
+
+    def compiled_search(self):
+        return None
 
     def __call__(self, x):
         return self._objective(x)
@@ -500,6 +501,38 @@ def test_the_library_refuses_what_it_cannot_use():
         library(quadratic_, np.ones(5), hooks=Hooks(block=2))
     with pytest.raises(InputError, match="'lbfgs'"):
         library(quadratic_, np.ones(4), method="plbfgs")
+    with pytest.raises(InputError, match="hess"):
+        library(quadratic_, np.ones(4), method="lbfgs", hess=lambda x: np.eye(4))
+    with pytest.raises(InputError, match="options"):
+        library(quadratic_, np.ones(4), method="cg", options={"dt_max": 1.0})
+
+
+def test_a_function_below_zero_is_minimized_not_stopped_at_zero():
+    """The library's energy stop is off by default: a function that goes negative runs on to
+    its gradient tolerance (the physics passes etol = 0 for a contact energy)."""
+    from scipy.optimize import rosen, rosen_der
+
+    from athermal.minimize import Problem
+    from athermal.minimize import minimize as library
+
+    result = library(lambda x: (rosen(x) - 0.5, rosen_der(x)), np.zeros(10), gtol=1e-10)
+    assert result.success and result.max_gradient <= 1e-10
+    assert result.fun == pytest.approx(-0.5, abs=1e-15)
+    # telling a Problem from a plain callable builds nothing (no Verlet list, no compile)
+    obj = Objective(overlapped(), ContactModel(2.0))
+    assert isinstance(obj, Problem) and obj.n_rebuilds == 0
+
+
+def test_only_the_exp_factor_is_solved_in_compiled_code():
+    """An incomplete factor of the contact preconditioner (an N d system) is solved from
+    Python; the Exp one (N rows, d columns) in the compiled loops."""
+    from athermal.precon import ContactPreconditioner, ExpPreconditioner
+
+    obj = Objective(overlapped(), ContactModel(2.0))
+    for kind, compiled in ((ContactPreconditioner, False), (ExpPreconditioner, True)):
+        pre = kind(obj, solver="ic0")
+        pre.update(obj.x0)
+        assert (pre.compiled_solver() is not None) is compiled
 
 
 def test_the_old_top_level_call_still_works_with_a_deprecation_warning():

@@ -42,7 +42,7 @@ METHODS = (
     Minimizer("lbfgs", "contact"),
     Minimizer("newton"),
 )
-"""The Table's methods (their :attr:`~athermal.minimize.Minimizer.name` labels its rows);
+"""The Table's methods (their :attr:`~athermal.relaxation.Minimizer.name` labels its rows);
 P-L-BFGS twice, with the solver ``auto`` takes (the incomplete factor) and the exact one."""
 LABELS = (*(m.name for m in METHODS), SCIPY)
 RENAMED = {"P-L-BFGS (A=0)": "P-L-BFGS"}

@@ -92,8 +92,7 @@ class Enthalpy:
         """``(N + d) d``: the positions, then the ``d x d`` cell block."""
         return (self.n + self.dim) * self.dim
 
-    @property
-    def compiled(self) -> CompiledSearch | None:
+    def compiled_search(self) -> CompiledSearch | None:
         """None: the enthalpy is evaluated from Python."""
         return None
 

@@ -192,7 +192,7 @@ class IncompleteCholeskyFactor:
         self,
     ) -> tuple[NDArray[np.int64], NDArray[np.int32], NDArray[np.float64], NDArray[np.float64]]:
         """``(indptr, indices, lower, inverse_diagonal)``: ``L`` in CSR, its diagonal last in
-        each row, for :func:`~athermal.cholesky_solve_columns`."""
+        each row, for :func:`cholesky_solve_columns`."""
         return self._indptr, self._indices, self._lower, self._inverse_diagonal
 
 

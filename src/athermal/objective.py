@@ -15,6 +15,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import _blocks
+from ._blocks import PLACE, max_row_sq  # by name: numba folds PLACE in as a literal
 from ._jit import _jit
 from .contact import (
     ContactModel,
@@ -68,6 +69,11 @@ class Objective:
         self.n_evaluations = 0
         self.n_rebuilds = 0
         self.max_step = MAX_STEP_FACTOR * float(np.mean(self.radii))
+        # the round-off of the energy near E: each overlap carries an absolute error
+        # ~eps_mach |x| from the coordinates, so E carries ~eps_mach L |f|_2 with
+        # |f|_2^2 = sum_c f_c^2 <= k^(2/alpha) (alpha E)^(2 - 2/alpha); with L the largest cell
+        # width this bound overestimates the measured scatter (E under global translations of a
+        # packing jammed at Delta phi ~ 1e-4, N = 1024) about 20x: a quarter of it
         noise_scale = (
             0.25
             * float(np.finfo(np.float64).eps)
@@ -77,7 +83,8 @@ class Objective:
         alpha = float(model.alpha)
         self.hooks = Hooks(self.dim, self.max_step, (noise_scale, alpha, 1.0 - 1.0 / alpha))
         """The minimizers' hooks: blocks of ``d`` coordinates (one particle each), the step cap
-        :attr:`max_step` and the round-off of the energy (:meth:`energy_noise`)."""
+        :attr:`max_step` (``MAX_STEP_FACTOR`` x the mean radius) and the round-off of the
+        energy, ``scale (alpha E)^(1 - 1/alpha)``."""
         self._compiled: CompiledSearch | None = None
 
     @property
@@ -121,8 +128,7 @@ class Objective:
         self._last = (energy, grad)
         return self._last
 
-    @property
-    def compiled(self) -> CompiledSearch:
+    def compiled_search(self) -> CompiledSearch:
         """The energy's line search in compiled code, for the minimizers
         (:class:`~athermal.minimize.CompiledSearch`): :func:`energy_search` over the current
         Verlet list, until the search ends or a trial point moves a particle more than
@@ -131,6 +137,7 @@ class Objective:
         if self._compiled is None:
             x = self.x0
             self._compiled = CompiledSearch(
+                energy_search,
                 compiled_function(
                     energy_search,
                     np.empty(STATE_SIZE),
@@ -212,25 +219,9 @@ class Objective:
             )
         )
 
-    def energy_noise(self, energy: float) -> float:
-        """Round-off of an energy evaluation near ``energy`` (energy units).
-
-        Each overlap carries an absolute error ~``eps_mach |x|`` from the coordinates, so ``E``
-        carries ``~eps_mach L |f|_2`` with ``|f|_2^2 = sum_c f_c^2 <= k^(2/alpha)
-        (alpha E)^(2 - 2/alpha)``. With ``L`` the largest cell width this bound overestimates
-        the measured scatter (``E`` under global translations of a packing jammed at
-        ``Delta phi ~ 1e-4``, N = 1024) about 20x; a quarter of it is returned.
-        """
-        return self.hooks.energy_noise(energy)
-
     def max_gradient(self, grad: NDArray[np.float64]) -> float:
         """``max_i |grad_i|``: the largest Euclidean norm of one particle's gradient."""
         return self.hooks.max_gradient(grad)
-
-    def step_limit(self, direction: NDArray[np.float64]) -> float:
-        """Largest ``a`` for which ``x + a direction`` moves no particle more than
-        :attr:`max_step` (``MAX_STEP_FACTOR`` x the mean radius); ``inf`` for a zero direction."""
-        return self.hooks.step_limit(direction)
 
     def tolerance(
         self, gtol: float | None, rtol: float | None, x: NDArray[np.float64] | None = None
@@ -329,4 +320,4 @@ def _place_trial(x, direction, a, reference, trial):  # type: ignore[no-untyped-
     ``max_i |trial_i - reference_i|^2`` over the ``(n, d)`` rows of ``reference``: one pass
     over the vectors for the point and its reach test, which sees the very point evaluated."""
     flat = reference.reshape(reference.size)
-    return _blocks.max_row_sq(x, direction, a, flat, trial, reference.shape[1], _blocks.PLACE)
+    return max_row_sq(x, direction, a, flat, trial, reference.shape[1], PLACE)

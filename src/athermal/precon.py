@@ -185,15 +185,10 @@ class _PairPreconditioner(ABC):
         if self._reference is None or self._stale(positions):
             self._rebuild(positions)
 
-    def compiled_solver(
-        self,
-    ) -> tuple[tuple[NDArray[Any], ...], NDArray[np.float64], float] | None:
-        """The incomplete factor's arrays (:meth:`~athermal.linalg.IncompleteCholeskyFactor
-        .arrays`), the positions ``(N, d)`` of the last build and the squared displacement up
-        to which it holds, for a solve in compiled code; None unless built with ``ic0``."""
-        if not isinstance(self._factor, IncompleteCholeskyFactor) or self._reference is None:
-            return None
-        return self._factor.arrays(), self._reference, self._reach_sq
+    def compiled_solver(self) -> tuple[Any, ...] | None:
+        """None: solved from Python (:class:`ExpPreconditioner` with ``ic0`` is solved in
+        compiled code)."""
+        return None
 
     def _stale(self, positions: NDArray[np.float64]) -> bool:
         """True when a particle moved more than ``r_cut / 4`` since the last build."""
@@ -341,6 +336,16 @@ class ExpPreconditioner(_PairPreconditioner):
         self.n_solves += 1
         rhs = np.asarray(g, dtype=np.float64).reshape(self.objective.n, self.objective.dim)
         return factor.solve(rhs).ravel()
+
+    def compiled_solver(
+        self,
+    ) -> tuple[tuple[NDArray[Any], ...], NDArray[np.float64], float] | None:
+        """The incomplete factor's arrays (:meth:`~athermal.linalg.IncompleteCholeskyFactor
+        .arrays`), the positions ``(N, d)`` of the last build and the squared displacement up
+        to which it holds, for a solve in compiled code; None unless built with ``ic0``."""
+        if not isinstance(self._factor, IncompleteCholeskyFactor) or self._reference is None:
+            return None
+        return self._factor.arrays(), self._reference, self._reach_sq
 
     def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
         """``P v = (L (x) I_d) v`` ``(N d,)``."""

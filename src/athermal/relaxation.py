@@ -24,7 +24,7 @@ from .cell import Cell
 from .contact import ContactModel, Contacts, find_contacts
 from .errors import ConvergenceError, InputError
 from .linalg import SOLVERS, SolverName
-from .minimize import MinimizeResult, Preconditioner, Status
+from .minimize import NEWTON_TAKES_NO_PRECON, MinimizeResult, Preconditioner, Status
 from .moduli import stability
 from .objective import Objective
 from .packing import Packing
@@ -34,7 +34,6 @@ Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
 _NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE", "newton": "Newton-CG"}
-NEWTON_TAKES_NO_PRECON = "precon: newton preconditions with its own Hessian factor; give 'none'"
 RTOL = 1e-9
 """The seed's tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at the start of a
 relaxation (the Table, every quasi-static step)."""
@@ -164,6 +163,8 @@ def minimize_objective(
     if base == "newton" and not isinstance(precon, str):
         raise InputError(NEWTON_TAKES_NO_PRECON)
     tol = objective.tolerance(gtol, rtol, start)
+    if not 0.0 <= etol < np.inf:
+        raise InputError(f"etol: energy tolerance must be finite and >= 0, got {etol}")
     pre = None
     if base != "newton":
         pre = (
@@ -225,8 +226,10 @@ def relax(
 ) -> Relaxation:
     """Relax ``packing`` (radii and cell fixed) under ``model`` by ``how`` (default L-BFGS) to
     ``max_i |grad_i| <= gtol``, or ``rtol`` x the mean contact force at the start (default
-    :data:`RTOL` when neither is given). Returns the :class:`Relaxation` (its ``packing`` in
-    the caller's order).
+    :data:`RTOL` when neither is given), within ``maxiter`` iterations (default the
+    minimizer's), with the protocols' hand-over (:class:`Relaxer`: Newton-CG to P-L-BFGS after
+    :data:`NEWTON_PATIENCE` iterations, a failed line search to FIRE). Returns the
+    :class:`Relaxation` (its ``packing`` in the caller's order, ``status`` why it stopped).
 
     Examples
     --------
@@ -236,11 +239,10 @@ def relax(
     >>> result.converged, result.packing.n
     (True, 64)
     """
-    if gtol is None and rtol is None:
-        rtol = RTOL
-    return relax_objective(
-        Objective(packing, model), how or Minimizer(), gtol=gtol, rtol=rtol, maxiter=maxiter
-    )
+    objective = Objective(packing, model)
+    tol = objective.tolerance(gtol, RTOL if gtol is None and rtol is None else rtol)
+    relaxer = Relaxer(objective, how or Minimizer())
+    return relaxer.attempt(objective.x0, gtol=tol, maxiter=maxiter)
 
 
 MAX_ESCAPES = 3
@@ -287,9 +289,28 @@ class Relaxer:
         what: str = "step",
         maxiter: int | None = None,
     ) -> Relaxation:
+        """:meth:`attempt`; raises :class:`ConvergenceError` naming ``what`` when it did not
+        converge."""
+        result = self.attempt(x, gtol=gtol, etol=etol, maxiter=maxiter)
+        if not result.converged:
+            raise ConvergenceError(
+                f"{what}: {self.minimizer.label} did not converge ({result.message}; "
+                f"max|grad| {result.max_gradient:.3e} > gtol {gtol:.3e}); raise maxiter or "
+                "try another method"
+            )
+        return result
+
+    def attempt(
+        self,
+        x: NDArray[np.float64],
+        *,
+        gtol: float,
+        etol: float = 0.0,
+        maxiter: int | None = None,
+    ) -> Relaxation:
         """Minimize from ``x`` ``(N d,)`` (internal order) to ``max_i |grad_i| <= gtol`` or
-        energy ``<= etol`` within ``maxiter`` iterations (default the minimizer's); raises
-        :class:`ConvergenceError` naming ``what`` otherwise."""
+        energy ``<= etol`` within ``maxiter`` iterations (default the minimizer's), handing
+        over as the class says; the result says whether it converged."""
         maxiter = self.minimizer.maxiter if maxiter is None else maxiter
         patience = NEWTON_PATIENCE if self.method == "newton" else maxiter
         result = minimize_objective(
@@ -306,12 +327,6 @@ class Relaxer:
             result = self._go_on(result, "lbfgs", "P-L-BFGS", exp, gtol, etol, maxiter)
         if result.status is Status.LINE_SEARCH_FAILED:
             result = self._go_on(result, "fire", "FIRE", self.precon, gtol, etol, maxiter)
-        if not result.converged:
-            raise ConvergenceError(
-                f"{what}: {self.minimizer.label} did not converge ({result.message}; "
-                f"max|grad| {result.max_gradient:.3e} > gtol {gtol:.3e}); raise maxiter or "
-                "try another method"
-            )
         return result
 
     def relax_to_minimum(

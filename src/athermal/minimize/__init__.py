@@ -33,6 +33,7 @@ from .result import CompiledSearch, MinimizeResult, Preconditioner, Problem, Sta
 Method = Literal["lbfgs", "cg", "fire", "newton"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton")
 NEWTON_TAKES_NO_PRECON = "precon: newton preconditions with its own Hessian factor; give none"
+"""Why ``newton`` refuses a preconditioner (the physics' names add what they got)."""
 
 
 class _SecondOrder(Function):
@@ -66,7 +67,7 @@ def minimize(
     precon: Preconditioner | None = None,
     gtol: float = 1e-5,
     maxiter: int = 100_000,
-    etol: float = 0.0,
+    etol: float = -np.inf,
     hooks: Hooks | None = None,
     hess: Callable[[NDArray[np.float64]], Any] | None = None,
     memory: int = 10,
@@ -86,9 +87,8 @@ def minimize(
     gtol : absolute tolerance on the largest Euclidean norm of a block of ``grad``
         (:class:`Hooks`; single coordinates by default: ``max_i |grad_i|``).
     maxiter : iteration limit (non-convergence is reported in the result, not raised).
-    etol : the run also stops, converged, once ``f <= etol`` (default 0: for a function
-        bounded below by 0, such as a contact energy, only at exactly 0; give ``-inf`` for
-        none).
+    etol : the run also stops, converged, once ``f <= etol`` (default ``-inf``: never; the
+        physics gives 0 for a contact energy, which is exactly 0 only without overlaps).
     hooks : blocks, step cap and round-off of ``f`` (:class:`Hooks`); not with a
         :class:`Problem`, which has its own.
     hess : for ``newton``: ``hess(x)``, the Hessian as a sparse matrix or a :class:`Hessian`.
@@ -120,6 +120,10 @@ def minimize(
     fire True True
     """
     choice(method, "method", METHODS)
+    if hess is not None and method != "newton":
+        raise InputError(f"hess: only newton uses the Hessian, not {method}")
+    if options and method not in ("fire", "newton"):
+        raise InputError(f"options: {method} takes none, got {sorted(options)}")
     if isinstance(x0, str) or x0 is None:
         raise InputError(
             "minimize(fun, x0, *, method=...): x0 is the start vector; to relax a packing's "
@@ -165,6 +169,7 @@ def minimize(
 
 __all__ = [
     "METHODS",
+    "NEWTON_TAKES_NO_PRECON",
     "CompiledSearch",
     "Function",
     "Hessian",

@@ -1,7 +1,7 @@
 """The compiled iterations of L-BFGS (:mod:`.lbfgs`) and nonlinear CG (:mod:`.cg`): one loop
 for both, on a function that brings its own compiled line search.
 
-A loop runs on a :class:`~.result.Problem` whose :attr:`~.result.Problem.compiled` is a
+A loop runs on a :class:`~.result.Problem` whose :meth:`~.result.Problem.compiled_search` is a
 :class:`~.result.CompiledSearch` (the function's energy in compiled code, taken as a
 first-class function: the loop is compiled once per signature, whatever the function), with no
 preconditioner or one solved in compiled code (an incomplete factor). It stops where compiled
@@ -21,6 +21,7 @@ from ..linalg import cholesky_solve_columns
 from ._conjugate import RESTARTED, SLOPE, STEP_GUESS, YG, beta_of, next_direction
 from ._memory import Memory, direction_into, store_pair
 from ._wolfe import ACCEPTED, STATE_SIZE, STEP, begin
+from .hooks import round_off
 from .linesearch import C1, EPS, MAX_EVALUATIONS
 from .result import Preconditioner, Problem, Tracker
 
@@ -38,13 +39,13 @@ def search_from(
     state, x, direction, trial, trial_grad, energy, slope, step, c2, constants, search, arguments
 ):
     """The strong-Wolfe search along ``direction`` from ``x`` (``energy``, ``slope``), from the
-    first trial ``step`` capped as :meth:`~.function.Hooks.step_limit` caps it, with the
-    round-off of :meth:`~.function.Hooks.energy_noise` (``constants`` are
-    :meth:`~.function.Hooks.constants`), as :func:`~._step.advance` begins it, run by the
+    first trial ``step`` capped as :meth:`~.hooks.Hooks.step_limit` caps it, with the
+    round-off of :meth:`~.hooks.Hooks.energy_noise` (``constants`` are
+    :meth:`~.hooks.Hooks.constants`), as :func:`~._step.advance` begins it, run by the
     function's compiled ``search`` on ``arguments``. Returns ``search``'s values."""
     block, max_step, scale, factor, power = constants
     cap = _blocks.step_limit(max_step, direction, block)
-    noise = scale * (factor * max(energy, 0.0)) ** power
+    noise = round_off(scale, factor, power, energy)
     code = begin(state, energy, slope, step, C1, c2, cap, EPS, noise, MAX_EVALUATIONS)
     return search(state, code, x, direction, trial, trial_grad, arguments)
 
@@ -139,7 +140,7 @@ def iterate(
     ...) with Fletcher-Reeves or, with ``polak``, Polak-Ribiere+. ``c2`` is the line search's
     curvature constant; ``history`` ``(2, K)`` receives each iterate's energy and largest
     gradient; ``counts`` is ``[iterations, maxiter, recorded, evaluations, solves]``;
-    ``tolerances`` ``(gtol, etol)``; ``constants`` the hooks' (:meth:`~.function.Hooks.constants`);
+    ``tolerances`` ``(gtol, etol)``; ``constants`` the hooks' (:meth:`~.hooks.Hooks.constants`);
     ``search`` and ``arguments`` the function's compiled line search
     (:class:`~.result.CompiledSearch`); ``solver`` the incomplete factor's arrays with the
     point of its build and its reach, or None for no preconditioner. Runs until convergence,
@@ -267,7 +268,7 @@ class CompiledLoop:
     def possible(problem: Problem, precon: Preconditioner | None) -> bool:
         """Whether the problem has a compiled line search and the preconditioner, if any
         (built), is solved in compiled code."""
-        return problem.compiled is not None and (
+        return problem.compiled_search() is not None and (
             precon is None or precon.compiled_solver() is not None
         )
 
@@ -285,7 +286,7 @@ class CompiledLoop:
         buffers, the iterates go to ``tracker``, the evaluations to the problem, the solves to
         the preconditioner. Returns :func:`iterate`'s code and the accepted energy of a
         :data:`TAIL` stop."""
-        compiled = self.problem.compiled
+        compiled = self.problem.compiled_search()
         assert compiled is not None  # :meth:`possible`
         self.x[:] = x
         self.grad[:] = grad

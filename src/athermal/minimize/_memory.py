@@ -171,7 +171,7 @@ def _keep(row, sy_row, ypy_row, s, y, py, sy, ypy, gamma, work, rows, ring):
 
 @_jit
 def store_pair(x, x_new, g, g_new, z, z_new, s, y, py, sy, ypy, gamma, work, rows, ring):
-    """Memory.store` without a rebuilt preconditioner."""
+    """:meth:`Memory.store` without a rebuilt preconditioner."""
     _complete_newest(s, y, py, sy, ypy, gamma, work, rows, ring)
     row = ring[_FREE]
     sy_row, ypy_row = lbfgs_pair(x, x_new, g, g_new, z, z_new, s[row], y[row], py[row])
@@ -180,7 +180,7 @@ def store_pair(x, x_new, g, g_new, z, z_new, s, y, py, sy, ypy, gamma, work, row
 
 @_jit
 def direction_into(grad, z, s, y, py, sy, ypy, gamma, work, rows, ring, out):
-    """Memory.direction` into ``out``."""
+    """:meth:`Memory.direction` into ``out``."""
     count = ring[_COUNT]
     newest = y[rows[count - 1]] if count > 0 else grad
     lbfgs_direction(

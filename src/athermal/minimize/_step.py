@@ -12,12 +12,9 @@ search".
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numpy.typing import NDArray
 
-from .._jit import _jit
 from ._wolfe import GO_ON, TRIAL, feed, resumed
 from .linesearch import C1, EPS, MAX_EVALUATIONS, LineSearchResult, started
 from .result import Problem
@@ -57,14 +54,13 @@ def advance(
         )
     else:
         state, code = resume, resumed(resume)
-    compiled = problem.compiled
+    compiled = problem.compiled_search()
     trial = np.empty_like(x)  # the compiled search's trial points and their gradients
     trial_grad = np.empty_like(x)
     last: tuple[NDArray[np.float64], float, NDArray[np.float64]] | None = None
     while code == GO_ON:
         if compiled is not None:
-            code, evaluations, f, tag, stale = run_search(
-                compiled.search,
+            code, evaluations, f, tag, stale = compiled.function(
                 state,
                 code,
                 np.ascontiguousarray(x),
@@ -89,19 +85,3 @@ def advance(
         return ls, x, energy, grad
     assert last is not None  # an accepted step is the last point evaluated
     return ls, *last
-
-
-@_jit
-def run_search(
-    search: Any,
-    state: NDArray[np.float64],
-    code: int,
-    x: NDArray[np.float64],
-    direction: NDArray[np.float64],
-    trial: NDArray[np.float64],
-    grad: NDArray[np.float64],
-    arguments: tuple[Any, ...],
-) -> tuple[int, int, float, int, bool]:
-    """The compiled line search ``search`` (:class:`~.result.CompiledSearch`) called from
-    Python: its values, ``code`` an integer."""
-    return search(state, code, x, direction, trial, grad, arguments)

@@ -42,7 +42,7 @@ def cg(
     *,
     gtol: float,
     maxiter: int = 100_000,
-    etol: float = 0.0,
+    etol: float = -np.inf,
     precon: Preconditioner | None = None,
     variant: CGVariant = "fr",
 ) -> MinimizeResult:

@@ -15,7 +15,7 @@ Algorithm 2, with its "initial delay" and "half step back" options on. One step 
                 x = x - dt v / 2;  v = 0      (half step back, with the new dt)
     v = v + dt F
     v = (1 - a) v + a |v| F / |F|
-    x = x + dt v                      (dt v capped at max_step per particle)
+    x = x + dt v                      (dt v capped at max_step per block)
     F = -grad E(x)                    (the one evaluation of the step)
 
 Preconditioned variant (``precon`` given): the dynamics are ``P dv/dt = F`` (``P`` is the mass
@@ -96,8 +96,9 @@ def _move(
     """One semi-implicit Euler step with the FIRE mixing, in three passes over the arrays.
 
     ``v += -dt slope``; ``v = (1 - alpha) v + alpha |v| (-slope) / |slope|``; ``v`` scaled so
-    that no particle moves further than ``max_step``; returns ``(x + dt v, finite)``, with
-    ``finite`` False (and ``x`` unchanged) when ``slope`` or ``v`` holds a NaN or infinity.
+    that no block of ``dim`` coordinates moves further than ``max_step``; returns ``(x + dt v,
+    finite)``, with ``finite`` False (and ``x`` unchanged) when ``slope`` or ``v`` holds a NaN
+    or infinity.
     ``v`` is updated in place.
     """
     m = x.size
@@ -139,7 +140,7 @@ def fire(
     *,
     gtol: float,
     maxiter: int = 100_000,
-    etol: float = 0.0,
+    etol: float = -np.inf,
     precon: Preconditioner | None = None,
     dt: float | None = None,
     dt_max: float | None = None,
@@ -160,8 +161,8 @@ def fire(
     x0 : the start.
     gtol : absolute tolerance on the largest block of the gradient
         (:meth:`~.hooks.Hooks.max_gradient`).
-        The run also stops, converged, when the energy is ``<= etol`` (default 0: no overlaps).
-    etol : energy tolerance (absolute, energy units).
+        The run also stops, converged, when the energy is ``<= etol``.
+    etol : energy tolerance (absolute; default ``-inf``: no such stop).
     maxiter : the most steps (one energy+gradient evaluation each).
     precon : preconditioner; the dynamics then follow ``F_p = -P^-1 grad E``.
     dt_max : largest time step (time units, unit masses). Default ``1.6 / sqrt(curvature)``

@@ -54,8 +54,7 @@ class Function:
         """Length of ``x``."""
         return self._n_dof
 
-    @property
-    def compiled(self) -> CompiledSearch | None:
+    def compiled_search(self) -> CompiledSearch | None:
         """The compiled line search given, or None."""
         return self._compiled
 

@@ -10,7 +10,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import _blocks
+from .._jit import _jit
 from ..errors import InputError
+
+
+@_jit
+def round_off(scale: float, factor: float, power: float, value: float) -> float:
+    """``scale (factor max(value, 0))^power``: the absolute round-off of ``f`` near ``value``
+    (:attr:`Hooks.noise`), the one formula the line search uses from Python and compiled code."""
+    return scale * (factor * max(value, 0.0)) ** power
 
 
 @dataclass(frozen=True)
@@ -57,5 +65,4 @@ class Hooks:
 
     def energy_noise(self, energy: float) -> float:
         """The absolute round-off of ``f`` near ``energy`` (see :attr:`noise`)."""
-        scale, factor, power = self.noise
-        return float(scale * (factor * max(energy, 0.0)) ** power)
+        return float(round_off(*self.noise, energy))

@@ -47,17 +47,16 @@ def lbfgs(
     *,
     gtol: float,
     maxiter: int = 100_000,
-    etol: float = 0.0,
+    etol: float = -np.inf,
     precon: Preconditioner | None = None,
     memory: int = 10,
 ) -> MinimizeResult:
     """Minimize ``problem`` from ``x0`` ``(n_dof,)`` by (preconditioned) L-BFGS.
 
     Stops when the largest block of the gradient (:meth:`~.hooks.Hooks.max_gradient`) is
-    ``<= gtol`` or the energy is ``<= etol`` (default:
-    exactly zero; status ``CONVERGED``), after ``maxiter`` iterations (``ITERATION_LIMIT``), or
-    when no step satisfying the Wolfe conditions exists even along the (preconditioned)
-    gradient (``LINE_SEARCH_FAILED``).
+    ``<= gtol`` or the energy is ``<= etol`` (default ``-inf``: never; status ``CONVERGED``),
+    after ``maxiter`` iterations (``ITERATION_LIMIT``), or when no step satisfying the Wolfe
+    conditions exists even along the (preconditioned) gradient (``LINE_SEARCH_FAILED``).
     """
     tracker = Tracker.start(problem, "lbfgs", precon, gtol, maxiter, etol)
     x = np.array(x0, dtype=np.float64, copy=True)

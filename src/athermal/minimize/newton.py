@@ -378,7 +378,7 @@ def newton(
     *,
     gtol: float,
     maxiter: int = 100_000,
-    etol: float = 0.0,
+    etol: float = -np.inf,
 ) -> MinimizeResult:
     """Minimize ``problem`` from ``x0`` ``(n_dof,)`` by truncated Newton (see module doc).
 

@@ -26,10 +26,12 @@ from .hooks import Hooks
 class CompiledSearch:
     """A function's line search in compiled code, for the minimizers' compiled iterations.
 
-    ``search`` is a compiled first-class function (:func:`~.function.compiled_function`)
-    ``search(state, code, x, direction, trial, grad, arguments) -> (code, evaluations, f,
-    tag, stale)``: it feeds the line search ``state`` (:mod:`._wolfe`, last code ``code``) the
-    values ``phi(a) = f(x + a direction)`` and ``phi'(a)``, writing each trial point into
+    ``function`` is a numba ``njit`` function ``function(state, code, x, direction, trial,
+    grad, arguments) -> (code, evaluations, f, tag, stale)`` (called so from Python) and
+    ``search`` the same as a compiled first-class function
+    (:func:`~.function.compiled_function`, passed to the compiled loops): it feeds the line
+    search ``state`` (:mod:`._wolfe`, last code ``code``) the values ``phi(a) = f(x + a
+    direction)`` and ``phi'(a)``, writing each trial point into
     ``trial`` and its gradient into ``grad``, until the search ends or a trial point is one it
     cannot evaluate in compiled code (``stale``; ``trial`` then holds the last point evaluated,
     or that point when none was). ``tag`` is an integer the function keeps of its last
@@ -37,6 +39,7 @@ class CompiledSearch:
     valid near ``x``; ``took(x, f, grad, tag, evaluations)`` takes back what compiled code
     evaluated, the last at ``x``."""
 
+    function: Any
     search: Any
     arguments: Callable[[NDArray[np.float64]], tuple[Any, ...]]
     took: Callable[[NDArray[np.float64], float, NDArray[np.float64], int, int], None]
@@ -60,8 +63,7 @@ class Problem(Protocol):
         """The stop rule's norm, the step cap and the round-off of ``f``."""
         ...
 
-    @property
-    def compiled(self) -> CompiledSearch | None:
+    def compiled_search(self) -> CompiledSearch | None:
         """The function's own compiled line search, or None (every evaluation from Python)."""
         ...
 
@@ -176,7 +178,7 @@ class Tracker:
     precon: Counted | None
     gtol: float
     maxiter: int
-    etol: float = 0.0
+    etol: float = -np.inf
     energies: list[float] = field(default_factory=list)
     gradients: list[float] = field(default_factory=list)
     start_time: float = field(default_factory=time.perf_counter)
@@ -192,16 +194,16 @@ class Tracker:
         precon: Counted | None,
         gtol: float,
         maxiter: int,
-        etol: float = 0.0,
+        etol: float = -np.inf,
     ) -> Tracker:
-        """Check the absolute tolerance ``gtol`` on :meth:`Problem.max_gradient`, ``maxiter``
-        and ``etol``, the energy at or below which the run also stops, converged."""
+        """Check the absolute tolerance ``gtol`` on :meth:`~.hooks.Hooks.max_gradient`,
+        ``maxiter`` and ``etol``, the energy at or below which the run also stops, converged."""
         if not np.isfinite(gtol) or gtol < 0.0:
             raise InputError(f"gtol: tolerance must be finite and >= 0, got {gtol}")
         if maxiter < 0:
             raise InputError(f"maxiter: must be >= 0, got {maxiter}")
-        if not np.isfinite(etol) or etol < 0.0:
-            raise InputError(f"etol: energy tolerance must be finite and >= 0, got {etol}")
+        if np.isnan(etol) or etol == np.inf:
+            raise InputError(f"etol: must be a number below inf (-inf: no energy stop), got {etol}")
         return cls(
             objective,
             method,
