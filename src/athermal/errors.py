@@ -16,3 +16,7 @@ class ConvergenceError(RuntimeError):
 def one_line(exc: BaseException) -> str:
     """The message of ``exc`` on one line (its type's name when it has none)."""
     return " ".join(str(exc).split()) or type(exc).__name__
+
+
+JAX_MISSING = 'backend jax: JAX is not installed; install the extra: pip install "athermal[jax]"'
+"""The one line for the JAX engine without JAX (:mod:`athermal.jaxengine`, ``--backend jax``)."""

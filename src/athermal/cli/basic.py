@@ -122,7 +122,14 @@ def relax(args: argparse.Namespace) -> None:
     rtol = RTOL if args.gtol is None and args.rtol is None else args.rtol
     at_pressure: dict[str, Any] = {}
     res: MinimizeResult
-    if args.pressure is None:
+    if args.backend == "jax":
+        from .. import jaxengine  # the extra, checked at the door
+
+        relaxed = jaxengine.relax_fire(
+            frame.packing, model, gtol=args.gtol, rtol=rtol, maxiter=args.maxiter
+        )
+        res, final = relaxed, relaxed.packing
+    elif args.pressure is None:
         relaxed = relax_objective(
             Objective(frame.packing, model), minimizer_from(args), gtol=args.gtol, rtol=rtol
         )

@@ -8,6 +8,7 @@ what is wrong with it.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import math
 import os
 import stat
@@ -16,7 +17,7 @@ from pathlib import Path
 
 from ..bench import check_alphas
 from ..enthalpy import ENTHALPY_METHODS
-from ..errors import InputError
+from ..errors import JAX_MISSING, InputError
 from ..io import SEED_BOUND
 from ..packing import check_width
 from ..protocols import PHI_INIT, RESOLUTION
@@ -130,6 +131,13 @@ def _work(args: argparse.Namespace) -> None:
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
+    if args.command == "relax" and args.backend == "jax":
+        if importlib.util.find_spec("jax") is None:
+            raise InputError(JAX_MISSING)
+        if args.method != "fire" or args.precon not in (None, "none") or args.pressure:
+            raise InputError(
+                "--backend jax: so far only --method fire, without a preconditioner or --pressure"
+            )
     if args.command == "relax" and args.pressure is not None:
         if args.method not in ENTHALPY_METHODS:
             raise InputError(

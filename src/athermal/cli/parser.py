@@ -334,6 +334,13 @@ def build() -> argparse.ArgumentParser:
         type=float,
         help=f"tolerance relative to the mean contact force (default: {RTOL:g} unless --gtol)",
     )
+    rel.add_argument(
+        "--backend",
+        default="numba",
+        choices=("numba", "jax"),
+        help="engine: numba (CPU) or jax (needs the extra athermal[jax]; so far --method fire, "
+        "no preconditioner, no --pressure)",
+    )
     _model(rel, from_file=True)
 
     jam = sub.add_parser(
