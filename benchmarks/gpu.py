@@ -5,16 +5,17 @@ the device model:
 
 1. the Table's six cases (N = 4096, alpha = 2 and 2.5, to 1e-9 F0) by the JAX engine's FIRE:
    iterations, seconds (the second of two runs, the first compiles), and its energy against the
-   CPU engine's L-BFGS minimum;
+   CPU engine's L-BFGS minimum; with jax-md's FIRE in the same run when ``jax_md`` is importable
+   (its defaults, ``soft_sphere_neighbor_list`` with ``dr_threshold`` = 0.2 r_max updated every
+   step, one jitted ``while_loop``, in the Table's own units: a unit cell, k = 1) and the ratio
+   of the two times;
 2. the JAX energy+gradient on :mod:`benchmarks.scale`'s start (the Table packing tiled k x k,
    N = 4096 k^2) at k = 1, 4, 8, 16: median ms of ``--calls`` calls after a compiling one;
 3. one relaxation of that start to 1e-9 F0 by the JAX engine's FIRE at each N, while the time
    budget ``--budget`` lasts (sizes after it are listed as not run).
 
-jax-md's FIRE, the peer of ``docs/benchmarks.md`` (B5), and batched jamming are not in it yet
-(issue 37): until they are, compare with the jax-md figures measured on an H200 in the issue.
-``--quick`` (k = 1, 2; case 1 only) checks the script on a CPU (4 minutes on one core of the
-AMD EPYC VM, JAX's CPU build).
+Batched jamming is not in it yet (issue 37). ``--quick`` (k = 1, 2; case 1 only) checks the
+script on a CPU (minutes on one core, JAX's CPU build).
 
     python -m benchmarks.gpu                       # on the device
     python -m benchmarks.gpu --quick --output-dir "$(mktemp -d)"
@@ -25,6 +26,8 @@ Results: ``benchmarks/results/gpu_<platform>.md`` and ``.json``.
 from __future__ import annotations
 
 import argparse
+import importlib
+import importlib.util
 import statistics
 import time
 from pathlib import Path
@@ -35,6 +38,8 @@ import numpy as np
 from athermal import jaxengine
 from athermal.bench import ALPHAS, CASES, make_case, reference_packing
 from athermal.contact import ContactModel
+from athermal.objective import Objective
+from athermal.packing import Packing
 from athermal.relaxation import Minimizer, relax
 from benchmarks.machine import ROOT, save
 from benchmarks.scale import start_packing
@@ -44,6 +49,62 @@ def device() -> dict[str, str]:
     """JAX's first device: platform and model."""
     first = jaxengine.jax.devices()[0]
     return {"platform": first.platform, "device": str(getattr(first, "device_kind", first))}
+
+
+def jaxmd_fire(start: Packing, model: ContactModel, gtol: float) -> dict[str, Any]:
+    """jax-md's FIRE on ``start`` (a bidisperse packing of uniform stiffness) to a largest
+    force ``gtol``: iterations, seconds of the second of two runs, and the largest gradient of
+    the end by the CPU engine's count over ``gtol``."""
+    space = importlib.import_module("jax_md.space")
+    energy = importlib.import_module("jax_md.energy")
+    descent = importlib.import_module("jax_md.minimize").fire_descent
+    jax, jnp = jaxengine.jax, jaxengine.jnp
+    alpha = float(model.alpha)
+    h = jnp.asarray(np.asarray(start.cell.h))
+    sizes, species = np.unique(start.radii, return_inverse=True)
+    sigma = sizes[:, None] + sizes[None, :]
+    fractional = start.cell.fractional(start.positions)
+    s0 = jnp.asarray(fractional - np.floor(fractional))
+    displacement, shift = space.periodic_general(h, fractional_coordinates=True)
+    neighbor_fn, energy_fn = energy.soft_sphere_neighbor_list(
+        displacement,
+        h,
+        species=jnp.asarray(species),
+        sigma=jnp.asarray(sigma),
+        epsilon=jnp.asarray(float(np.max(model.kmat)) * sigma**alpha),
+        alpha=alpha,
+        dr_threshold=float(0.2 * sizes.max()),
+        fractional_coordinates=True,
+    )
+    init, apply = descent(energy_fn, shift)
+
+    def run(state: Any, neighbors: Any) -> Any:
+        def cond(c: Any) -> Any:
+            return (jnp.max(jnp.sum(c[0].force ** 2, 1)) > gtol**2) & (c[2] < 1_000_000)
+
+        def body(c: Any) -> Any:
+            neighbors = c[1].update(c[0].position)
+            return apply(c[0], neighbor=neighbors), neighbors, c[2] + 1
+
+        return jax.lax.while_loop(cond, body, (state, neighbors, 0))
+
+    neighbors = neighbor_fn.allocate(s0)
+    state = init(s0, neighbor=neighbors)
+    loop = jax.jit(run)
+    jax.block_until_ready(loop(state, neighbors)[0].position)  # compiles
+    t0 = time.perf_counter()
+    out = loop(state, neighbors)
+    jax.block_until_ready(out[0].position)
+    seconds = time.perf_counter() - t0
+    end = start.with_positions(np.asarray(out[0].position) @ np.asarray(start.cell.h).T)
+    check = Objective(end, model, sort=False)
+    grad = check(check.x0)[1]
+    return {
+        "iterations": int(out[2]),
+        "seconds": seconds,
+        "overflow": bool(out[1].did_buffer_overflow),
+        "max_gradient_over_gtol": check.max_gradient(grad) / gtol,
+    }
 
 
 def table(cases: tuple[int, ...], alphas: tuple[float, ...]) -> list[dict[str, Any]]:
@@ -66,6 +127,11 @@ def table(cases: tuple[int, ...], alphas: tuple[float, ...]) -> list[dict[str, A
                     "seconds": seconds,
                     "converged": run.converged,
                     "energy_vs_cpu": abs(run.energy - cpu.energy) / cpu.energy,
+                    "jax_md": (
+                        jaxmd_fire(start, model, run.gtol)
+                        if importlib.util.find_spec("jax_md")
+                        else None
+                    ),
                 }
             )
             print(rows[-1], flush=True)
@@ -108,12 +174,22 @@ def relaxation(k: int) -> dict[str, Any]:
 def report(data: dict[str, Any]) -> str:
     """Markdown of the three parts."""
     lines = [f"# B5 on {data['device']['device']} ({data['device']['platform']})", ""]
-    lines += ["| alpha | case | JAX FIRE iterations | s | converged | energy vs CPU |"]
-    lines += ["|---|---|---:|---:|---|---:|"]
+    lines += [
+        "| alpha | case | JAX FIRE iterations | s | converged | energy vs CPU | "
+        "jax-md FIRE iterations | s | its max force / gtol (CPU count) | athermal / jax-md |"
+    ]
+    lines += ["|---|---|---:|---:|---|---:|---:|---:|---:|---:|"]
     for r in data["table"]:
+        peer = r["jax_md"]
+        theirs = (
+            f"{peer['iterations']} | {peer['seconds']:.3f} | "
+            f"{peer['max_gradient_over_gtol']:.2f} | {r['seconds'] / peer['seconds']:.2f}"
+            if peer
+            else "not installed | - | - | -"
+        )
         lines.append(
             f"| {r['alpha']:g} | {r['case']} | {r['iterations']} | {r['seconds']:.3f} | "
-            f"{r['converged']} | {r['energy_vs_cpu']:.1e} |"
+            f"{r['converged']} | {r['energy_vs_cpu']:.1e} | {theirs} |"
         )
     lines += ["", "| N | pairs | energy+gradient ms |", "|---:|---:|---:|"]
     lines += [f"| {r['n']} | {r['pairs']} | {r['ms']:.3f} |" for r in data["kernel"]]
@@ -129,7 +205,7 @@ def report(data: dict[str, Any]) -> str:
     ]
     if data["not_run"]:
         lines += ["", f"Not run (time budget): N = {', '.join(map(str, data['not_run']))}."]
-    lines += ["", "jax-md's FIRE and batched jamming: not in this script yet (issue 37)."]
+    lines += ["", "Batched jamming: not in this script yet (issue 37)."]
     return "\n".join(lines) + "\n"
 
 
