@@ -139,11 +139,15 @@ def _block_max(v: Any) -> Any:
     return jnp.sqrt(jnp.max(jnp.sum(v * v, axis=1)))
 
 
-def _fire_loop(state: tuple[Any, ...], pairs: tuple[Any, ...], settings: tuple[Any, ...]) -> Any:
+def _fire_loop(
+    state: tuple[Any, ...], pairs: tuple[Any, ...], settings: tuple[Any, ...], alpha_c: float
+) -> Any:
     """FIRE steps on the device from ``state`` until convergence, the iteration limit, a full
-    history or a particle beyond the list's reach (see the module docstring)."""
+    history or a particle beyond the list's reach (see the module docstring); the contact
+    exponent ``alpha_c`` is static (a traced one makes every ``delta^alpha`` a general power:
+    0.52 against 0.18 ms per step at N = 4096 on a CPU)."""
     first, second, shift, radius_sum, stiffness, reference, reach_sq = pairs
-    alpha_c, gtol, etol, maxiter, dt_max, dt_min, max_step = settings
+    gtol, etol, maxiter, dt_max, dt_min, max_step = settings
 
     def evaluate(x: Any) -> tuple[Any, Any]:
         return energy_gradient(x, first, second, shift, radius_sum, stiffness, alpha_c)
@@ -188,7 +192,7 @@ def _fire_loop(state: tuple[Any, ...], pairs: tuple[Any, ...], settings: tuple[A
     return jax.lax.while_loop(cond, body, state)
 
 
-_fire_compiled = jax.jit(_fire_loop)
+_fire_compiled = jax.jit(_fire_loop, static_argnums=3)
 
 
 def relax_fire(
@@ -240,10 +244,10 @@ def relax_fire(
         jnp.int64(0),
     )
     rebuilds = 1
-    settings = (float(model.alpha), tol, etol, int(maxiter), dt_max, dt_min, max_step)
+    settings = (tol, etol, int(maxiter), dt_max, dt_min, max_step)
     while gradients[-1] > tol and energies[-1] > etol and int(state[5]) < maxiter:
         device = (*arrays, jnp.asarray(pairs.reference), pairs.reach_sq)
-        state = _fire_compiled(state, device, settings)
+        state = _fire_compiled(state, device, settings, float(model.alpha))
         recorded = int(state[9])
         history = np.asarray(state[8][:, :recorded])
         energies.extend(history[0].tolist())
