@@ -30,11 +30,7 @@ from numpy.typing import NDArray
 from .contact import ContactModel
 from .errors import JAX_MISSING, InputError
 from .minimize import MinimizeResult, Status
-from .minimize.fire import (
-    DT_MAX_FACTOR,
-    DT_MIN_FACTOR,
-    DT_START_FRACTION,
-)
+from .minimize.fire import ALPHA_START, F_ALPHA, F_DEC, F_INC, N_DELAY, default_timesteps
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .objective import MAX_STEP_FACTOR, Objective
 from .packing import Packing
@@ -50,8 +46,6 @@ jax.config.update("jax_enable_x64", True)
 
 HISTORY = 4096
 """Iterates the device loop records before it hands its history to Python."""
-N_DELAY, F_INC, F_DEC, ALPHA_START, F_ALPHA = 20, 1.1, 0.5, 0.25, 0.99
-"""FIRE 2.0's constants, those of :func:`athermal.minimize.fire.fire`'s defaults."""
 
 
 @dataclass(frozen=True)
@@ -144,8 +138,7 @@ def _fire_loop(
 ) -> Any:
     """FIRE steps on the device from ``state`` until convergence, the iteration limit, a full
     history or a particle beyond the list's reach (see the module docstring); the contact
-    exponent ``alpha_c`` is static (a traced one makes every ``delta^alpha`` a general power:
-    0.52 against 0.18 ms per step at N = 4096 on a CPU)."""
+    exponent ``alpha_c`` is static (why: ``docs/decisions.md``, section "The JAX engine")."""
     first, second, shift, radius_sum, stiffness, reference, reach_sq = pairs
     gtol, etol, maxiter, dt_max, dt_min, max_step = settings
 
@@ -153,18 +146,18 @@ def _fire_loop(
         return energy_gradient(x, first, second, shift, radius_sum, stiffness, alpha_c)
 
     def cond(s: tuple[Any, ...]) -> Any:
-        x, _, _, _, _, step, energy, grad, _, recorded = s
+        x, _, _, _, _, step, energy, _, _, recorded, gmax = s
         moved = jnp.max(jnp.sum((x - reference) ** 2, axis=1))
         return (
             (step < maxiter)
             & (recorded < HISTORY)
-            & (_block_max(grad) > gtol)
+            & (gmax > gtol)
             & (energy > etol)
             & (moved <= reach_sq)
         )
 
     def body(s: tuple[Any, ...]) -> tuple[Any, ...]:
-        x, v, dt, mix, n_pos, step, energy, grad, history, recorded = s
+        x, v, dt, mix, n_pos, step, energy, grad, history, recorded, _ = s
         step = step + 1
         downhill = jnp.sum(grad * v) < 0.0
         n_pos = jnp.where(downhill, n_pos + 1, 0)
@@ -186,8 +179,9 @@ def _fire_loop(
         v = v * jnp.where(length > max_step, max_step / length, 1.0)
         x = x + dt * v
         energy, grad = evaluate(x)
-        history = history.at[:, recorded].set(jnp.stack([energy, _block_max(grad)]))
-        return x, v, dt, mix, n_pos, step, energy, grad, history, recorded + 1
+        gmax = _block_max(grad)
+        history = history.at[:, recorded].set(jnp.stack([energy, gmax]))
+        return x, v, dt, mix, n_pos, step, energy, grad, history, recorded + 1, gmax
 
     return jax.lax.while_loop(cond, body, state)
 
@@ -218,9 +212,7 @@ def relax_fire(
     start = Objective(packing, model, sort=False)
     x0 = start.x0
     tol = start.tolerance(gtol, RTOL if gtol is None and rtol is None else rtol, x0)
-    dt_max = DT_MAX_FACTOR / float(np.sqrt(start.curvature_bound(x0)))
-    dt = DT_START_FRACTION * dt_max
-    dt_min = DT_MIN_FACTOR * dt
+    dt, dt_max, dt_min = default_timesteps(None, None, None, None, start.curvature_bound(x0))
     max_step = MAX_STEP_FACTOR * float(np.mean(packing.radii))
     typeid = np.asarray(model.typeid(packing), dtype=np.int64)
     skin = default_skin(packing.radii)
@@ -230,7 +222,8 @@ def relax_fire(
     x = jnp.asarray(positions)
     arrays = (pairs.first, pairs.second, pairs.shift, pairs.radius_sum, pairs.stiffness)
     energy, grad = energy_gradient(x, *arrays, float(model.alpha))
-    energies, gradients = [float(energy)], [float(_block_max(grad))]
+    gmax = _block_max(grad)
+    energies, gradients = [float(energy)], [float(gmax)]
     state = (
         x,
         jnp.zeros_like(x),
@@ -242,6 +235,7 @@ def relax_fire(
         grad,
         jnp.zeros((2, HISTORY)),
         jnp.int64(0),
+        gmax,
     )
     rebuilds = 1
     settings = (tol, etol, int(maxiter), dt_max, dt_min, max_step)
@@ -252,16 +246,17 @@ def relax_fire(
         history = np.asarray(state[8][:, :recorded])
         energies.extend(history[0].tolist())
         gradients.extend(history[1].tolist())
-        state = (*state[:8], state[8], jnp.int64(0))
+        state = (*state[:9], jnp.int64(0), state[10])  # the history read: recorded again
         moved = np.asarray(state[0])
         if float(np.max(np.sum((moved - pairs.reference) ** 2, axis=1))) > pairs.reach_sq:
             pairs = device_pairs(moved, packing, model, typeid, skin, pairs.capacity)
             arrays = (pairs.first, pairs.second, pairs.shift, pairs.radius_sum, pairs.stiffness)
             energy, grad = energy_gradient(state[0], *arrays, float(model.alpha))
-            state = (*state[:6], energy, grad, *state[8:])
+            gmax = _block_max(grad)
+            state = (*state[:6], energy, grad, state[8], state[9], gmax)
             # the step that left the list's reach was evaluated over the old list: its record
             # is the new list's
-            energies[-1], gradients[-1] = float(energy), float(_block_max(grad))
+            energies[-1], gradients[-1] = float(energy), float(gmax)
             rebuilds += 1
     x_final = np.asarray(state[0]).ravel()
     grad_final = np.asarray(state[7]).ravel()

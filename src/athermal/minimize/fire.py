@@ -51,6 +51,9 @@ DT_MIN_FACTOR = 0.02
 #: Default largest time step with a preconditioner (time units ``sqrt(m / k)``): larger ones
 #: stalled FIRE with the Exp and contact preconditioners (``docs/decisions.md``, section "FIRE").
 DT_MAX_PRECON = 0.25
+#: FIRE 2.0's defaults (Guénolé et al. 2020): the delay, the time step's growth and shrink
+#: factors, the first mixing parameter and its decay per step downhill.
+N_DELAY, F_INC, F_DEC, ALPHA_START, F_ALPHA = 20, 1.1, 0.5, 0.25, 0.99
 
 
 def default_timesteps(
@@ -145,11 +148,11 @@ def fire(
     dt: float | None = None,
     dt_max: float | None = None,
     dt_min: float | None = None,
-    n_delay: int = 20,
-    f_inc: float = 1.1,
-    f_dec: float = 0.5,
-    alpha_start: float = 0.25,
-    f_alpha: float = 0.99,
+    n_delay: int = N_DELAY,
+    f_inc: float = F_INC,
+    f_dec: float = F_DEC,
+    alpha_start: float = ALPHA_START,
+    f_alpha: float = F_ALPHA,
     max_step: float | None = None,
     curvature: float | None = None,
 ) -> MinimizeResult:
