@@ -276,12 +276,21 @@ def test_non_convex_rosenbrock() -> None:
 # --- packings -------------------------------------------------------------------------------
 
 
+def relax_fire(obj: Objective, maxiter: int = 100_000) -> MinimizeResult:
+    """FIRE on ``obj`` to 1e-8 of the mean contact force, with its default time steps."""
+    return fire(
+        obj,
+        obj.x0,
+        gtol=obj.tolerance(None, 1e-8),
+        maxiter=maxiter,
+        curvature=obj.curvature_bound(obj.x0),
+    )
+
+
 def test_relaxes_overlapped_packing() -> None:
     obj = packing_objective()
     f0 = obj.mean_contact_force(obj.x0)
-    result = fire(
-        obj, obj.x0, gtol=obj.tolerance(None, 1e-8), curvature=obj.curvature_bound(obj.x0)
-    )
+    result = relax_fire(obj)
     assert result.converged, result.message
     assert result.method == "fire" and result.precon == "none"
     assert result.gtol == pytest.approx(1e-8 * f0, rel=1e-15)
@@ -300,9 +309,7 @@ def test_relaxes_overlapped_packing() -> None:
 
 def test_unjammed_packing_reaches_zero_energy_quickly() -> None:
     obj = packing_objective(phi=0.5)
-    result = fire(
-        obj, obj.x0, gtol=obj.tolerance(None, 1e-8), curvature=obj.curvature_bound(obj.x0)
-    )
+    result = relax_fire(obj)
     assert result.converged
     assert result.energy == 0.0 or result.max_gradient <= result.gtol
     assert result.iterations <= 115  # measured 103
@@ -310,13 +317,7 @@ def test_unjammed_packing_reaches_zero_energy_quickly() -> None:
 
 def test_iteration_limit_is_reported_not_raised() -> None:
     obj = packing_objective()
-    result = fire(
-        obj,
-        obj.x0,
-        gtol=obj.tolerance(None, 1e-8),
-        maxiter=5,
-        curvature=obj.curvature_bound(obj.x0),
-    )
+    result = relax_fire(obj, maxiter=5)
     assert not result.converged
     assert "iteration limit" in result.message
     assert result.iterations == 5
@@ -326,19 +327,9 @@ def test_iteration_limit_is_reported_not_raised() -> None:
 
 def test_maxiter_zero_evaluates_once() -> None:
     obj = packing_objective()
-    result = fire(
-        obj,
-        obj.x0,
-        gtol=obj.tolerance(None, 1e-8),
-        maxiter=0,
-        curvature=obj.curvature_bound(obj.x0),
-    )
+    result = relax_fire(obj, maxiter=0)
     assert not result.converged and result.iterations == 0 and result.evaluations == 1
     np.testing.assert_array_equal(result.x, obj.x0)
-
-
-def relax_fire(obj: Objective) -> MinimizeResult:
-    return fire(obj, obj.x0, gtol=obj.tolerance(None, 1e-8), curvature=obj.curvature_bound(obj.x0))
 
 
 def test_deterministic() -> None:
