@@ -1,31 +1,39 @@
-"""The JAX engine (issue 37, first part) against the numba engine, finite differences and the
-CPU minimizers; JAX's CPU build, as CI has."""
+"""The JAX engine (issue 37) against the numba engine, finite differences, brute-force twins and
+the CPU minimizers; JAX's CPU build, as CI has."""
 
 from __future__ import annotations
 
 import importlib
+import json
 import sys
 
 import numpy as np
 import pytest
+import scipy.sparse.linalg as sla
 
 from athermal.cell import simple_shear
-from athermal.contact import ContactModel
+from athermal.contact import ContactModel, find_contacts
 from athermal.errors import InputError
+from athermal.minimize._wolfe import GO_ON
+from athermal.minimize.linesearch import strong_wolfe as cpu_search
 from athermal.objective import Objective
+from athermal.observables import stress
 from athermal.packing import Packing, random_packing
+from athermal.precon import ExpPreconditioner
 from athermal.relaxation import Minimizer, relax
 
 je = pytest.importorskip("athermal.jaxengine")
+from athermal.jaxengine import _precon, _search  # noqa: E402
 
 
 def on_device(packing: Packing, model: ContactModel, x: np.ndarray | None = None):
     """The JAX energy and gradient ``(N d,)`` of ``packing`` (at positions ``x``)."""
     typeid = np.asarray(model.typeid(packing), dtype=np.int64)
     positions = packing.positions if x is None else x
-    pairs = je.device_pairs(positions, packing, model, typeid, 0.1 * packing.radii.mean())
-    arrays = (pairs.first, pairs.second, pairs.shift, pairs.radius_sum, pairs.stiffness)
-    energy, grad = je.energy_gradient(je.jnp.asarray(positions), *arrays, float(model.alpha))
+    pairs = je.device_pairs(
+        positions, packing.radii, packing.cell, model, typeid, 0.1 * packing.radii.mean()
+    )
+    energy, grad = je.energy_gradient(je.jnp.asarray(positions), pairs.arrays, model.alpha)
     return float(energy), np.asarray(grad).ravel()
 
 
@@ -57,35 +65,88 @@ def test_gradient_matches_finite_differences():
         assert (plus - minus) / (2 * h) == pytest.approx(grad @ u.ravel(), rel=1e-6)
 
 
-def test_capacity_grows_by_powers_of_two_and_only_grows():
-    assert je.capacity_for(100) == 128 and je.capacity_for(103) == 256
-    assert je.capacity_for(100, 256) == 256 and je.capacity_for(300, 256) == 512
+@pytest.mark.parametrize("sheared", [False, True])
+def test_stress_and_contacts_match_the_observables(sheared):
+    packing, model = random_packing(96, 0.9, seed=4), ContactModel(2.5)
+    if sheared:
+        packing = packing.deform(simple_shear(0.2))
+    typeid = np.asarray(model.typeid(packing), dtype=np.int64)
+    pairs = je.device_pairs(packing.positions, packing.radii, packing.cell, model, typeid, 0.05)
+    sigma, count = je.stress_contacts(
+        je.jnp.asarray(packing.positions), pairs.arrays, model.alpha, packing.cell.volume
+    )
+    contacts = find_contacts(packing, model)
+    expected = stress(contacts, packing.cell)
+    np.testing.assert_allclose(np.asarray(sigma), expected, rtol=1e-12, atol=1e-15)
+    assert int(count) == contacts.i.size
 
 
-def test_fire_on_the_device_reaches_the_cpu_minimum():
-    """The seed's Case 1 in small: a relaxed packing grown by 1 + 5e-5, to 1e-9 F0; the same
-    minimum as the CPU engine's L-BFGS to 1e-10 of the energy, forces balanced by the CPU's own
-    count."""
+def test_capacity_holds_a_tenth_more_pads_less_than_a_quarter_and_only_grows():
+    for count in [1, 7, 100, 103, 999, 44_773, 1_000_003]:
+        size = je.capacity_for(count)
+        assert size >= 1.1 * count and (size <= 1.25 * count or size == 16)
+        assert je.capacity_for(count, size) == size and je.capacity_for(count - 1, size) == size
+        assert je.capacity_for(size + 1, size) > size
+
+
+def test_the_line_search_is_the_compiled_one():
+    """The same trials, end and code as the CPU engine's state machine on scalar functions
+    that bracket, zoom, hit the step cap and lie below the round-off."""
+    feed = je.jax.jit(_search.feed)
+    cases = [
+        (lambda a: ((a - 1.3) ** 4 - 0.5 * a, 4 * (a - 1.3) ** 3 - 0.5), 0.05, np.inf, 0.0),
+        (lambda a: ((a - 1.3) ** 4 - 0.5 * a, 4 * (a - 1.3) ** 3 - 0.5), 7.0, np.inf, 0.0),
+        (lambda a: (-np.sin(3 * a) + 0.1 * a * a, -3 * np.cos(3 * a) + 0.2 * a), 0.3, 0.9, 0.0),
+        (lambda a: (-a, -1.0 + 0 * a), 1.0, 2.5, 0.0),
+        (lambda a: (1e-3 * (a - 2) ** 2 + 1.0, 2e-3 * (a - 2)), 1.0, np.inf, 1e-2),
+    ]
+    for phi, step, cap, noise in cases:
+        f0, g0 = phi(0.0)
+        cpu = cpu_search(phi, f0, g0, step, c2=0.9, step_max=cap, noise=noise)
+        search = _search.begin(f0, g0, step, 0.9, cap, noise)
+        while int(search.code) == GO_ON:
+            f, df = phi(float(search.trial))
+            search = feed(search, f, df)
+        assert float(search.end[0]) == pytest.approx(cpu.step, rel=1e-12)
+        assert int(search.evaluations) == cpu.evaluations
+        assert (int(search.code) == 1) == cpu.ok
+
+
+@pytest.mark.parametrize("n", [256, 2048])
+def test_the_device_preconditioner_is_a_fixed_spd_operator(n):
+    """One V-cycle: symmetric, positive definite, within 25 % of the exact solve whatever N."""
+    packing, model = random_packing(n, 0.88, seed=1), ContactModel(2.0)
+    objective = Objective(packing, model)
+    matrix = ExpPreconditioner(objective).assemble(objective.x0)
+    hierarchy = _precon.Hierarchy.of(matrix, packing.positions, 1.0)
+    rng = np.random.default_rng(0)
+    g, v = rng.standard_normal((n, 2)), rng.standard_normal((n, 2))
+    pg = np.asarray(_precon.apply(je.jnp.asarray(g), *hierarchy.arrays))
+    pv = np.asarray(_precon.apply(je.jnp.asarray(v), *hierarchy.arrays))
+    assert np.sum(pg * v) == pytest.approx(np.sum(pv * g), rel=1e-10)
+    assert np.sum(pg * g) > 0.0 and np.sum(pv * v) > 0.0
+    exact = sla.spsolve(matrix.tocsc(), g)
+    assert np.linalg.norm(pg - exact) <= 0.25 * np.linalg.norm(exact)
+
+
+@pytest.fixture(scope="module")
+def table_like():
+    """The seed's Case 1 at N = 1024: a relaxed packing grown by 1 + 5e-5, and the CPU
+    engine's P-L-BFGS minimum to 1e-9 F0."""
     model = ContactModel(2.0)
-    relaxed = relax(random_packing(256, 0.86, seed=1), model, rtol=1e-12).packing
+    relaxed = relax(random_packing(1024, 0.86, seed=1), model, rtol=1e-12).packing
     start = relaxed.scale_radii(1.0 + 5e-5)
-    device = je.relax_fire(start, model)
+    return start, model, relax(start, model, Minimizer("plbfgs"))
+
+
+@pytest.mark.parametrize("method", ["fire", "lbfgs", "plbfgs", "cg", "pcg"])
+def test_every_device_minimizer_reaches_the_cpu_minimum(table_like, method):
+    """To 1e-9 F0, the same minimum as the CPU engine to 1e-10 of the energy, the forces
+    balanced by the CPU engine's own evaluation of the result."""
+    start, model, cpu = table_like
+    device = relax(start, model, Minimizer(method, backend="jax"))
     assert device.converged and device.max_gradient <= device.gtol
-    cpu = relax(start, model, Minimizer("lbfgs"), rtol=1e-12)
     assert device.energy == pytest.approx(cpu.energy, rel=1e-10)
-    check = Objective(device.packing, model)
-    energy, grad = check(check.x0)
-    assert energy == pytest.approx(device.energy, rel=1e-12)
-    assert check.max_gradient(grad) <= 1.01 * device.gtol
-
-
-def test_fire_on_the_device_rebuilds_its_list_on_the_way():
-    """From random positions particles move far beyond the skin: the list is rebuilt on the
-    host, the loop goes on, and the end is a minimum by the CPU's own evaluation."""
-    model = ContactModel(2.0)
-    start = random_packing(128, 0.88, seed=2)
-    device = je.relax_fire(start, model, rtol=1e-9)
-    assert device.converged and device.neighbor_rebuilds > 1
     check = Objective(device.packing, model)
     energy, grad = check(check.x0)
     assert energy == pytest.approx(device.energy, rel=1e-12)
@@ -93,32 +154,72 @@ def test_fire_on_the_device_rebuilds_its_list_on_the_way():
     assert device.history_energy.size == device.iterations + 1
 
 
+@pytest.mark.parametrize("method", ["fire", "plbfgs"])
+def test_from_random_positions_the_lists_are_rebuilt_on_the_way(method):
+    """Particles move far beyond the skin and the preconditioner's reach: both are rebuilt on
+    the host, the loop goes on, and the end is a minimum by the CPU's own evaluation."""
+    model = ContactModel(2.0)
+    device = relax(random_packing(128, 0.88, seed=2), model, Minimizer(method, backend="jax"))
+    assert device.converged and device.neighbor_rebuilds > 1
+    if method == "plbfgs":
+        assert device.precon_builds > 1
+    check = Objective(device.packing, model)
+    energy, grad = check(check.x0)
+    assert energy == pytest.approx(device.energy, rel=1e-12)
+    assert check.max_gradient(grad) <= 1.01 * device.gtol
+
+
+def test_an_unjammed_packing_ends_at_zero_energy():
+    how = Minimizer("plbfgs", backend="jax")
+    device = relax(random_packing(64, 0.5, seed=1), ContactModel(2.0), how)
+    assert device.converged and device.energy == 0.0
+
+
+@pytest.mark.parametrize(
+    ("method", "precon"), [("newton", "none"), ("lbfgs", "contact"), ("fire", "exp")]
+)
+def test_what_the_engine_has_not_is_refused(method, precon):
+    with pytest.raises(InputError, match="backend jax"):
+        Minimizer(method, precon, backend="jax")
+
+
 def test_without_jax_the_engine_names_the_extra(monkeypatch):
     monkeypatch.setitem(sys.modules, "jax", None)
-    monkeypatch.delitem(sys.modules, "athermal.jaxengine")
+    for name in [m for m in sys.modules if m.startswith("athermal.jaxengine")]:
+        monkeypatch.delitem(sys.modules, name)
     with pytest.raises(InputError, match=r"athermal\[jax\]"):
         importlib.import_module("athermal.jaxengine")
 
 
 def test_relax_backend_jax_on_the_command_line(tmp_path, capsys):
-    import json
-
     from athermal.cli import main
     from athermal.io import write_gsd
 
     write_gsd(tmp_path / "r.gsd", random_packing(64, 0.88, seed=1))
     args = ["relax", str(tmp_path / "r.gsd"), "-o", str(tmp_path / "o.gsd"), "--json"]
-    assert main([*args, "--method", "fire", "--backend", "jax"]) == 0
+    assert main([*args, "--method", "plbfgs", "--backend", "jax"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["method"] == "fire (jax)" and out["converged"]
+    assert out["method"] == "lbfgs (jax)" and out["converged"]
     assert out["max_gradient"] <= out["gtol"]
     written = (tmp_path / "o.gsd").read_bytes()
-    assert main([*args, "--backend", "jax", "--overwrite"]) == 2  # lbfgs: not yet on jax
-    assert "--backend jax" in capsys.readouterr().err
+    assert main([*args, "--backend", "jax", "--method", "newton", "--overwrite"]) == 2
+    assert "backend jax" in capsys.readouterr().err
     assert (tmp_path / "o.gsd").read_bytes() == written  # refused before any work
 
 
-def test_relax_backend_jax_without_jax_is_refused_at_the_door(tmp_path, capsys, monkeypatch):
+def test_jam_on_the_device_passes_the_jamming_checks(tmp_path, capsys):
+    from athermal.cli import main
+
+    out = tmp_path / "j.gsd"
+    args = ["jam", "--n", "64", "--seed", "3", "-o", str(out), "--json", "--quiet"]
+    assert main([*args, "--backend", "jax", "--method", "plbfgs"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["checks_passed"] and report["method"] == "lbfgs+exp/jax"
+    assert 0.80 < report["phi_c"] < 0.87
+
+
+@pytest.mark.parametrize("command", ["relax", "jam"])
+def test_backend_jax_without_jax_is_refused_at_the_door(tmp_path, capsys, monkeypatch, command):
     import importlib.util
 
     from athermal.cli import main
@@ -130,21 +231,8 @@ def test_relax_backend_jax_without_jax_is_refused_at_the_door(tmp_path, capsys, 
         importlib.util, "find_spec", lambda name, *a: None if name == "jax" else real(name, *a)
     )
     out = tmp_path / "o.gsd"
-    assert (
-        main(
-            [
-                "relax",
-                str(tmp_path / "r.gsd"),
-                "-o",
-                str(out),
-                "--method",
-                "fire",
-                "--backend",
-                "jax",
-            ]
-        )
-        == 2
-    )
+    first = [str(tmp_path / "r.gsd")] if command == "relax" else ["--n", "64"]
+    assert main([command, *first, "-o", str(out), "--backend", "jax"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'pip install "athermal[jax]"' in err[0]
     assert not out.exists()

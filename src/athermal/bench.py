@@ -14,7 +14,7 @@ import statistics
 import time
 import warnings
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from importlib import resources
 
 import numpy as np
@@ -25,7 +25,7 @@ from .contact import ContactModel
 from .errors import InputError
 from .objective import Objective
 from .packing import Packing
-from .relaxation import RTOL, Minimizer, relax_objective
+from .relaxation import RTOL, Backend, Minimizer, relax_objective
 
 CASES = (1, 2, 3)
 ALPHAS = (2.0, 2.5)
@@ -44,6 +44,13 @@ METHODS = (
 )
 """The Table's methods (their :attr:`~athermal.relaxation.Minimizer.name` labels its rows);
 P-L-BFGS twice, with the solver ``auto`` takes (the incomplete factor) and the exact one."""
+JAX_METHODS = (
+    Minimizer("lbfgs"),
+    Minimizer("lbfgs", "exp"),
+    Minimizer("cg", "exp"),
+    Minimizer("fire"),
+)
+"""The methods of the Table on the JAX engine (``backend="jax"``: their names end in ``(jax)``)."""
 LABELS = (*(m.name for m in METHODS), SCIPY)
 RENAMED = {"P-L-BFGS (A=0)": "P-L-BFGS"}
 """Labels of earlier versions, still accepted (with a DeprecationWarning)."""
@@ -162,31 +169,38 @@ def table1(
     labels: Sequence[str] | None = None,
     repeats: int = 3,
     progress: Callable[[Row], None] | None = None,
+    backend: Backend = "numba",
 ) -> list[Row]:
-    """All rows of the Table; ``labels`` picks methods by name (default all, :data:`LABELS`),
-    ``progress`` sees each row."""
+    """All rows of the Table; ``labels`` picks methods by name (default all, :data:`LABELS`;
+    on the JAX engine :data:`JAX_METHODS` and scipy's reference), ``progress`` sees each row.
+    On the JAX engine each method runs once more first, untimed (its loops compile then)."""
     if labels is not None:
         for old in set(labels) & set(RENAMED):
             warnings.warn(
                 f"methods: {old!r} is now called {RENAMED[old]!r}", DeprecationWarning, stacklevel=2
             )
         labels = [RENAMED.get(label, label) for label in labels]
-    unknown = set(labels or ()) - set(LABELS)
+    methods: tuple[Minimizer, ...] = METHODS
+    if backend == "jax":
+        methods = tuple(replace(m, backend="jax") for m in JAX_METHODS)
+    by_label: dict[str, Minimizer | None] = {m.name: m for m in methods}
+    by_label[SCIPY] = None
+    unknown = set(labels or ()) - set(by_label)
     if unknown:
-        raise InputError(f"methods: unknown {sorted(unknown)}; choose from {list(LABELS)}")
+        raise InputError(f"methods: unknown {sorted(unknown)}; choose from {list(by_label)}")
     if repeats < 1:
         raise InputError(f"repeats: must be >= 1, got {repeats}")
     alphas = check_alphas(alphas)
-    by_label: dict[str, Minimizer | None] = {m.name: m for m in METHODS}
-    by_label[SCIPY] = None
-    chosen = [label for label in LABELS if labels is None or label in labels]
+    chosen = [label for label in by_label if labels is None or label in labels]
+    warm = 1 if backend == "jax" else 0
     rows = []
     for alpha in alphas:
         base, model = reference_packing(alpha), ContactModel(alpha)
         for case in cases:
             start = make_case(base, case)
             for label in chosen:
-                runs = [run(start, model, by_label[label]) for _ in range(repeats)]
+                skip = warm if by_label[label] is not None else 0
+                runs = [run(start, model, by_label[label]) for _ in range(skip + repeats)][skip:]
                 first = runs[0]
                 row = Row(
                     case,

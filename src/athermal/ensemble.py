@@ -86,17 +86,22 @@ class EnsembleSpec:
         """The spec as a dictionary, without the fields added later (:data:`LATER_FIELDS`)
         while they hold their defaults: a directory made before they existed still matches."""
         out = asdict(self)
-        for (section, name), default in LATER_FIELDS.items():
-            if out[section].get(name) == default:
-                del out[section][name]
+        for (*path, name), default in LATER_FIELDS.items():
+            inner = out
+            for key in path:
+                inner = inner[key]
+            if inner.get(name) == default:
+                del inner[name]
         return out
 
 
-LATER_FIELDS: dict[tuple[str, str], Any] = {
+LATER_FIELDS: dict[tuple[str, ...], Any] = {
     ("jam", "sizes"): "bidisperse",
     ("jam", "polydispersity"): POLYDISPERSITY,
+    ("jam", "minimizer", "backend"): "numba",
 }
-"""Spec fields (section, name) that joined after the first ensembles, with their defaults."""
+"""Spec fields (their path: section, ..., name) that joined after the first ensembles, with
+their defaults."""
 
 
 @dataclass(frozen=True)

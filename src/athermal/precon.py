@@ -330,6 +330,17 @@ class ExpPreconditioner(_PairPreconditioner):
     def _near_null(self) -> NDArray[np.float64]:
         return np.ones((self.objective.n, 1))
 
+    def assemble(self, x: NDArray[np.float64]) -> sp.csr_matrix:
+        """``L`` ``(N, N)`` at ``x`` ``(N d,)``, not factored (sets ``r_nn`` and ``mu``, counts
+        a build): for an engine that applies ``P^-1`` its own way (:mod:`athermal.jaxengine`)."""
+        if np.shape(x) != (self.objective.n_dof,):
+            raise InputError(f"x: expected shape ({self.objective.n_dof},), got {np.shape(x)}")
+        positions = np.ascontiguousarray(x, dtype=np.float64).reshape(
+            self.objective.n, self.objective.dim
+        )
+        self.n_builds += 1
+        return self._exp_part(positions)
+
     def solve(self, g: NDArray[np.float64]) -> NDArray[np.float64]:
         """``P^-1 g`` ``(N d,)``: the ``d`` columns of ``g.reshape(N, d)`` solved together."""
         _, factor = self._ready(g, "solve")

@@ -10,6 +10,7 @@ packing at the result (:class:`Relaxation`).
 
 from __future__ import annotations
 
+import importlib.util
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -22,7 +23,7 @@ from . import minimize as library
 from ._validate import choice
 from .cell import Cell
 from .contact import ContactModel, Contacts, find_contacts
-from .errors import ConvergenceError, InputError
+from .errors import JAX_MISSING, ConvergenceError, InputError
 from .linalg import SOLVERS, SolverName
 from .minimize import NEWTON_TAKES_NO_PRECON, MinimizeResult, Preconditioner, Status
 from .moduli import stability
@@ -32,6 +33,8 @@ from .precon import PRECONDITIONERS, PreconName, make_preconditioner
 
 Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
+Backend = Literal["numba", "jax"]
+BACKENDS: tuple[str, ...] = ("numba", "jax")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
 _NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE", "newton": "Newton-CG"}
 RTOL = 1e-9
@@ -64,6 +67,9 @@ class Minimizer:
     solver : ``auto``, ``direct``, ``amg`` or ``ic0`` for the preconditioner's linear solves.
     maxiter : iteration limit of one relaxation; a protocol that reaches it stops with a
         :class:`~athermal.errors.ConvergenceError`.
+    backend : the engine: ``numba`` (CPU) or ``jax`` (:mod:`athermal.jaxengine`, the extra
+        ``athermal[jax]``; ``lbfgs``, ``cg``, ``fire``, ``plbfgs``, ``pcg``, preconditioners
+        ``none`` and ``exp``, FIRE without one; ``solver`` does not apply there).
     """
 
     method: Method = "lbfgs"
@@ -71,10 +77,20 @@ class Minimizer:
     A: float = 0.0
     solver: SolverName = "auto"
     maxiter: int = 1_000_000
+    backend: Backend = "numba"
 
     def __post_init__(self) -> None:
-        resolve_method(self.method, self.precon)
+        base, precon = resolve_method(self.method, self.precon)
         choice(self.solver, "solver", SOLVERS)
+        choice(self.backend, "backend", BACKENDS)
+        if self.backend == "jax":
+            if base == "newton" or precon == "contact" or (base == "fire" and precon != "none"):
+                raise InputError(
+                    "backend jax: lbfgs, cg, fire, plbfgs or pcg, with precon none or exp "
+                    f"(fire without one); got {self.method} with {precon}"
+                )
+            if importlib.util.find_spec("jax") is None:
+                raise InputError(JAX_MISSING)
         if int(self.maxiter) != self.maxiter or self.maxiter < 1:
             raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
         if not self.A >= 0.0:
@@ -82,9 +98,11 @@ class Minimizer:
 
     @property
     def label(self) -> str:
-        """Machine label ``method`` or ``method+precon``, e.g. ``lbfgs+exp`` (``--json``)."""
+        """Machine label ``method`` or ``method+precon``, e.g. ``lbfgs+exp`` (``--json``), with
+        ``/jax`` on the JAX engine."""
         base, precon = resolve_method(self.method, self.precon)
-        return base if precon == "none" else f"{base}+{precon}"
+        label = base if precon == "none" else f"{base}+{precon}"
+        return f"{label}/jax" if self.backend == "jax" else label
 
     @property
     def name(self) -> str:
@@ -97,8 +115,10 @@ class Minimizer:
         elif precon == "contact":
             name = f"contact P-{name}"
         extras = [f"A={self.A:g}"] if precon == "exp" and self.A != 0.0 else []
-        if precon != "none" and self.solver != "auto":
+        if precon != "none" and self.solver != "auto" and self.backend == "numba":
             extras.append(self.solver)
+        if self.backend == "jax":
+            extras.append("jax")
         return f"{name} ({', '.join(extras)})" if extras else name
 
 
@@ -201,7 +221,12 @@ def relax_objective(
     x0: NDArray[np.float64] | None = None,
 ) -> Relaxation:
     """:func:`minimize_objective` from ``x0`` with the method, preconditioner, ``A``, solver
-    and (unless given) ``maxiter`` of ``how``."""
+    and (unless given) ``maxiter`` of ``how``, on its engine (``how.backend``)."""
+    if how.backend == "jax":
+        start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
+        tol = objective.tolerance(gtol, rtol, start)
+        limit = how.maxiter if maxiter is None else maxiter
+        return _on_device(objective, engine_for(objective, how), how.method, start, tol, 0.0, limit)
     return minimize_objective(
         objective,
         how.method,
@@ -278,7 +303,12 @@ class Relaxer:
         self.objective = objective
         self.minimizer = minimizer
         self.method, name = resolve_method(minimizer.method, minimizer.precon)
-        self.precon = make_preconditioner(name, objective, A=minimizer.A, solver=minimizer.solver)
+        self.engine = engine_for(objective, minimizer) if minimizer.backend == "jax" else None
+        self.precon = (
+            make_preconditioner(name, objective, A=minimizer.A, solver=minimizer.solver)
+            if self.engine is None
+            else None
+        )
 
     def relax(
         self,
@@ -313,15 +343,7 @@ class Relaxer:
         over as the class says; the result says whether it converged."""
         maxiter = self.minimizer.maxiter if maxiter is None else maxiter
         patience = NEWTON_PATIENCE if self.method == "newton" else maxiter
-        result = minimize_objective(
-            self.objective,
-            cast(Method, self.method),
-            x0=x,
-            precon=self.precon if self.precon is not None else "none",
-            gtol=gtol,
-            etol=etol,
-            maxiter=min(patience, maxiter),
-        )
+        result = self._minimize(self.method, x, self.precon, gtol, etol, min(patience, maxiter))
         if result.status is Status.ITERATION_LIMIT and patience < maxiter:
             exp = make_preconditioner("exp", self.objective, solver=self.minimizer.solver)
             result = self._go_on(result, "lbfgs", "P-L-BFGS", exp, gtol, etol, maxiter)
@@ -431,14 +453,8 @@ class Relaxer:
     ) -> Relaxation:
         """Relax on from where ``first`` stopped by ``method`` (called ``label`` in the message)
         with ``precon``, within what is left of ``maxiter``; the result counts both."""
-        rest = minimize_objective(
-            self.objective,
-            method,
-            x0=first.x,
-            precon=precon if precon is not None else "none",
-            gtol=gtol,
-            etol=etol,
-            maxiter=max(1, maxiter - first.iterations),
+        rest = self._minimize(
+            method, first.x, precon, gtol, etol, max(1, maxiter - first.iterations)
         )
         return replace(
             rest,
@@ -458,6 +474,55 @@ class Relaxer:
             + (first.precon_builds if precon is not self.precon else 0),
             linear_iterations=first.linear_iterations + rest.linear_iterations,
         )
+
+    def _minimize(
+        self,
+        method: str,
+        x: NDArray[np.float64],
+        precon: Preconditioner | None,
+        gtol: float,
+        etol: float,
+        maxiter: int,
+    ) -> Relaxation:
+        """One minimization by ``method`` from ``x`` on this relaxer's engine (``precon`` is
+        the CPU engine's; the JAX engine holds its own)."""
+        if self.engine is not None:
+            return _on_device(self.objective, self.engine, method, x, gtol, etol, maxiter)
+        return minimize_objective(
+            self.objective,
+            cast(Method, method),
+            x0=x,
+            precon=precon if precon is not None else "none",
+            gtol=gtol,
+            etol=etol,
+            maxiter=maxiter,
+        )
+
+
+def engine_for(objective: Objective, how: Minimizer) -> Any:
+    """The JAX engine (:class:`athermal.jaxengine.Engine`) for ``objective`` with the
+    preconditioner of ``how``; imported here, when asked for, since JAX is an extra."""
+    from . import jaxengine
+
+    _, precon = resolve_method(how.method, how.precon)
+    return jaxengine.Engine(objective, cast(Literal["none", "exp"], precon), A=how.A)
+
+
+def _on_device(
+    objective: Objective,
+    engine: Any,
+    method: str,
+    x: NDArray[np.float64],
+    gtol: float,
+    etol: float,
+    maxiter: int,
+) -> Relaxation:
+    """:meth:`athermal.jaxengine.Engine.minimize` by the base ``method`` (``plbfgs`` is
+    ``lbfgs`` on an engine with the Exp preconditioner) as a :class:`Relaxation`."""
+    base, _ = resolve_method(method)
+    rebuilds = engine.n_rebuilds
+    result = engine.minimize(base, x, gtol=gtol, etol=etol, maxiter=maxiter)
+    return Relaxation.of(result, objective, engine.n_rebuilds - rebuilds)
 
 
 def _summed(first: Relaxation, then: Relaxation) -> Relaxation:

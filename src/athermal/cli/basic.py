@@ -122,14 +122,7 @@ def relax(args: argparse.Namespace) -> None:
     rtol = RTOL if args.gtol is None and args.rtol is None else args.rtol
     at_pressure: dict[str, Any] = {}
     res: MinimizeResult
-    if args.backend == "jax":
-        from .. import jaxengine  # the extra, checked at the door
-
-        relaxed = jaxengine.relax_fire(
-            frame.packing, model, gtol=args.gtol, rtol=rtol, maxiter=args.maxiter
-        )
-        res, final = relaxed, relaxed.packing
-    elif args.pressure is None:
+    if args.pressure is None:
         relaxed = relax_objective(
             Objective(frame.packing, model), minimizer_from(args), gtol=args.gtol, rtol=rtol
         )
@@ -181,7 +174,11 @@ def relax(args: argparse.Namespace) -> None:
 def bench(args: argparse.Namespace) -> None:
     """``athermal bench``: the seed's Table."""
     if args.quick:
-        args.cases, args.alphas, args.methods, args.repeats = [3], [2.0], table1.QUICK_LABELS, 1
+        args.cases, args.alphas, args.repeats = [3], [2.0], 1
+        args.methods = [
+            f"{label} (jax)" if args.backend == "jax" and label != table1.SCIPY else label
+            for label in table1.QUICK_LABELS
+        ]
     show = not args.quiet and sys.stderr.isatty()
 
     def progress(row: table1.Row) -> None:
@@ -193,7 +190,9 @@ def bench(args: argparse.Namespace) -> None:
                 flush=True,
             )
 
-    rows = table1.table1(args.cases, args.alphas, args.methods, args.repeats, progress)
+    rows = table1.table1(
+        args.cases, args.alphas, args.methods, args.repeats, progress, args.backend
+    )
     if args.json:
         emit({"rows": [dataclasses.asdict(r) for r in rows]}, True)
     else:

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
 from ..contact import ContactModel
 from ..observables import Observables
+from ..precon import PreconName
 from ..relaxation import Minimizer
 
 
@@ -46,8 +47,16 @@ def precon_from(args: argparse.Namespace) -> str:
 
 
 def minimizer_from(args: argparse.Namespace) -> Minimizer:
-    """The minimizer of ``--method``, ``--precon``, ``--A``, ``--solver``, ``--maxiter``."""
-    return Minimizer(args.method, precon_from(args), args.A, args.solver, args.maxiter)  # type: ignore[arg-type]
+    """The minimizer of ``--method``, ``--precon``, ``--A``, ``--solver``, ``--maxiter``,
+    ``--backend``."""
+    return Minimizer(
+        args.method,
+        cast(PreconName, precon_from(args)),
+        args.A,
+        args.solver,
+        args.maxiter,
+        args.backend,
+    )
 
 
 def sizes_from(args: argparse.Namespace) -> dict[str, Any]:

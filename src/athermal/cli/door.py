@@ -21,6 +21,8 @@ from ..errors import JAX_MISSING, InputError
 from ..io import SEED_BOUND
 from ..packing import check_width
 from ..protocols import PHI_INIT, RESOLUTION
+from ..relaxation import Minimizer
+from .common import precon_from
 
 BYTES_PER_PARTICLE = 2000
 """Memory one particle costs a protocol run, an upper estimate (positions, radii, Verlet list of
@@ -131,13 +133,8 @@ def _work(args: argparse.Namespace) -> None:
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
-    if args.command == "relax" and args.backend == "jax":
-        if importlib.util.find_spec("jax") is None:
-            raise InputError(JAX_MISSING)
-        if args.method != "fire" or args.precon not in (None, "none") or args.pressure:
-            raise InputError(
-                "--backend jax: so far only --method fire, without a preconditioner or --pressure"
-            )
+    if getattr(args, "backend", "numba") == "jax":
+        _jax(args)
     if args.command == "relax" and args.pressure is not None:
         if args.method not in ENTHALPY_METHODS:
             raise InputError(
@@ -162,6 +159,17 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError(
                 f"--step: {args.strain / args.step:.2g} strain steps (at most {MAX_STEPS})"
             )
+
+
+def _jax(args: argparse.Namespace) -> None:
+    """``--backend jax``: JAX installed, a method and preconditioner the engine has, no
+    ``--pressure`` (the enthalpy runs on the numba engine)."""
+    if importlib.util.find_spec("jax") is None:
+        raise InputError(JAX_MISSING)
+    if getattr(args, "pressure", None) is not None:
+        raise InputError("--backend jax: --pressure runs on the numba engine; drop one of them")
+    if args.command != "bench":
+        Minimizer(args.method, precon_from(args), backend="jax")  # type: ignore[arg-type]
 
 
 def _bench(args: argparse.Namespace) -> None:

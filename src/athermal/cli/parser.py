@@ -14,7 +14,7 @@ from ..linalg import SOLVERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..precon import PRECONDITIONERS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
-from ..relaxation import METHODS, RTOL
+from ..relaxation import BACKENDS, METHODS, RTOL
 
 
 class _Help(argparse.HelpFormatter):
@@ -114,6 +114,17 @@ def _minimizer(
         help="linear solver of the preconditioner (ic0: incomplete Cholesky)",
     )
     parser.add_argument("--maxiter", type=int, default=maxiter, help="iteration limit")
+    _backend(parser)
+
+
+def _backend(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--backend",
+        default="numba",
+        choices=BACKENDS,
+        help="engine: numba (CPU) or jax (the extra athermal[jax]; lbfgs, cg, fire, plbfgs, "
+        "pcg; no --solver)",
+    )
 
 
 def _jamming(parser: argparse.ArgumentParser, prefix: str) -> None:
@@ -334,13 +345,6 @@ def build() -> argparse.ArgumentParser:
         type=float,
         help=f"tolerance relative to the mean contact force (default: {RTOL:g} unless --gtol)",
     )
-    rel.add_argument(
-        "--backend",
-        default="numba",
-        choices=("numba", "jax"),
-        help="engine: numba (CPU) or jax (needs the extra athermal[jax]; so far --method fire, "
-        "no preconditioner, no --pressure)",
-    )
     _model(rel, from_file=True)
 
     jam = sub.add_parser(
@@ -465,6 +469,7 @@ def build() -> argparse.ArgumentParser:
         help="jamming: preconditioner (default: exp; none with --method newton)",
     )
     ens.set_defaults(default_precon="exp")
+    _backend(ens)
     _compression_range(ens)
     _shear_options(ens)
     ens.add_argument(
@@ -521,6 +526,7 @@ def build() -> argparse.ArgumentParser:
         help="methods by label (default: all, " + ", ".join(bench.LABELS) + ")",
     )
     ben.add_argument("--repeats", type=int, default=3, help="timing repeats (their median)")
+    _backend(ben)
     ben.add_argument(
         "--quick",
         action="store_true",

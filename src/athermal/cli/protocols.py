@@ -115,7 +115,8 @@ def _trajectory(
         {
             "alpha": model.alpha,
             "stiffness": model.kmat.tolist(),
-            "minimizer": [args.method, precon_from(args), args.A, args.solver, args.maxiter],
+            "minimizer": [args.method, precon_from(args), args.A, args.solver, args.maxiter]
+            + (["jax"] if args.backend == "jax" else []),
             **parameters,
         },
     )

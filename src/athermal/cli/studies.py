@@ -44,7 +44,7 @@ def ensemble(args: argparse.Namespace) -> None:
             dphi=args.dphi,
             epsilon=args.epsilon,
             protocol=args.bisection,
-            minimizer=Minimizer(args.method, precon_from(args)),  # type: ignore[arg-type]
+            minimizer=Minimizer(args.method, precon_from(args), backend=args.backend),  # type: ignore[arg-type]
         ),
         compress=CompressSpec(
             delta_min=args.dphi_min, delta_max=args.dphi_max, per_decade=args.per_decade
