@@ -236,3 +236,58 @@ def test_backend_jax_without_jax_is_refused_at_the_door(tmp_path, capsys, monkey
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and 'pip install "athermal[jax]"' in err[0]
     assert not out.exists()
+
+
+def test_a_batch_relaxes_each_member_as_alone(table_like):
+    """Four threads relax four packings through one Batcher: fewer device calls than member
+    loops, and each member ends on the minimum it reaches alone."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    start, model, _ = table_like
+    rng = np.random.default_rng(7)
+    a = 1e-4 * start.radii.mean()
+    shape = start.positions.shape
+    starts = [start.with_positions(start.positions + rng.uniform(-a, a, shape)) for _ in range(4)]
+    how = Minimizer("plbfgs", backend="jax")
+    alone = [relax(s, model, how) for s in starts]
+    batcher = je.Batcher(4)
+
+    def member(s):
+        with batcher.member():
+            return relax(s, model, how)
+
+    with ThreadPoolExecutor(4) as pool:
+        together = list(pool.map(member, starts))
+    assert batcher.members >= 4 and batcher.calls < batcher.members
+    for one, batched in zip(alone, together, strict=True):
+        assert batched.converged and batched.max_gradient <= batched.gtol
+        assert batched.energy == pytest.approx(one.energy, rel=1e-10)
+
+
+def test_ensemble_batch_on_the_device_passes_the_jamming_checks(tmp_path, capsys):
+    from athermal.cli import main
+
+    args = ["ensemble", "jam", "--realizations", "3", "--n", "48", "-o", str(tmp_path / "e")]
+    assert main([*args, "--backend", "jax", "--batch", "3", "--json", "--quiet"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["summary"]["checks_passed"] == 3 and "batches of 3" in out["engine"]
+    assert main([*args, "--backend", "jax", "--batch", "3", "--json", "--quiet"]) == 0
+    assert json.loads(capsys.readouterr().out)["computed"] == []  # resumed: nothing to do
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--batch", "4"], "--backend jax"),
+        (["--batch", "4", "--backend", "jax", "--workers", "2"], "drop workers"),
+        (["--batch", "100000000", "--backend", "jax", "--n", "100000"], "GiB of device memory"),
+    ],
+)
+def test_a_batch_that_cannot_run_is_refused_at_the_door(tmp_path, capsys, extra, message):
+    from athermal.cli import main
+
+    out = tmp_path / "e"
+    assert main(["ensemble", "jam", "--realizations", "2", "-o", str(out), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0]
+    assert not out.exists()

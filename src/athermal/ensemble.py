@@ -383,6 +383,7 @@ def run_ensemble(
     scheduler: str | None = None,
     retries: int = 3,
     progress: Callable[[str], None] | None = None,
+    batch: int | None = None,
 ) -> EnsembleResult:
     """Run ``realizations`` realizations of ``spec`` (root ``seed``) into ``directory``.
 
@@ -398,6 +399,9 @@ def run_ensemble(
         scheduler that does not answer leaves nothing behind.
     retries : how often Dask retries a realization whose worker failed.
     progress : called with a line of text as realizations finish.
+    batch : run ``batch`` realizations at a time in this process, their relaxations as one
+        batch on the JAX engine's device (:class:`athermal.jaxengine.Batcher`; the spec's
+        minimizer must have ``backend="jax"``; no ``workers`` or ``scheduler`` then).
     """
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
@@ -405,6 +409,9 @@ def run_ensemble(
         raise InputError(f"realizations: must be an integer >= 1, got {realizations!r}")
     if workers is not None and (int(workers) != workers or workers < 1):
         raise InputError(f"workers: must be an integer >= 1, got {workers!r}")
+    if batch is not None:
+        jam = spec.jam
+        check_batch(batch, jam.n, jam.dim, jam.minimizer.backend, workers, scheduler)
     out = Path(directory)
     if out.exists() and not out.is_dir():
         raise InputError(f"-o: {out} exists and is not a directory")
@@ -444,9 +451,12 @@ def run_ensemble(
         engine = "none (all finished)"
         if todo:
             prefix = f"athermal-{int(spec.identity())}-{seed}"
-            engine = _compute(
-                spec, out, todo, seeds, workers, client, retries, results, say, prefix
-            )
+            if batch is not None:
+                engine = _compute_batched(spec, out, todo, seeds, batch, results, say)
+            else:
+                engine = _compute(
+                    spec, out, todo, seeds, workers, client, retries, results, say, prefix
+                )
     finally:
         lock.close()
         if client is not None:
@@ -560,6 +570,66 @@ def _connect(scheduler: str) -> Any:
         return Client(scheduler, timeout=CONNECT_TIMEOUT)
     except (OSError, ValueError, TypeError) as exc:  # timeout / refused; a malformed address
         raise InputError(f"--scheduler: cannot reach {scheduler}: {one_line(exc)}") from None
+
+
+def check_batch(
+    batch: int,
+    n: int,
+    dim: int,
+    backend: str,
+    workers: int | None = None,
+    scheduler: str | None = None,
+) -> None:
+    """Refuse a batch of ``batch`` packings of ``n`` particles in ``dim`` dimensions that
+    cannot run: not on the JAX engine (``backend``), with worker processes, or larger than the
+    device's memory (naming what it would need)."""
+    if int(batch) != batch or batch < 1:
+        raise InputError(f"batch: must be an integer >= 1, got {batch!r}")
+    if backend != "jax":
+        raise InputError("batch: batches run on the JAX engine; add backend jax (--backend jax)")
+    if workers is not None or scheduler is not None:
+        raise InputError("batch: a batch runs in this process; drop workers / scheduler")
+    from .jaxengine import device_bytes, member_bytes
+
+    need, have = batch * member_bytes(n, dim), device_bytes()
+    if need > have:
+        raise InputError(
+            f"batch: {batch} packings of N = {n} need about {need / 2**30:.1f} GiB of device "
+            f"memory, {have / 2**30:.1f} GiB free; take a smaller batch"
+        )
+
+
+def _compute_batched(
+    spec: EnsembleSpec,
+    out: Path,
+    todo: list[int],
+    seeds: list[int],
+    batch: int,
+    results: dict[int, Realization],
+    say: Callable[[str], None],
+) -> str:
+    """Run the realizations ``todo``, ``batch`` at a time in threads of this process, their
+    relaxations batched on the JAX engine's device; the engine's name."""
+    from concurrent.futures import ThreadPoolExecutor, as_completed
+
+    from .jaxengine import Batcher, jax
+
+    batcher = Batcher(batch)
+
+    def one(k: int) -> Realization:
+        with batcher.member():
+            return run_realization(spec, k, seeds[k], str(out))
+
+    with ThreadPoolExecutor(max_workers=batch) as pool:
+        for future in as_completed([pool.submit(one, k) for k in todo]):
+            result = future.result()
+            results[result.index] = result
+            say(f"realization {result.index} done (phi_c {result.phi_c:.7f})")
+    device = jax.devices()[0]
+    return (
+        f"JAX engine on {device.platform} ({getattr(device, 'device_kind', device)}), batches "
+        f"of {batch}: {batcher.calls} batched calls, {batcher.members} member loops"
+    )
 
 
 def _compute(

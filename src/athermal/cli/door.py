@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..bench import check_alphas
+from ..ensemble import check_batch
 from ..enthalpy import ENTHALPY_METHODS
 from ..errors import JAX_MISSING, InputError
 from ..io import SEED_BOUND
@@ -135,6 +136,11 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
     if getattr(args, "backend", "numba") == "jax":
         _jax(args)
+    if args.command == "ensemble" and args.batch is not None:
+        try:
+            check_batch(args.batch, args.n, args.dim, args.backend, args.workers, args.scheduler)
+        except InputError as exc:
+            raise InputError(f"--{exc}") from None
     if args.command == "relax" and args.pressure is not None:
         if args.method not in ENTHALPY_METHODS:
             raise InputError(

@@ -454,6 +454,13 @@ def build() -> argparse.ArgumentParser:
         help="local worker processes (default: one per core available)",
     )
     ens.add_argument("--scheduler", default=None, help="address of an existing scheduler")
+    ens.add_argument(
+        "--batch",
+        type=int,
+        default=None,
+        help="with --backend jax: relax B realizations at a time as one batch on the device "
+        "(in this process, no --workers / --scheduler)",
+    )
     ens.add_argument("--seed", type=int, default=0, help="root seed")
     ens.add_argument("-o", "--output", required=True, help="directory of the ensemble")
     _packing(ens)

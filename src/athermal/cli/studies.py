@@ -62,6 +62,7 @@ def ensemble(args: argparse.Namespace) -> None:
         workers=args.workers,
         scheduler=args.scheduler,
         progress=progress,
+        batch=args.batch,
     )
     progress.close()
     emit(

@@ -12,7 +12,9 @@ The physics facade selects it (``Minimizer(..., backend="jax")``,
 :mod:`athermal.relaxation`); the protocols never see it. The pairs come from the CPU engine's
 Verlet list (exact in any sheared cell), padded to a capacity that only grows (a power of two),
 so that the jitted loops compile once per capacity; a loop stops for the host to rebuild the
-list before any point it evaluates could leave the list's reach (:mod:`._loops`).
+list before any point it evaluates could leave the list's reach (:mod:`._loops`). Many packings
+of one size relax as one batch on the device, each in the thread of its own realization
+(:class:`Batcher`).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ except ModuleNotFoundError as exc:  # pragma: no cover - the extra is installed 
 
 jax.config.update("jax_enable_x64", True)
 
+from ._batch import Batcher, device_bytes, member_bytes  # noqa: E402
 from ._engine import ENGINE_METHODS, ENGINE_PRECONDITIONERS, Engine  # noqa: E402
 from ._pairs import (  # noqa: E402
     Pairs,
@@ -41,14 +44,17 @@ from ._precon import Hierarchy  # noqa: E402
 __all__ = [
     "ENGINE_METHODS",
     "ENGINE_PRECONDITIONERS",
+    "Batcher",
     "Engine",
     "Hierarchy",
     "Pairs",
     "block_max",
     "capacity_for",
+    "device_bytes",
     "device_pairs",
     "energy_gradient",
     "jax",
     "jnp",
+    "member_bytes",
     "stress_contacts",
 ]

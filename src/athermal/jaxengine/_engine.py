@@ -19,6 +19,7 @@ from ..minimize.fire import ALPHA_START, default_timesteps
 from ..minimize.lbfgs import C2 as LBFGS_C2
 from ..objective import Objective
 from ..precon import REBUILD_FRACTION, ExpPreconditioner
+from ._batch import run_loop
 from ._loops import (
     CONVERGED,
     FULL,
@@ -32,8 +33,6 @@ from ._loops import (
     RUNNING,
     Descent,
     Fire,
-    descent_compiled,
-    fire_compiled,
 )
 from ._pairs import Pairs, block_max, device_pairs, energy_gradient
 from ._precon import Hierarchy, apply
@@ -217,19 +216,12 @@ class Engine:
         while code == RUNNING:
             geometry = (pairs.reference, self._reach_sq(pairs), *self._precon_geometry(lap))
             if method == "fire":
-                state = fire_compiled(state, pairs.arrays, geometry, settings, self.alpha)
+                state = run_loop("fire", state, (pairs.arrays, geometry, settings), (self.alpha,))
             else:
-                state = descent_compiled(
-                    state,
-                    pairs.arrays,
-                    geometry,
-                    lap.arrays if lap is not None else (),
-                    settings,
-                    self.alpha,
-                    method == "lbfgs",
-                    polak,
-                    lap is not None,
-                )
+                hierarchy = lap.arrays if lap is not None else ()
+                statics = (self.alpha, method == "lbfgs", polak, lap is not None)
+                operands = (pairs.arrays, geometry, hierarchy, settings)
+                state = run_loop("descent", state, operands, statics)
             recorded = int(state.recorded)
             log = np.asarray(state.history[:, :recorded])
             energies.extend(log[0].tolist())

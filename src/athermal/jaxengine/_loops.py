@@ -295,7 +295,3 @@ def descent_loop(
         )
 
     return jax.lax.while_loop(lambda s: s.code == RUNNING, body, state)
-
-
-fire_compiled = jax.jit(fire_loop, static_argnums=4)
-descent_compiled = jax.jit(descent_loop, static_argnums=(5, 6, 7, 8))
