@@ -259,3 +259,43 @@ def test_block_assembly_against_a_dense_loop(dim):
     assert got.has_sorted_indices and abs(got - got.T).max() == 0.0
     # every particle's diagonal block is stored (a factorization adds its shift there)
     assert np.all(np.diff(got.indptr) >= dim)
+
+
+@pytest.mark.parametrize(
+    ("dim", "phi", "sheared", "species"),
+    [(2, 0.88, False, False), (2, 0.88, True, True), (3, 0.7, False, False)],
+)
+def test_the_threaded_kernel_is_the_serial_one_on_any_number_of_threads(dim, phi, sheared, species):
+    import numba
+
+    from athermal.cell import simple_shear
+    from athermal.contact import energy_gradient_threads, evaluate
+    from athermal.neighbors import build_neighbor_list
+
+    packing = random_packing(300, phi, dim=dim, seed=2)
+    if sheared:
+        packing = packing.deform(simple_shear(0.25, dim))
+    model = ContactModel(2.5, np.array([[1.0, 1.5], [1.5, 2.0]]) if species else 1.0)
+    nlist = build_neighbor_list(packing.positions, packing.radii, packing.cell)
+    start, entry = nlist.incidence
+    for i in range(packing.n):  # every pair once per end, in pair order
+        mine = entry[start[i] : start[i + 1]]
+        ends = np.where(mine & 1, nlist.second[mine >> 1], nlist.first[mine >> 1])
+        assert np.all(ends == i) and np.all(np.diff(mine >> 1) >= 0)
+    assert start[-1] == 2 * nlist.n_pairs
+    shifts, typeid = nlist.shifts(packing.cell), model.typeid(packing)
+    pairs = (packing.radii, nlist.first, nlist.second, nlist.code, shifts, typeid)
+    args = (*pairs, model.kmat, model.alpha)
+    serial = np.empty_like(packing.positions)
+    energy, contacts = evaluate(packing.positions, serial, *args)
+    force = np.empty((nlist.n_pairs, dim))
+    grads = []
+    for threads in sorted({1, numba.config.NUMBA_NUM_THREADS}):
+        numba.set_num_threads(threads)
+        grad = np.empty_like(packing.positions)
+        e, c = energy_gradient_threads(packing.positions, *args, grad, start, entry, force)
+        assert e == pytest.approx(energy, rel=1e-13) and c == contacts
+        np.testing.assert_allclose(grad, serial, rtol=0, atol=1e-14 * np.abs(serial).max())
+        grads.append(grad)
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    assert all(np.array_equal(g, grads[0]) for g in grads)  # the same bits on any threads
