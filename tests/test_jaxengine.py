@@ -81,6 +81,73 @@ def test_stress_and_contacts_match_the_observables(sheared):
     assert int(count) == contacts.i.size
 
 
+def pair_set(first, second, shift, count, positions):
+    """The pairs ``(i, j, |x_i - x_j + shift|)`` of a list, distances to 1e-10."""
+    sep = positions[first[:count]] - positions[second[:count]] + shift[:count]
+    lengths = np.sqrt(np.sum(sep * sep, axis=1))
+    return sorted(
+        (int(i), int(j), round(float(d), 10))
+        for i, j, d in zip(first[:count], second[:count], lengths, strict=True)
+    )
+
+
+@pytest.mark.parametrize(
+    ("dim", "phi", "shear"), [(2, 0.88, 0.0), (2, 0.88, 0.4), (2, 0.5, 1.0), (3, 0.6, 0.0)]
+)
+def test_the_device_cell_list_is_the_brute_force_list(dim, phi, shear):
+    """In square and sheared cells, 2D and 3D, from unwrapped positions: the same pairs at the
+    same distances as the O(N^2) search over images."""
+    from athermal.jaxengine import _cells
+    from athermal.neighbors import brute_force_pairs
+
+    packing = random_packing(400, phi, dim=dim, seed=3)
+    if shear:
+        packing = packing.deform(simple_shear(shear, dim))
+    packing = packing.with_positions(packing.positions + 3.7)  # several cells away
+    model, skin = ContactModel(2.0), 0.3 * packing.radii.mean()
+    nbins = _cells.bins_for(packing.cell, 2 * packing.radii.max() + skin)
+    inputs = (packing.positions, packing.radii, model.typeid(packing), model.kmat, packing.cell.h)
+    device = [je.jnp.asarray(a) for a in inputs]
+    arrays, count, _, overflow = _cells.build_compiled(*device, skin, nbins, 32, 16384)
+    assert not bool(overflow)
+    first, second, shift = (np.asarray(a) for a in arrays[:3])
+    found = pair_set(first, second, shift, int(count), packing.positions)
+    expected = []
+    for i, j, n in brute_force_pairs(packing.positions, packing.radii, packing.cell, skin):
+        sep = packing.positions[i] - packing.positions[j] + np.asarray(n) @ packing.cell.h.T
+        expected.append((i, j, round(float(np.linalg.norm(sep)), 10)))
+    assert found == sorted(expected)
+
+
+def test_an_overflowing_cell_list_is_built_again_never_used():
+    """Capacities far too small: each build overflows, grows and builds again; the relaxation
+    ends on the CPU engine's minimum with its energy."""
+    model = ContactModel(2.0)
+    relaxed = relax(random_packing(300, 0.86, seed=2), model, rtol=1e-12).packing
+    start = relaxed.scale_radii(1.0 + 5e-5)
+    objective = Objective(start, model)
+    engine = je.Engine(objective)
+    assert engine.nbins is not None
+    engine.bin_capacity, engine.pair_capacity = 1, 16
+    tol = objective.tolerance(None, 1e-9)
+    result = engine.minimize("lbfgs", objective.x0, gtol=tol)
+    assert engine.overflows >= 2 and result.converged
+    cpu = relax(start, model, Minimizer("lbfgs"))
+    assert result.energy == pytest.approx(cpu.energy, rel=1e-10)
+    assert engine.pairs is not None and engine.pairs.count <= engine.pair_capacity
+
+
+def test_a_small_cell_takes_the_host_list():
+    from athermal.jaxengine import _cells
+
+    packing = random_packing(16, 0.85, seed=1)
+    assert (
+        _cells.bins_for(packing.cell, 2 * packing.radii.max() + 0.5 * packing.radii.mean()) is None
+    )
+    device = relax(packing, ContactModel(2.0), Minimizer("lbfgs", backend="jax"))
+    assert device.converged
+
+
 def test_capacity_holds_a_tenth_more_pads_less_than_a_quarter_and_only_grows():
     for count in [1, 7, 100, 103, 999, 44_773, 1_000_003]:
         size = je.capacity_for(count)

@@ -9,10 +9,11 @@ here is float64. Without JAX installed, importing this package raises an
 :class:`~athermal.errors.InputError` naming the extra (``pip install "athermal[jax]"``).
 
 The physics facade selects it (``Minimizer(..., backend="jax")``,
-:mod:`athermal.relaxation`); the protocols never see it. The pairs come from the CPU engine's
-Verlet list (exact in any sheared cell), padded to a capacity that only grows (a power of two),
-so that the jitted loops compile once per capacity; a loop stops for the host to rebuild the
-list before any point it evaluates could leave the list's reach (:mod:`._loops`). Many packings
+:mod:`athermal.relaxation`); the protocols never see it. The Verlet list is built on the device
+by a cell list with fixed capacities that report their overflow (:mod:`._cells`; in a cell too
+small for three bins a direction, by the CPU engine's search on the host), padded to a capacity
+that only grows, so that the jitted loops compile once per capacity; a loop stops for a new list
+before any point it evaluates could leave the list's reach (:mod:`._loops`). Many packings
 of one size relax as one batch on the device, each in the thread of its own realization
 (:class:`Batcher`).
 """

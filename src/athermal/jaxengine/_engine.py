@@ -19,6 +19,7 @@ from ..minimize.fire import ALPHA_START, default_timesteps
 from ..minimize.lbfgs import C2 as LBFGS_C2
 from ..objective import Objective
 from ..precon import REBUILD_FRACTION, ExpPreconditioner
+from . import _cells
 from ._batch import run_loop
 from ._loops import (
     CONVERGED,
@@ -34,7 +35,7 @@ from ._loops import (
     Descent,
     Fire,
 )
-from ._pairs import Pairs, block_max, device_pairs, energy_gradient
+from ._pairs import Pairs, block_max, capacity_for, device_pairs, energy_gradient
 from ._precon import Hierarchy, apply
 
 EngineMethod = Literal["fire", "lbfgs", "cg"]
@@ -79,6 +80,20 @@ class Engine:
         self.margin = MARGIN * objective.max_step
         self.skin = objective.skin + 2.0 * self.margin
         self.pairs: Pairs | None = None
+        cell = objective.cell
+        self.nbins = _cells.bins_for(cell, 2.0 * float(objective.radii.max()) + self.skin)
+        """Bins of the device's cell list (None: the host builds the list, a small cell)."""
+        occupancy = objective.n / float(np.prod(self.nbins)) if self.nbins else 0.0
+        self.bin_capacity = max(8, int(np.ceil(2.0 * occupancy)))
+        self.pair_capacity = capacity_for(4 * objective.n * (objective.dim - 1))
+        self.overflows = 0
+        """Builds of the device's list that overflowed a capacity (and were built again)."""
+        self._device = (
+            jnp.asarray(objective.radii),
+            jnp.asarray(self.typeid),
+            jnp.asarray(np.asarray(objective.model.kmat, dtype=np.float64)),
+            jnp.asarray(cell.h),
+        )
         self.precon = ExpPreconditioner(objective, A=A) if precon == "exp" else None
         self.hierarchy: Hierarchy | None = None
         self.n_rebuilds = 0
@@ -99,12 +114,41 @@ class Engine:
         if pairs is None or _moved_sq(positions, pairs.reference) > self._reach_sq(pairs):
             capacity = 0 if pairs is None else pairs.capacity
             obj = self.objective
-            pairs = device_pairs(
-                positions, obj.radii, obj.cell, obj.model, self.typeid, self.skin, capacity
-            )
+            if self.nbins is None:
+                pairs = device_pairs(
+                    positions, obj.radii, obj.cell, obj.model, self.typeid, self.skin, capacity
+                )
+            else:
+                pairs = self._cell_list(positions)
             self.pairs = pairs
             self.n_rebuilds += 1
         return pairs
+
+    def _cell_list(self, positions: NDArray[np.float64]) -> Pairs:
+        """The list built on the device (:mod:`._cells`), built again with larger capacities
+        until none overflows."""
+        assert self.nbins is not None
+        x = jnp.asarray(positions)
+        while True:
+            arrays, count, fullest, overflow = _cells.build_compiled(
+                x, *self._device, self.skin, self.nbins, self.bin_capacity, self.pair_capacity
+            )
+            if not bool(overflow):
+                first, second, shift, radius_sum, stiffness = arrays
+                return Pairs(
+                    first,
+                    second,
+                    shift,
+                    radius_sum,
+                    stiffness,
+                    int(count),
+                    self.pair_capacity,
+                    positions,
+                    self.skin,
+                )
+            self.overflows += 1
+            self.bin_capacity = max(self.bin_capacity, int(fullest) + 2)
+            self.pair_capacity = capacity_for(int(count), self.pair_capacity)
 
     def _reach_sq(self, pairs: Pairs) -> float:
         """How far (squared) an iterate may move from the list's build."""

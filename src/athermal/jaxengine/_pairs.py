@@ -74,7 +74,8 @@ def device_pairs(
 ) -> Pairs:
     """The Verlet list (skin ``skin``, length units) of ``positions`` ``(N, d)`` with ``radii``
     in ``cell``, built on the host (:func:`~athermal.neighbors.build_neighbor_list`, exact in any
-    sheared cell), on the device padded to :func:`capacity_for` ``(count, capacity)``."""
+    sheared cell), on the device padded to :func:`capacity_for` ``(count, capacity)``: the
+    engine's list where its cell is too small for the device's cell list."""
     nlist = build_neighbor_list(positions, radii, cell, skin)
     count = int(nlist.first.size)
     size = capacity_for(count, capacity)
