@@ -23,8 +23,6 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-import numba
-
 from athermal.atomic import write_text
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -74,10 +72,8 @@ def _allowed() -> list[int]:
 
 def pin(core: int | None = None) -> list[int]:
     """Pin this process to ``core`` (default: the lowest allowed core) and return the cores it
-    may run on now; numba then runs one thread per such core (one: the energy kernel of one
-    thread, as on the single core the peers are timed on). A no-op where
-    ``os.sched_setaffinity`` is missing; where pinning fails (a core not allowed) a note goes
-    to stderr and the affinity is left as it was."""
+    may run on now. A no-op where ``os.sched_setaffinity`` is missing; where pinning fails (a
+    core not allowed) a note goes to stderr and the affinity is left as it was."""
     setter = getattr(os, "sched_setaffinity", None)
     allowed = _allowed()
     if setter is None:
@@ -87,9 +83,7 @@ def pin(core: int | None = None) -> list[int]:
         setter(0, {target})
     except (OSError, ValueError) as exc:
         print(f"note: could not pin to core {target} ({exc}); not pinned", file=sys.stderr)
-    now = _allowed()
-    numba.set_num_threads(max(1, min(len(now), numba.config.NUMBA_NUM_THREADS)))
-    return now
+    return _allowed()
 
 
 def _version(package: str) -> str:
@@ -100,8 +94,8 @@ def _version(package: str) -> str:
 
 
 def describe() -> dict[str, str]:
-    """The run's machine: ``date_utc``, ``commit``, ``cpu``, ``cores``, ``pinned``, numba's
-    ``threads`` and ``software`` (python, numpy, scipy and numba versions)."""
+    """The run's machine: ``date_utc``, ``commit``, ``cpu``, ``cores``, ``pinned`` and
+    ``software`` (python, numpy, scipy and numba versions)."""
     allowed = _allowed()
     return {
         "date_utc": datetime.now(UTC).strftime("%Y-%m-%d %H:%M:%S"),
@@ -109,7 +103,6 @@ def describe() -> dict[str, str]:
         "cpu": cpu_model(),
         "cores": str(os.cpu_count()),
         "pinned": str(allowed) if allowed else "n/a",
-        "threads": str(numba.get_num_threads()),
         "software": f"python {platform.python_version()}, "
         + ", ".join(f"{p} {_version(p)}" for p in ("numpy", "scipy", "numba")),
     }
@@ -119,13 +112,8 @@ def line(meta: dict[str, str]) -> str:
     """``meta`` (:func:`describe`) as one line of text."""
     return (
         f"{meta['date_utc']} UTC; commit {meta['commit']}; {meta['cpu']}, {meta['cores']} cores, "
-        f"pinned to {meta['pinned']}{_threads(meta)}; {meta['software']}"
+        f"pinned to {meta['pinned']}; {meta['software']}"
     )
-
-
-def _threads(meta: dict[str, str]) -> str:
-    """``, N numba threads`` when ``meta`` records them (results from before did not)."""
-    return f", {meta['threads']} numba threads" if "threads" in meta else ""
 
 
 def save(

@@ -158,25 +158,40 @@ def test_capacity_holds_a_tenth_more_pads_less_than_a_quarter_and_only_grows():
 
 def test_the_line_search_is_the_compiled_one():
     """The same trials, end and code as the CPU engine's state machine on scalar functions
-    that bracket, zoom, hit the step cap and lie below the round-off."""
+    that bracket, zoom, hit the step cap, lie below the round-off, reach zero energy and
+    exhaust the budget."""
     feed = je.jax.jit(_search.feed)
     cases = [
+        (lambda a: (-a, -1.0 + 0 * a), 1.0, np.inf, 0.0),  # 40 evaluations, no Wolfe step
+        (lambda a: (max(1.0 - a, 0.0) ** 2, -2.0 * max(1.0 - a, 0.0)), 7.0, np.inf, 0.0),
         (lambda a: ((a - 1.3) ** 4 - 0.5 * a, 4 * (a - 1.3) ** 3 - 0.5), 0.05, np.inf, 0.0),
         (lambda a: ((a - 1.3) ** 4 - 0.5 * a, 4 * (a - 1.3) ** 3 - 0.5), 7.0, np.inf, 0.0),
         (lambda a: (-np.sin(3 * a) + 0.1 * a * a, -3 * np.cos(3 * a) + 0.2 * a), 0.3, 0.9, 0.0),
         (lambda a: (-a, -1.0 + 0 * a), 1.0, 2.5, 0.0),
         (lambda a: (1e-3 * (a - 2) ** 2 + 1.0, 2e-3 * (a - 2)), 1.0, np.inf, 1e-2),
     ]
+    codes = []
     for phi, step, cap, noise in cases:
         f0, g0 = phi(0.0)
-        cpu = cpu_search(phi, f0, g0, step, c2=0.9, step_max=cap, noise=noise)
+        trials: list[float] = []
+
+        def recorded(a, phi=phi, trials=trials):
+            trials.append(a)
+            return phi(a)
+
+        cpu = cpu_search(recorded, f0, g0, step, c2=0.9, step_max=cap, noise=noise)
         search = _search.begin(f0, g0, step, 0.9, cap, noise)
+        device_trials = []
         while int(search.code) == GO_ON:
+            device_trials.append(float(search.trial))
             f, df = phi(float(search.trial))
             search = feed(search, f, df)
+        np.testing.assert_allclose(device_trials, trials, rtol=1e-12)
         assert float(search.end[0]) == pytest.approx(cpu.step, rel=1e-12)
         assert int(search.evaluations) == cpu.evaluations
         assert (int(search.code) == 1) == cpu.ok
+        codes.append(int(search.code))
+    assert codes[:2] == [2, 1] and 1 in codes[2:]  # exhausted; zero energy at once; Wolfe
 
 
 @pytest.mark.parametrize("n", [256, 2048])
@@ -221,19 +236,58 @@ def test_every_device_minimizer_reaches_the_cpu_minimum(table_like, method):
     assert device.history_energy.size == device.iterations + 1
 
 
-@pytest.mark.parametrize("method", ["fire", "plbfgs"])
+@pytest.mark.parametrize("method", ["fire", "plbfgs", "pcg"])
 def test_from_random_positions_the_lists_are_rebuilt_on_the_way(method):
     """Particles move far beyond the skin and the preconditioner's reach: both are rebuilt on
     the host, the loop goes on, and the end is a minimum by the CPU's own evaluation."""
     model = ContactModel(2.0)
     device = relax(random_packing(128, 0.88, seed=2), model, Minimizer(method, backend="jax"))
     assert device.converged and device.neighbor_rebuilds > 1
-    if method == "plbfgs":
+    if method != "fire":
         assert device.precon_builds > 1
     check = Objective(device.packing, model)
     energy, grad = check(check.x0)
     assert energy == pytest.approx(device.energy, rel=1e-12)
     assert check.max_gradient(grad) <= 1.01 * device.gtol
+
+
+def test_fire_on_an_engine_with_the_preconditioner_runs_without_it():
+    """The hand-over of a failed line search: FIRE on the P-L-BFGS engine, from far away."""
+    model = ContactModel(2.0)
+    objective = Objective(random_packing(128, 0.88, seed=2), model)
+    engine = je.Engine(objective, "exp")
+    result = engine.minimize("fire", objective.x0, gtol=objective.tolerance(None, 1e-9))
+    assert result.converged and engine.hierarchy is None
+
+
+def test_polak_ribiere_cg_reaches_the_cpu_minimum(table_like):
+    start, model, cpu = table_like
+    objective = Objective(start, model)
+    engine = je.Engine(objective, "exp")
+    tol = objective.tolerance(None, 1e-9)
+    result = engine.minimize("cg", objective.x0, gtol=tol, polak=True)
+    assert result.converged and result.energy == pytest.approx(cpu.energy, rel=1e-10)
+
+
+def test_an_error_in_a_batch_reaches_every_member_and_blocks_none(monkeypatch):
+    from concurrent.futures import ThreadPoolExecutor
+
+    def broken(self, chunk):
+        raise RuntimeError("device lost")
+
+    monkeypatch.setattr(je.Batcher, "_batched", broken)
+    batcher = je.Batcher(3)
+    how = Minimizer("lbfgs", backend="jax")
+
+    def member(seed):
+        with batcher.member():
+            return relax(random_packing(32, 0.88, seed=seed), ContactModel(2.0), how)
+
+    with ThreadPoolExecutor(3) as pool:
+        futures = [pool.submit(member, seed) for seed in range(3)]
+        for future in futures:
+            with pytest.raises(RuntimeError, match="device lost"):
+                future.result(timeout=120)
 
 
 def test_an_unjammed_packing_ends_at_zero_energy():

@@ -37,22 +37,3 @@ def test_contact_count_of_the_last_evaluation_matches_a_separate_pass():
         reach = packing.radii[i + 1 :] + packing.radii[i]
         brute += int(np.sum(np.einsum("ij,ij->i", sep, sep) < reach**2))
     assert evaluated.count_contacts(evaluated.x0) == fresh.count_contacts(fresh.x0) == brute
-
-
-def test_on_threads_the_objective_relaxes_to_the_same_minimum(monkeypatch):
-    """From THREADS_MIN_N particles the energy runs on numba's threads and the line search in
-    Python: the same minimum as the one-thread kernel with its compiled search."""
-    import athermal.objective as objective_module
-    from athermal.relaxation import Minimizer, relax_objective
-
-    model = ContactModel(2.0)
-    start = Objective(random_packing(400, 0.88, seed=4), model)
-    relaxed = relax_objective(start, Minimizer("lbfgs"), rtol=1e-12)
-    packing = relaxed.packing.scale_radii(1.0 + 5e-5)  # one minimum near (the Table's case 1)
-    alone = relax_objective(Objective(packing, model), Minimizer("lbfgs"), rtol=1e-9)
-    monkeypatch.setattr(objective_module, "THREADS_MIN_N", 0)
-    monkeypatch.setattr(objective_module.numba, "get_num_threads", lambda: 2)
-    threaded = Objective(packing, model)
-    assert threaded.threaded and threaded.compiled_search() is None
-    result = relax_objective(threaded, Minimizer("lbfgs"), rtol=1e-9)
-    assert result.converged and result.energy == pytest.approx(alone.energy, rel=1e-9)

@@ -16,12 +16,3 @@ _jit_fast = nb.njit(
     boundscheck=False,
     fastmath={"nsz", "contract", "afn", "reassoc"},
 )
-_jit_parallel = nb.njit(
-    cache=True,
-    nogil=True,
-    parallel=True,
-    error_model="numpy",
-    boundscheck=False,
-    fastmath={"nsz", "contract", "afn", "reassoc"},
-)
-"""Kernels over many threads (``prange``); the options of :data:`_jit_fast`."""

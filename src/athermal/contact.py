@@ -12,10 +12,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
-from numba import prange
 from numpy.typing import NDArray
 
-from ._jit import _jit, _jit_fast, _jit_parallel
+from ._jit import _jit, _jit_fast
 from .errors import InputError
 from .neighbors import NeighborList
 from .packing import Packing
@@ -391,49 +390,6 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
         grad[j, 0] += fx
         grad[j, 1] += fy
         grad[j, 2] += fz
-    return energy / alpha, contacts
-
-
-@_jit_parallel
-def energy_gradient_threads(  # type: ignore[no-untyped-def]
-    x, radii, first, second, code, shift, typeid, kmat, alpha, grad, start, entry, force
-):
-    """:func:`energy_gradient_2d` / ``_3d`` over threads, without races: each pair's force
-    ``(P, d)`` into ``force`` (pairs in parallel), then each particle's gradient summed from
-    its pairs in the fixed order of ``start``, ``entry`` (:attr:`~athermal.neighbors
-    .NeighborList.incidence`; particles in parallel). Returns the energy and the overlapping
-    pairs; the gradient does not depend on the number of threads, the energy's last bits do."""
-    d = x.shape[1]
-    energy = 0.0
-    contacts = 0
-    uniform = kmat.size == 1
-    for p in prange(first.size):
-        i = first[p]
-        j = second[p]
-        c = code[p]
-        dist_sq = 0.0
-        for a in range(d):
-            sep = x[i, a] - x[j, a] + shift[c, a]
-            force[p, a] = sep
-            dist_sq += sep * sep
-        reach = radii[i] + radii[j]
-        contacts += dist_sq < reach * reach
-        dist = np.sqrt(dist_sq)
-        delta = max(reach - dist, 0.0)
-        k = kmat[0, 0] if uniform else kmat[typeid[i], typeid[j]]
-        f = _pair_force(delta, k, alpha)
-        energy += f * delta
-        s = f / dist
-        for a in range(d):
-            force[p, a] *= s
-    for i in prange(x.shape[0]):
-        for a in range(d):
-            grad[i, a] = 0.0
-        for e in range(start[i], start[i + 1]):
-            p = entry[e] >> 1
-            sign = 1.0 if entry[e] & 1 else -1.0
-            for a in range(d):
-                grad[i, a] += sign * force[p, a]
     return energy / alpha, contacts
 
 

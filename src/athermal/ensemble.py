@@ -99,6 +99,8 @@ LATER_FIELDS: dict[tuple[str, ...], Any] = {
     ("jam", "sizes"): "bidisperse",
     ("jam", "polydispersity"): POLYDISPERSITY,
     ("jam", "minimizer", "backend"): "numba",
+    ("compress", "minimizer", "backend"): "numba",
+    ("shear", "minimizer", "backend"): "numba",
 }
 """Spec fields (their path: section, ..., name) that joined after the first ensembles, with
 their defaults."""

@@ -11,7 +11,6 @@ It stays complete while no particle has moved more than ``skin / 2`` since the b
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
 from itertools import product
 
 import numpy as np
@@ -76,14 +75,6 @@ class NeighborList:
         """Squared displacement from :attr:`reference` up to which the list holds,
         ``(skin / 2)^2``."""
         return 0.25 * self.skin * self.skin
-
-    @cached_property
-    def incidence(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """Each particle's pairs: ``start`` ``(N + 1,)`` offsets into ``entry`` ``(2 P,)``,
-        whose values are ``2 p`` where the particle is pair ``p``'s ``first`` and ``2 p + 1``
-        where it is its ``second`` (a pair of a particle with its own image appears twice), in
-        pair order; built on first use (for the threaded energy kernel)."""
-        return _incidence(self.first, self.second, self.reference.shape[0])
 
     def is_current(self, positions: NDArray[np.float64]) -> bool:
         """True while no particle has moved more than ``skin / 2`` since the build."""
@@ -274,25 +265,6 @@ def _counting_sort(bin_of, total_bins):  # type: ignore[no-untyped-def]
         member[fill[bin_of[i]]] = i
         fill[bin_of[i]] += 1
     return bin_start, member
-
-
-@_jit
-def _incidence(first, second, n):  # type: ignore[no-untyped-def]
-    """:attr:`NeighborList.incidence` of the pairs ``first``, ``second`` of ``n`` particles."""
-    start = np.zeros(n + 1, dtype=np.int64)
-    for p in range(first.size):
-        start[first[p] + 1] += 1
-        start[second[p] + 1] += 1
-    for i in range(n):
-        start[i + 1] += start[i]
-    fill = start[:-1].copy()
-    entry = np.empty(2 * first.size, dtype=np.int64)
-    for p in range(first.size):
-        entry[fill[first[p]]] = 2 * p
-        fill[first[p]] += 1
-        entry[fill[second[p]]] = 2 * p + 1
-        fill[second[p]] += 1
-    return start, entry
 
 
 @_jit

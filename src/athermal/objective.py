@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -23,7 +22,6 @@ from .contact import (
     HessianOperator,
     count_overlaps,
     energy_gradient_contacts,
-    energy_gradient_threads,
     evaluate,
     find_contacts,
     hessian_terms,
@@ -36,10 +34,6 @@ from .packing import Packing
 
 MAX_STEP_FACTOR = 0.1
 """Largest displacement of one particle in one iteration, as a multiple of the mean radius."""
-THREADS_MIN_N = 50_000
-"""From this many particles, when numba has more than one thread, the energy+gradient runs on
-all of them (:func:`~athermal.contact.energy_gradient_threads`; measurements:
-``docs/decisions.md``, section "The energy kernel on many cores")."""
 
 
 class Objective:
@@ -92,10 +86,6 @@ class Objective:
         :attr:`max_step` (``MAX_STEP_FACTOR`` x the mean radius) and the round-off of the
         energy, ``scale (alpha E)^(1 - 1/alpha)``."""
         self._compiled: CompiledSearch | None = None
-        self.threaded = self.n >= THREADS_MIN_N and numba.get_num_threads() > 1
-        """Whether the energy+gradient runs on numba's threads (then every evaluation comes
-        from Python, through :meth:`__call__`: no compiled line search)."""
-        self._force = np.empty((0, self.dim))
 
     @property
     def n_dof(self) -> int:
@@ -124,51 +114,26 @@ class Objective:
             return self._last
         nlist = self.neighbor_list(x)
         grad = np.empty(self.n_dof)
-        if self.threaded:
-            if self._force.shape[0] != nlist.n_pairs:
-                self._force = np.empty((nlist.n_pairs, self.dim))
-            start, entry = nlist.incidence
-            radii, first, second, code, shifts, typeid, kmat, alpha = self._pair_arguments(nlist)
-            energy, contacts = energy_gradient_threads(
-                x.reshape(self.n, self.dim),
-                radii,
-                first,
-                second,
-                code,
-                shifts,
-                typeid,
-                kmat,
-                alpha,
-                grad.reshape(self.n, self.dim),
-                start,
-                entry,
-                self._force,
-            )
-            energy, self._last_contacts = float(energy), int(contacts)
-        else:
-            energy, self._last_contacts = energy_gradient_contacts(
-                x.reshape(self.n, self.dim),
-                self.radii,
-                self._typeid,
-                self._shifts,
-                nlist,
-                self.model,
-                grad.reshape(self.n, self.dim),
-            )
+        energy, self._last_contacts = energy_gradient_contacts(
+            x.reshape(self.n, self.dim),
+            self.radii,
+            self._typeid,
+            self._shifts,
+            nlist,
+            self.model,
+            grad.reshape(self.n, self.dim),
+        )
         self.n_evaluations += 1
         self._last_x[:] = x
         self._last = (energy, grad)
         return self._last
 
-    def compiled_search(self) -> CompiledSearch | None:
+    def compiled_search(self) -> CompiledSearch:
         """The energy's line search in compiled code, for the minimizers
         (:class:`~athermal.minimize.CompiledSearch`): :func:`energy_search` over the current
         Verlet list, until the search ends or a trial point moves a particle more than
         ``skin / 2`` from the list's build (the minimizer then evaluates that point by
-        ``self(...)``, which rebuilds the list); :meth:`took` takes its evaluations back. None
-        when the energy runs on threads (:attr:`threaded`)."""
-        if self.threaded:
-            return None
+        ``self(...)``, which rebuilds the list); :meth:`took` takes its evaluations back."""
         if self._compiled is None:
             x = self.x0
             self._compiled = CompiledSearch(

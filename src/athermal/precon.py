@@ -196,9 +196,14 @@ class _PairPreconditioner(ABC):
         return bool(moved_sq > self._reach_sq)
 
     @property
+    def reach(self) -> float:
+        """Displacement of a particle since the last build beyond which ``P`` is rebuilt,
+        ``REBUILD_FRACTION r_cut`` (length units)."""
+        return REBUILD_FRACTION * self.r_cut
+
+    @property
     def _reach_sq(self) -> float:
-        """Squared displacement since the last build beyond which ``P`` is rebuilt."""
-        return (REBUILD_FRACTION * self.r_cut) ** 2
+        return self.reach**2
 
     def _exp_part(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
         """The scalar Exp matrix ``mu P_{mu=1}`` at ``positions``; sets ``r_nn`` and ``mu``."""

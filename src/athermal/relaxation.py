@@ -84,13 +84,11 @@ class Minimizer:
         choice(self.solver, "solver", SOLVERS)
         choice(self.backend, "backend", BACKENDS)
         if self.backend == "jax":
-            if base == "newton" or precon == "contact" or (base == "fire" and precon != "none"):
-                raise InputError(
-                    "backend jax: lbfgs, cg, fire, plbfgs or pcg, with precon none or exp "
-                    f"(fire without one); got {self.method} with {precon}"
-                )
             if importlib.util.find_spec("jax") is None:
                 raise InputError(JAX_MISSING)
+            from . import jaxengine  # the extra, there: imported when asked for
+
+            jaxengine.check_supported(base, precon)
         if int(self.maxiter) != self.maxiter or self.maxiter < 1:
             raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
         if not self.A >= 0.0:

@@ -47,10 +47,17 @@ def ensemble(args: argparse.Namespace) -> None:
             minimizer=Minimizer(args.method, precon_from(args), backend=args.backend),  # type: ignore[arg-type]
         ),
         compress=CompressSpec(
-            delta_min=args.dphi_min, delta_max=args.dphi_max, per_decade=args.per_decade
+            delta_min=args.dphi_min,
+            delta_max=args.dphi_max,
+            per_decade=args.per_decade,
+            minimizer=Minimizer(backend=args.backend),
         ),
         shear=ShearSpec(
-            mode=args.mode, strain=args.strain, step=args.step, delta_phi=args.shear_delta_phi
+            mode=args.mode,
+            strain=args.strain,
+            step=args.step,
+            delta_phi=args.shear_delta_phi,
+            minimizer=Minimizer(backend=args.backend),
         ),
     )
     progress = Progress(args.quiet)

@@ -31,7 +31,12 @@ except ModuleNotFoundError as exc:  # pragma: no cover - the extra is installed 
 jax.config.update("jax_enable_x64", True)
 
 from ._batch import Batcher, device_bytes, member_bytes  # noqa: E402
-from ._engine import ENGINE_METHODS, ENGINE_PRECONDITIONERS, Engine  # noqa: E402
+from ._engine import (  # noqa: E402
+    ENGINE_METHODS,
+    ENGINE_PRECONDITIONERS,
+    Engine,
+    check_supported,
+)
 from ._pairs import (  # noqa: E402
     Pairs,
     block_max,
@@ -51,6 +56,7 @@ __all__ = [
     "Pairs",
     "block_max",
     "capacity_for",
+    "check_supported",
     "device_bytes",
     "device_pairs",
     "energy_gradient",

@@ -4,11 +4,12 @@ A :class:`Batcher` is shared by the threads that each run one realization of a p
 protocol's code unchanged: each thread relaxes through its own :class:`~._engine.Engine`).
 Inside :meth:`Batcher.member` an engine does not run its jitted loop itself but hands the loop's
 state to the batcher (:func:`run_loop`) and waits; once every member thread waits, the last one
-to arrive runs the loops of all of them as one ``vmap`` over the batch (members of the same
-method and list shapes together; a smaller group padded with idle members up to the batch size,
-so that the program compiles once), and hands each thread its own state back. Each member keeps
-its own stop codes, tolerances and history: a member that stops (converged, or for the host to
-rebuild its list) idles until the batch's call ends, while the others go on.
+to arrive runs the loops of all of them as one ``vmap`` over the batch (members of the same loop
+and structure together, their lists padded to common lengths, a smaller group filled with idle
+members up to the batch size, so that the program compiles once per size class), and hands each
+thread its own state back. Each member keeps its own stop codes, tolerances and history: a
+member that stops (converged, or for the host to rebuild its list) idles until the batch's call
+ends, while the others go on.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..errors import InputError
-from ._loops import CONVERGED, descent_loop, fire_loop
+from ._loops import CONVERGED, HISTORY, descent_loop, fire_loop
 from ._pairs import capacity_for
 
 LOOPS: dict[str, Callable[..., Any]] = {"fire": fire_loop, "descent": descent_loop}
@@ -54,11 +55,13 @@ class _Request:
     result: Any = None
     error: BaseException | None = None
     done: bool = False
-    shapes: tuple[Any, ...] = field(init=False)
+    structure: tuple[Any, ...] = field(init=False)
+    """What a batch's members share: the loop, its static arguments, the tree of its arrays
+    and their ranks (their lengths may differ: :meth:`Batcher._padded`)."""
 
     def __post_init__(self) -> None:
         leaves, tree = jax.tree_util.tree_flatten((self.state, self.operands))
-        self.shapes = (self.kind, self.statics, tree, tuple(np.ndim(a) for a in leaves))
+        self.structure = (self.kind, self.statics, tree, tuple(np.ndim(a) for a in leaves))
 
 
 class Batcher:
@@ -108,26 +111,35 @@ class Batcher:
         return request.result
 
     def _dispatch_if_all_wait(self) -> None:
-        """Run every waiting loop when each live member waits (the lock is held)."""
+        """Run every waiting loop when each live member waits (the lock is held). An error
+        reaches the threads of the loops it stopped; every waiting thread is woken whatever
+        happens."""
         if not self._waiting or len(self._waiting) < self._live:
             return
         waiting, self._waiting = self._waiting, []
         groups: dict[tuple[Any, ...], list[_Request]] = {}
         for request in waiting:
-            groups.setdefault(request.shapes, []).append(request)
-        for group in groups.values():
-            for start in range(0, len(group), self.size):
-                chunk = group[start : start + self.size]
-                try:
-                    states = self._batched(chunk)
-                except BaseException as exc:  # each member's thread raises it
-                    for request in chunk:
-                        request.error, request.done = exc, True
-                    continue
-                for k, request in enumerate(chunk):
-                    request.result = jax.tree_util.tree_map(lambda a, k=k: a[k], states)
-                    request.done = True
-        self._condition.notify_all()
+            groups.setdefault(request.structure, []).append(request)
+        try:
+            for group in groups.values():
+                for start in range(0, len(group), self.size):
+                    chunk = group[start : start + self.size]
+                    try:
+                        states = self._batched(chunk)
+                        results = [
+                            jax.tree_util.tree_map(lambda a, k=k: a[k], states)
+                            for k in range(len(chunk))
+                        ]
+                    except Exception as exc:  # each member's thread raises it
+                        for request in chunk:
+                            request.error = exc
+                        continue
+                    for request, result in zip(chunk, results, strict=True):
+                        request.result = result
+        finally:
+            for request in waiting:
+                request.done = True
+            self._condition.notify_all()
 
     def _batched(self, chunk: list[_Request]) -> Any:
         """The loops of ``chunk`` (one structure) as one vmapped call: each array zero-padded
@@ -139,7 +151,7 @@ class Batcher:
         members += [(idle, first.operands)] * (self.size - len(chunk))
         flat = [jax.tree_util.tree_flatten(m)[0] for m in members]
         tree = jax.tree_util.tree_structure(members[0])
-        shapes = self._padded(first.shapes, [[np.shape(a) for a in leaves] for leaves in flat])
+        shapes = self._padded(first.structure, [[np.shape(a) for a in leaves] for leaves in flat])
         stacked = jax.tree_util.tree_unflatten(
             tree,
             [
@@ -147,7 +159,7 @@ class Batcher:
                 for k, shape in enumerate(shapes)
             ],
         )
-        key = first.shapes
+        key = first.structure
         if key not in self._compiled:
             loop = LOOPS[first.kind]
 
@@ -194,7 +206,7 @@ def member_bytes(n: int, dim: int, memory: int = 10) -> int:
     vector = 8 * n * dim
     pairs = (8 if dim == 2 else 30) * n * (80 + 16 * dim)
     hierarchy = 2 * 24 * (7 if dim == 2 else 15) * n
-    state = (16 + 3 * memory) * vector + 2 * 8 * 4096
+    state = (16 + 3 * memory) * vector + 2 * 8 * HISTORY
     return 2 * (state + pairs + hierarchy)
 
 

@@ -18,7 +18,7 @@ from ..minimize.cg import C2 as CG_C2
 from ..minimize.fire import ALPHA_START, default_timesteps
 from ..minimize.lbfgs import C2 as LBFGS_C2
 from ..objective import Objective
-from ..precon import REBUILD_FRACTION, ExpPreconditioner
+from ..precon import ExpPreconditioner
 from . import _cells
 from ._batch import run_loop
 from ._loops import (
@@ -38,9 +38,24 @@ from ._loops import (
 from ._pairs import Pairs, block_max, capacity_for, device_pairs, energy_gradient
 from ._precon import Hierarchy, apply
 
-EngineMethod = Literal["fire", "lbfgs", "cg"]
 ENGINE_METHODS: tuple[str, ...] = ("fire", "lbfgs", "cg")
 ENGINE_PRECONDITIONERS: tuple[str, ...] = ("none", "exp")
+
+
+def check_supported(method: str, precon: str) -> None:
+    """Refuse (:class:`InputError`) a base ``method`` and ``precon`` the engine has not:
+    :data:`ENGINE_METHODS` with :data:`ENGINE_PRECONDITIONERS`, FIRE without one."""
+    if (
+        method not in ENGINE_METHODS
+        or precon not in ENGINE_PRECONDITIONERS
+        or (method == "fire" and precon != "none")
+    ):
+        raise InputError(
+            "backend jax: lbfgs, cg, fire, plbfgs or pcg, with precon none or exp (fire "
+            f"without one); got {method} with {precon}"
+        )
+
+
 apply_compiled = jax.jit(apply)
 _STATUS = {
     CONVERGED: (Status.CONVERGED, "converged"),
@@ -69,10 +84,7 @@ class Engine:
         *,
         A: float = 0.0,
     ) -> None:
-        if precon not in ENGINE_PRECONDITIONERS:
-            raise InputError(
-                f"backend jax: precon must be one of {ENGINE_PRECONDITIONERS}, got {precon!r}"
-            )
+        check_supported("lbfgs", precon)
         self.objective = objective
         self.alpha = float(objective.model.alpha)
         inner = objective.packing(objective.x0, internal=True)
@@ -161,17 +173,9 @@ class Engine:
         old = self.hierarchy
         if old is None or _moved_sq(positions, old.reference) > old.reach_sq:
             matrix = self.precon.assemble(positions.ravel())
-            reach = REBUILD_FRACTION * self.precon.r_cut
             capacities = () if old is None else old.capacities
-            self.hierarchy = Hierarchy.of(matrix, positions, reach**2, capacities)
+            self.hierarchy = Hierarchy.of(matrix, positions, self.precon.reach**2, capacities)
         return self.hierarchy
-
-    def energy_gradient(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
-        """The energy and its gradient ``(N d,)`` at ``x`` ``(N d,)``, on the device."""
-        positions = self._positions(x)
-        pairs = self._fresh_pairs(positions)
-        energy, grad = energy_gradient(jnp.asarray(positions), pairs.arrays, self.alpha)
-        return float(energy), np.asarray(grad).ravel()
 
     def minimize(
         self,
@@ -188,13 +192,12 @@ class Engine:
         without the preconditioner; ``lbfgs``; ``cg``, with ``polak`` Polak-Ribiere+) to
         ``max_i |grad_i| <= gtol`` or energy ``<= etol`` within ``maxiter`` iterations; the
         result as the CPU engine's."""
-        if method not in ENGINE_METHODS:
-            raise InputError(f"backend jax: method must be one of {ENGINE_METHODS}, got {method!r}")
+        check_supported(method, "none")
         t0 = time.perf_counter()
         obj = self.objective
         positions = self._positions(x0)
         pairs = self._fresh_pairs(positions)
-        lap = self._fresh_hierarchy(positions)
+        lap = self._fresh_hierarchy(positions) if method != "fire" else None
         x = jnp.asarray(positions)
         energy, grad = energy_gradient(x, pairs.arrays, self.alpha)
         energies, gradients = [float(energy)], [float(block_max(grad))]
@@ -253,7 +256,7 @@ class Engine:
             )
         evaluations = 1
         code = CONVERGED if gradients[-1] <= gtol or energies[-1] <= etol else RUNNING
-        if not np.isfinite(energies[-1]):
+        if not (np.isfinite(energies[-1]) and np.isfinite(gradients[-1])):
             code = NOT_FINITE
         if code == RUNNING and maxiter == 0:
             code = LIMIT
@@ -272,11 +275,11 @@ class Engine:
             gradients.extend(log[1].tolist())
             code = int(state.code)
             state = state._replace(recorded=jnp.int64(0), code=jnp.int64(RUNNING))
-            if code in (FULL, REBUILD, PRECON):
+            if code in (FULL, REBUILD, PRECON):  # whatever stopped it, all is made current
                 positions = self._positions(state.x)
                 pairs = self._fresh_pairs(positions)
-                if code == PRECON:
-                    lap = self._fresh_hierarchy(positions)
+                if lap is not None and self._fresh_hierarchy(positions) is not lap:
+                    lap = self.hierarchy
                     state = _refreshed(state, lap)
                 code = RUNNING
         iterations = int(state.iterations)
@@ -312,12 +315,24 @@ class Engine:
 
 
 def _refreshed(state: Any, lap: Hierarchy | None) -> Any:
-    """``state`` after the preconditioner was rebuilt: ``z`` and L-BFGS's ``P^-1 y`` anew; CG
-    restarts along the new preconditioned gradient."""
+    """``state`` after the preconditioner was rebuilt: ``z`` and L-BFGS's ``P^-1 y`` anew (the
+    pairs cleared where one lost ``y.P^-1 y > 0``, the CPU engine's guard); CG restarts along
+    the new preconditioned gradient from a unit step."""
     assert lap is not None
     z = apply_compiled(state.grad, *lap.arrays)
     py = jax.vmap(apply_compiled, in_axes=(0, None, None))(state.y, *lap.arrays)
-    return state._replace(z=z, py=py, slope=jnp.float64(1.0), yg=jnp.vdot(z, state.grad))
+    used = (jnp.arange(state.s.shape[0]) - state.head) % state.s.shape[0] >= (
+        state.s.shape[0] - state.count
+    )
+    curved = jnp.all(jnp.where(used, jnp.sum(state.y * py, axis=(1, 2)) > 0.0, True))
+    return state._replace(
+        z=z,
+        py=py,
+        count=jnp.where(curved, state.count, 0),
+        slope=jnp.float64(1.0),
+        step=jnp.float64(1.0),
+        yg=jnp.vdot(z, state.grad),
+    )
 
 
 def _moved_sq(positions: NDArray[np.float64], reference: NDArray[np.float64]) -> float:

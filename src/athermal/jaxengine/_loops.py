@@ -9,8 +9,12 @@ that its next trial points could leave the list's reach; :data:`PRECON`: the pre
 due a rebuild). Every point a loop evaluates lies within the list's reach (the caller's skin
 leaves room for one more step: :data:`MARGIN` step caps), so the energy is exact, never over a
 stale list. The equations are :mod:`athermal.minimize`'s (FIRE of ``fire``, L-BFGS of ``lbfgs``
-with ``H0 = gamma P^-1`` and one solve per iteration, CG of ``cg`` with Powell's restart); the
-trajectories agree with the CPU engine's to round-off, which chaotic relaxations amplify.
+with ``H0 = gamma P^-1``, one solve per iteration and its curvature guards, CG of ``cg`` with
+Powell's restart), but for one difference: CG restarts along the new preconditioned gradient
+when the preconditioner is rebuilt (the CPU engine's goes on with the new one). Trajectories
+agree with the CPU engine's to round-off, which chaotic relaxations amplify. The line search's
+round-off is the hooks' (:meth:`athermal.minimize.Hooks.energy_noise`), its step cap
+:meth:`~athermal.minimize.Hooks.step_limit`'s, written here again in JAX.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
+from ..minimize._conjugate import POWELL
 from ..minimize._wolfe import ACCEPTED, GO_ON
 from ..minimize.fire import ALPHA_START, F_ALPHA, F_DEC, F_INC, N_DELAY
 from ._pairs import block_max, energy_gradient
@@ -33,7 +38,6 @@ HISTORY = 4096
 MARGIN = 1.5
 """Step caps one iteration may move a particle (a FIRE step and half its previous one back):
 an iterate farther than ``skin / 2 - MARGIN cap`` from the list's build stops the loop."""
-_POWELL = 0.1  # CG's restart threshold on the overlap of consecutive gradients
 
 
 def _stop(
@@ -213,7 +217,8 @@ def descent_loop(
         """No Wolfe step: a restart along the (preconditioned) gradient, or the end when the
         direction was that already."""
         return st._replace(
-            slope=jnp.float64(1.0),  # CG: not a descent direction, restart
+            slope=jnp.float64(1.0),  # CG: not a descent direction, restart from a unit step
+            step=jnp.float64(1.0),
             count=jnp.int64(0),  # L-BFGS: no pairs, the direction is -z
             restarted=jnp.bool_(True),
             evaluations=st.evaluations + search.evaluations,
@@ -228,7 +233,8 @@ def descent_loop(
         if lbfgs:
             s_new, y_new = x - st.x, grad - st.grad
             sy = jnp.vdot(s_new, y_new)
-            keep = sy > 0.0  # a strong-Wolfe step always has it
+            # a strong-Wolfe step has s.y > 0, an SPD P^-1 y.P^-1 y > 0: the CPU engine's guards
+            keep = (sy > 0.0) & (jnp.vdot(y_new, z - st.z) > 0.0)
             head, m = st.head, st.s.shape[0]
             st = st._replace(
                 s=st.s.at[head].set(jnp.where(keep, s_new, st.s[head])),
@@ -242,7 +248,7 @@ def descent_loop(
             yg = jnp.vdot(z, grad)
             overlap, change = jnp.vdot(z, st.grad), jnp.vdot(z, grad - st.grad)
             beta = jnp.where(
-                jnp.abs(overlap) >= _POWELL * yg,
+                jnp.abs(overlap) >= POWELL * yg,
                 0.0,
                 jnp.maximum(0.0, change / st.yg) if polak else yg / st.yg,
             )

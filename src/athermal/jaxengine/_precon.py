@@ -8,8 +8,9 @@ pyamg's (:func:`pyamg.smoothed_aggregation_solver`, the constant vector as near-
 set up on the host at the preconditioner's rebuilds (:meth:`athermal.precon.ExpPreconditioner
 .assemble`, when a particle has moved ``r_cut / 4``); the cycle runs on the device as sparse
 products over padded coordinate lists. Jacobi before and after, restriction ``P^T`` and an
-exact coarse solve make the cycle symmetric, and the damping (``omega = 2/3``, below
-``2 / rho(D^-1 A)`` for a diagonally dominant ``A``) positive definite: L-BFGS's
+exact coarse solve make the cycle symmetric, and a damping below ``2 / rho(D^-1 A)`` on every
+level (:data:`DAMPING` over Gershgorin's bound on ``rho``; 2/3 on the finest, diagonally dominant
+level) makes each sweep a contraction in the energy norm and the cycle positive definite: L-BFGS's
 ``H0 = gamma P^-1`` and CG's ``P^-1`` are a fixed operator between rebuilds, as the seed's
 Cholesky solve is. Why a V-cycle and not a polynomial in ``L``: ``docs/decisions.md``, section
 "The JAX engine".
@@ -29,8 +30,8 @@ from ._pairs import capacity_for, padded
 
 SWEEPS = 2
 """Damped Jacobi sweeps before and after each coarse correction."""
-OMEGA = 2.0 / 3.0
-"""Jacobi's damping."""
+DAMPING = 4.0 / 3.0
+"""Jacobi's damping on a level is this over Gershgorin's bound on ``rho(D^-1 A)`` there."""
 MAX_COARSE = 64
 """Largest coarsest level, solved by its dense inverse."""
 
@@ -50,7 +51,8 @@ def _sparse(matrix: sp.spmatrix, capacity: int) -> tuple[Any, Any, Any]:
 @dataclass(frozen=True)
 class Hierarchy:
     """The V-cycle's levels on the device: ``levels`` holds, per level but the coarsest, ``A``
-    and ``P`` as padded coordinates, ``omega D^-1`` ``(rows,)`` and the level's padded size;
+    and ``P`` as padded coordinates and the damped ``omega D^-1`` ``(rows,)`` (its length the
+    level's padded size);
     ``coarse_inverse`` the coarsest level's dense inverse (padded with the identity);
     ``capacities`` the padded sizes (reused by the next build, so that the jitted loops compile
     again only when a level outgrows them); built at ``reference`` ``(N, d)``, due a rebuild
@@ -93,8 +95,10 @@ class Hierarchy:
         levels = []
         for k, level in enumerate(ml.levels[:-1]):
             rows, a_nnz, p_nnz = sizes[3 * k : 3 * k + 3]
+            diagonal = level.A.diagonal()
+            bound = float((np.asarray(abs(level.A).sum(axis=1)).ravel() / diagonal).max())
             inverse_diagonal = np.ones(rows)
-            inverse_diagonal[: level.A.shape[0]] = OMEGA / level.A.diagonal()
+            inverse_diagonal[: level.A.shape[0]] = DAMPING / bound / diagonal
             levels.append(
                 (
                     *_sparse(level.A, a_nnz),

@@ -9,7 +9,8 @@ import numpy as np
 
 from .._jit import _jit
 
-_POWELL = 0.1  # restart threshold on the overlap of consecutive gradients
+POWELL = 0.1
+"""Powell's restart threshold on the overlap of consecutive gradients."""
 YG, STEP_GUESS, RESTARTED, SLOPE = range(4)
 """Fields of :func:`~._compiled.iterate`'s ``scalars``: ``y.g`` of the iterate, the next first trial
 step, whether the direction is the (preconditioned) gradient, and the slope ``g.p`` along the
@@ -78,7 +79,7 @@ def beta_of(y_new, grad_new, grad, yg, polak):
         c0 += y_new[p] * (grad_new[p] - grad[p])
         p += 1
     yg_new, overlap, change = (a0 + a1) + (a2 + a3), (b0 + b1) + (b2 + b3), (c0 + c1) + (c2 + c3)
-    if abs(overlap) >= _POWELL * yg_new:
+    if abs(overlap) >= POWELL * yg_new:
         return 0.0, yg_new
     if not polak:
         return yg_new / yg, yg_new
