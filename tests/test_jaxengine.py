@@ -412,3 +412,13 @@ def test_a_batch_that_cannot_run_is_refused_at_the_door(tmp_path, capsys, extra,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and message in err[0]
     assert not out.exists()
+
+
+def test_jam_at_a_pressure_on_the_device(tmp_path, capsys):
+    from athermal.cli import main
+
+    out = tmp_path / "p.gsd"
+    args = ["jam", "--n", "48", "--seed", "2", "-o", str(out), "--json", "--quiet"]
+    assert main([*args, "--backend", "jax", "--pressure", "1e-3"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["pressure"] == pytest.approx(1e-3, rel=2e-3) and report["checks_passed"]

@@ -169,10 +169,10 @@ def _work(args: argparse.Namespace) -> None:
 
 def _jax(args: argparse.Namespace) -> None:
     """``--backend jax``: JAX installed, a method and preconditioner the engine has, no
-    ``--pressure`` (the enthalpy runs on the numba engine)."""
+    ``relax --pressure`` (the enthalpy runs on the numba engine)."""
     if importlib.util.find_spec("jax") is None:
         raise InputError(JAX_MISSING)
-    if getattr(args, "pressure", None) is not None:
+    if args.command == "relax" and args.pressure is not None:
         raise InputError("--backend jax: --pressure runs on the numba engine; drop one of them")
     if args.command != "bench":
         Minimizer(args.method, precon_from(args), backend="jax")  # type: ignore[arg-type]
