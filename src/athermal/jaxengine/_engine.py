@@ -205,7 +205,7 @@ class Engine:
         dt = dt_max = dt_min = 0.0  # FIRE's alone
         if method == "fire":
             dt, dt_max, dt_min = default_timesteps(
-                None, None, None, None, obj.curvature_bound(np.asarray(x0))
+                None, None, None, None, obj.curvature_bound(positions.ravel())
             )
         c2 = LBFGS_C2 if method == "lbfgs" else CG_C2
         settings: tuple[float, ...] = (gtol, etol, maxiter, dt_max, dt_min, obj.max_step, c2)
@@ -289,8 +289,8 @@ class Engine:
             evaluations += int(state.evaluations)
         status, message = _STATUS[code]
         return MinimizeResult(
-            x=np.asarray(state.x).ravel(),
-            jac=np.asarray(state.grad).ravel(),
+            x=np.array(state.x).ravel(),  # writable copies: numba's kernels take them
+            jac=np.array(state.grad).ravel(),
             converged=status is Status.CONVERGED,
             status=status,
             message=message.format(maxiter=maxiter),
