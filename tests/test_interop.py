@@ -76,3 +76,51 @@ def test_freud_sees_the_same_contacts(written):
         if o > 1e-4 * radii.mean()
     }
     assert mine == theirs and len(mine) > 100
+
+
+@pytest.fixture(scope="module")
+def jammed(tmp_path_factory):
+    """A packing at its jamming point (N = 256, epsilon 1e-6: overlaps ~1e-7 of a radius,
+    below float32's resolution of the positions), written with its contact model."""
+    from athermal.protocols import jam
+
+    model = ContactModel(2.0)
+    result = jam(random_packing(256, 0.8, seed=3), model)
+    path = tmp_path_factory.mktemp("jammed") / "jammed.gsd"
+    write_gsd(path, result.packing, model=model)
+    return path, result.packing, model
+
+
+def test_the_bonds_are_the_contacts_at_the_jamming_point(jammed):
+    """Any GSD reader gets athermal's float64 contact list as bonds, with each contact's overlap
+    and force and the rattlers, where the float32 positions lose contacts."""
+    from athermal.observables import rattlers
+
+    path, packing, model = jammed
+    with gsd.hoomd.open(str(path)) as traj:
+        frame = traj[0]
+    contacts = find_contacts(packing, model)
+    assert frame.bonds.N == contacts.i.size > 200 and list(frame.bonds.types) == ["contact"]
+    np.testing.assert_array_equal(frame.bonds.group, np.stack([contacts.i, contacts.j], axis=1))
+    np.testing.assert_array_equal(frame.log["bonds/overlap"], contacts.overlap)
+    np.testing.assert_array_equal(frame.log["bonds/force"], contacts.force_magnitude)
+    expected = rattlers(contacts, packing.n, packing.dim)
+    np.testing.assert_array_equal(frame.log["particles/rattler"], expected.astype(np.uint8))
+    assert 0 < expected.sum() < packing.n // 5
+    # why: the float32 positions of the same frame do not give the same contacts
+    seen = packing.with_positions(
+        np.asarray(frame.particles.position, dtype=np.float64)[:, : packing.dim]
+    )
+    assert find_contacts(seen, model).i.size != contacts.i.size
+
+
+@pytest.mark.filterwarnings("error")
+def test_ovito_reads_the_contact_network(jammed):
+    io = pytest.importorskip("ovito.io")
+    path, packing, model = jammed
+    data = io.import_file(str(path)).compute()
+    contacts = find_contacts(packing, model)
+    assert data.particles.bonds.count == contacts.i.size
+    topology = np.asarray(data.particles.bonds.topology)
+    np.testing.assert_array_equal(topology, np.stack([contacts.i, contacts.j], axis=1))
+    np.testing.assert_allclose(np.asarray(data.particles.bonds["force"]), contacts.force_magnitude)

@@ -87,5 +87,6 @@ def test_protocol_example_jams_compresses_and_shears_with_the_seeds_physics(tmp_
 def test_freud_example_reads_a_file(tmp_path):
     import athermal as at
 
-    at.write_gsd(tmp_path / "jammed.gsd", at.random_packing(64, 0.8, seed=1))
+    packing = at.random_packing(64, 0.9, seed=1)
+    at.write_gsd(tmp_path / "jammed.gsd", packing, model=at.ContactModel(2.0))
     run_example(BLOCKS[2], tmp_path)

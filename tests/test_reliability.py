@@ -16,7 +16,7 @@ from athermal.cli import main
 from athermal.contact import ContactModel
 from athermal.io import count_frames, read_gsd, write_gsd
 from athermal.objective import Objective
-from athermal.packing import Packing, random_packing
+from athermal.packing import random_packing
 from athermal.relaxation import minimize_objective
 
 JAM = ["jam", "--n", "64", "--seed", "1", "--epsilon", "1e-5", "--picture", "none", "--quiet"]
@@ -201,10 +201,16 @@ def count_frames_safe(path: Path) -> int:
 
 
 def test_coincident_particles_are_named(tmp_path, capsys):
+    import gsd.hoomd
+
     p = random_packing(16, 0.5, seed=1)
-    positions = p.positions.copy()
-    positions[7] = positions[3]
-    write_gsd(tmp_path / "c.gsd", Packing(positions, p.radii, p.cell))
+    write_gsd(tmp_path / "ok.gsd", p)
+    with gsd.hoomd.open(str(tmp_path / "ok.gsd")) as traj:
+        frame = traj[0]
+    frame.log["athermal/position"][7] = frame.log["athermal/position"][3]  # another tool's file
+    frame.particles.position[7] = frame.particles.position[3]
+    with gsd.hoomd.open(str(tmp_path / "c.gsd"), "x") as out:
+        out.append(frame)
     source, target = str(tmp_path / "c.gsd"), str(tmp_path / "r.gsd")
     for argv in (["measure", source], ["relax", source, "-o", target]):
         code = main(argv)

@@ -9,6 +9,14 @@ exactly in ``log/athermal/``: ``position`` ``(N, d)`` (as given, not wrapped), `
 ``seed`` (uint64) and the observables of the frame. Reading prefers that copy, so a round trip
 is bit-identical; a file written by another tool is read from the HOOMD chunks.
 
+Float32 positions cannot resolve the contacts of a packing near jamming (overlaps of 1e-8 of a
+diameter): each frame therefore carries its contact network, found in float64 when it is
+written, as HOOMD bonds (``bonds/N``, ``types = ["contact"]``, ``typeid``, ``group`` the
+particle pairs ``(i, j)``), with ``log/bonds/overlap`` and, when a contact model is given,
+``log/bonds/force`` (normal force ``k delta^(alpha-1)``) per bond, and ``log/particles/rattler``
+(1 for a rattler: fewer than ``d + 1`` contacts, removed iteratively), which OVITO imports as
+bond and particle properties.
+
 Every failure raises :class:`~athermal.errors.FileFormatError` (bad arguments:
 :class:`~athermal.errors.InputError`) with a one-line message that names the file.
 """
@@ -30,8 +38,9 @@ from numpy.typing import ArrayLike, NDArray
 from ._validate import float_array
 from .atomic import replacing
 from .cell import Cell
-from .contact import ContactModel
+from .contact import ContactModel, find_contacts
 from .errors import FileFormatError, InputError, one_line
+from .observables import rattlers
 from .packing import Packing
 
 PathLike = str | os.PathLike[str]
@@ -296,8 +305,18 @@ def _hoomd_frame(
     for name, value in (observables or {}).items():
         log[_LOG + _observable_name(name)] = _observable_array(name, value)
 
+    contacts = find_contacts(packing, model or ContactModel())
+    log["bonds/overlap"] = contacts.overlap
+    if model is not None:
+        log["bonds/force"] = contacts.force_magnitude
+    log["particles/rattler"] = rattlers(contacts, packing.n, packing.dim).astype(np.uint8)
+
     typeid, types = packing.types()
     frame = gsd.hoomd.Frame()
+    frame.bonds.N = int(contacts.i.size)
+    frame.bonds.types = ["contact"]
+    frame.bonds.typeid = np.zeros(contacts.i.size, dtype=np.uint32)
+    frame.bonds.group = np.stack([contacts.i, contacts.j], axis=1).astype(np.uint32)
     frame.configuration.step = step
     frame.configuration.dimensions = packing.dim
     frame.configuration.box = packing.cell.to_hoomd()
