@@ -251,6 +251,15 @@ def test_jam_compress_shear_chain_writes_files_tables_and_contract_keys(tmp_path
     assert summary["exponents"]["pressure"]["exponent"] > 0.5
     assert summary["phi_c"] == pytest.approx(float(frame.log["phi_c"]))
 
+    code, out, _ = run(capsys, "moduli", str(traj), "--all-frames", "--json")
+    assert code == 0
+    frames = json.loads(out)["frames"]  # the moduli of each frame are the table's
+    assert [f["frame"] for f in frames] == list(range(5))
+    for row, measured in zip(table, frames, strict=True):
+        assert measured["delta_phi"] == pytest.approx(row["delta_phi"], rel=1e-12)
+        assert measured["bulk_phi"] == pytest.approx(row["bulk_modulus"], rel=1e-10)
+        assert measured["shear"] == pytest.approx(row["shear_modulus"], rel=1e-10, abs=1e-15)
+
     sheared = tmp_path / "s.gsd"
     code, out, _ = run(
         capsys,
@@ -570,3 +579,30 @@ def test_jam_a_polydisperse_packing_and_resume_only_the_same_sizes(tmp_path, cap
     # the trajectory belongs to this size distribution: another width is another run
     code, _, err = run(capsys, *argv, "--polydispersity", "0.2", "--resume")
     assert code == 2 and "another run" in err
+
+
+def test_moduli_by_finite_strain_agree_with_linear_response(tmp_path, capsys):
+    """A packing well above jamming: the quasi-static measurement to 1e-5 gives the linear
+    response's B and G to first order in the strain."""
+    from athermal.contact import ContactModel
+    from athermal.relaxation import relax
+
+    packing = relax(random_packing(128, 0.9, seed=2), ContactModel(2.0), rtol=1e-12).packing
+    write_gsd(tmp_path / "r.gsd", packing, model=ContactModel(2.0))
+    path = str(tmp_path / "r.gsd")
+    code, out, _ = run(capsys, "moduli", path, "--finite-strain", "1e-5", "--json")
+    assert code == 0
+    (row,) = json.loads(out)["frames"]
+    assert row["shear"] > 0.0 and row["bulk"] > row["shear"]
+    assert row["shear_finite"] == pytest.approx(row["shear"], rel=1e-3)
+    assert row["bulk_finite"] == pytest.approx(row["bulk"], rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [(["--finite-strain", "0"], "--finite-strain"), (["--frame", "5"], "frame")],
+)
+def test_moduli_bad_input_is_one_line(tmp_path, capsys, extra, message):
+    write_gsd(tmp_path / "r.gsd", random_packing(32, 0.9, seed=1))
+    code, _, err = run(capsys, "moduli", str(tmp_path / "r.gsd"), *extra)
+    assert code == 2 and message in err and err.count("\n") == 1

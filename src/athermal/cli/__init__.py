@@ -21,6 +21,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], None]] = {
     "measure": basic.measure_file,
     "relax": basic.relax,
     "modes": analysis.modes,
+    "moduli": analysis.moduli,
     "bench": basic.bench,
     "jam": protocols.jam,
     "compress": protocols.compress,

@@ -1,16 +1,23 @@
-"""The analysis subcommand ``modes``: vibrational modes of a configuration."""
+"""The analysis subcommands: ``modes`` (vibrational modes of a configuration) and ``moduli``
+(its bulk and shear moduli)."""
 
 from __future__ import annotations
 
 import argparse
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-from ..io import read_gsd
+from ..contact import ContactModel
+from ..io import count_frames, read_gsd
 from ..modes import plateau_edge, save_modes, vibrational_modes
+from ..moduli import linear_response
+from ..objective import Objective
+from ..packing import Packing
 from ..plot import modes_figure, save
+from ..protocols.finite_strain import finite_strain_bulk, finite_strain_shear
 from .common import model_from
 from .printer import emit
 
@@ -50,3 +57,76 @@ def modes(args: argparse.Namespace) -> None:
         out["figure"] = str(picture)
     out["seconds"] = round(time.perf_counter() - t0, 3)
     emit(out, args.json)
+
+
+FINITE_STEPS = 10
+"""Quasi-static steps of ``moduli --finite-strain S``: strains ``S/10, 2S/10, ..., S`` (the
+paper's 1e-6 to 1e-5 in 10 steps for ``S = 1e-5``)."""
+
+
+def moduli(args: argparse.Namespace) -> None:
+    """``athermal moduli``: bulk and shear moduli of frames by exact linear response (and by
+    quasi-static finite strain on request)."""
+    t0 = time.perf_counter()
+    count = count_frames(args.input)
+    frames = range(count) if args.all_frames else [args.frame]
+    rows = []
+    for k in frames:
+        frame = read_gsd(args.input, frame=k)  # refuses a frame the file has not
+        model = model_from(args, frame.model)
+        packing = frame.packing
+        _warn_unless_relaxed(packing, model, k % count)
+        lr = linear_response(packing, model)
+        row: dict[str, object] = {"frame": k % count, "phi": packing.phi}
+        if "delta_phi" in frame.log:
+            row["delta_phi"] = float(frame.log["delta_phi"])
+        row |= {
+            "pressure": lr.pressure,
+            "bulk": lr.bulk,
+            # along growing radii, as compress's bulk_modulus: B + (alpha - d) p / d
+            "bulk_phi": lr.bulk + (model.alpha - packing.dim) * lr.pressure / packing.dim,
+            "shear": lr.shear,
+            "bulk_affine": lr.bulk_affine,
+            "shear_affine": lr.shear_affine,
+            "n_rattlers": lr.n_rattlers,
+            "residual": lr.residual,
+        }
+        if args.finite_strain is not None:
+            strains = (
+                np.linspace(1.0, FINITE_STEPS, FINITE_STEPS) * args.finite_strain / FINITE_STEPS
+            )
+            shear = finite_strain_shear(packing, model, strains)
+            bulk = finite_strain_bulk(packing, model, -strains)
+            row |= {
+                "shear_finite": shear.modulus,
+                "shear_finite_err": shear.stderr,
+                "bulk_finite": bulk.modulus,
+                "bulk_finite_err": bulk.stderr,
+            }
+        rows.append(row)
+    out = {
+        "input": args.input,
+        "frames": rows,
+        "finite_strain": args.finite_strain,
+        "seconds": round(time.perf_counter() - t0, 3),
+    }
+    emit(out, args.json)
+
+
+UNRELAXED = 1e-6
+""":func:`moduli` warns about a frame whose largest force exceeds this times its mean contact
+force (linear response is exact at an energy minimum only)."""
+
+
+def _warn_unless_relaxed(packing: Packing, model: ContactModel, index: int) -> None:
+    """A warning when frame ``index`` is not at an energy minimum (:data:`UNRELAXED`)."""
+    objective = Objective(packing, model)
+    _, grad = objective(objective.x0)
+    mean = objective.mean_contact_force(objective.x0)
+    largest = objective.max_gradient(grad)
+    if mean > 0.0 and largest > UNRELAXED * mean:
+        warnings.warn(
+            f"frame {index} is not relaxed (largest force {largest / mean:.1e} of the mean "
+            "contact force): its moduli assume an energy minimum; relax it first",
+            stacklevel=2,
+        )

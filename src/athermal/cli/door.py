@@ -92,6 +92,7 @@ def _options(args: argparse.Namespace) -> None:
         "pressure": (lambda v: v > 0, "> 0"),
         "pressure_rtol": (lambda v: 0 < v < 1, "in (0, 1)"),
         "vectors": (lambda v: v >= 0, "an integer >= 0"),
+        "finite_strain": (lambda v: 0 < v <= 1e-2, "in (0, 1e-2]"),
     }
     for name, (ok, rule) in rules.items():
         _number(name, getattr(args, name, None), ok, rule)

@@ -314,6 +314,29 @@ def build() -> argparse.ArgumentParser:
     mod.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     _model(mod, from_file=True)
 
+    mdl = sub.add_parser(
+        "moduli",
+        help="bulk and shear moduli of a configuration",
+        description="Bulk modulus B = -V dp/dV (radii fixed; bulk_phi = phi dp/dphi along "
+        "growing radii, compress's bulk_modulus) and shear modulus G (simple shear x += gamma "
+        "y) of a relaxed frame by exact linear response (the non-affine relaxation solved with "
+        "the sparse Hessian, rattlers removed), with the affine (Born) values; with "
+        "--finite-strain S also from 10 quasi-static strain steps up to S (the paper's "
+        "measurement). Units: docs/quantities.md.",
+    )
+    mdl.add_argument("input", help="GSD file (relaxed packings: jam's output, a trajectory)")
+    which = mdl.add_mutually_exclusive_group()
+    which.add_argument("--frame", type=int, default=-1, help="frame index (-1: the last)")
+    which.add_argument("--all-frames", action="store_true", help="every frame of a trajectory")
+    mdl.add_argument(
+        "--finite-strain",
+        type=float,
+        default=None,
+        metavar="S",
+        help="also measure B and G by quasi-static strain steps up to S (e.g. 1e-5)",
+    )
+    _model(mdl, from_file=True)
+
     rel = sub.add_parser(
         "relax",
         help="one energy minimization",
