@@ -606,3 +606,9 @@ def test_moduli_bad_input_is_one_line(tmp_path, capsys, extra, message):
     write_gsd(tmp_path / "r.gsd", random_packing(32, 0.9, seed=1))
     code, _, err = run(capsys, "moduli", str(tmp_path / "r.gsd"), *extra)
     assert code == 2 and message in err and err.count("\n") == 1
+
+
+def test_moduli_warns_about_a_frame_that_is_not_relaxed(tmp_path, capsys):
+    write_gsd(tmp_path / "r.gsd", random_packing(32, 0.9, seed=1))
+    code, out, err = run(capsys, "moduli", str(tmp_path / "r.gsd"))
+    assert code == 0 and "frame 0 is not relaxed" in err and "bulk" in out

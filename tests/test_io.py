@@ -338,3 +338,16 @@ def test_failed_write_leaves_the_existing_file_and_no_temporary(tmp_path, monkey
 
     monkeypatch.undo()
     assert read_gsd(path).seed == 1
+
+
+def test_a_particle_far_outside_the_cell_is_written_with_its_contacts(tmp_path):
+    from athermal.contact import find_contacts
+
+    packing = random_packing(64, 0.6, dim=3, seed=1)
+    moved = packing.positions.copy()
+    moved[3] += 40.0  # forty cells away: the same packing
+    far = packing.with_positions(moved)
+    write_gsd(tmp_path / "far.gsd", far, model=ContactModel(2.0))
+    assert np.array_equal(read_gsd(tmp_path / "far.gsd").packing.positions, moved)
+    with gsd.hoomd.open(str(tmp_path / "far.gsd")) as traj:
+        assert traj[0].bonds.N == find_contacts(packing, ContactModel(2.0)).i.size > 0

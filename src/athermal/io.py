@@ -15,7 +15,8 @@ written, as HOOMD bonds (``bonds/N``, ``types = ["contact"]``, ``typeid``, ``gro
 particle pairs ``(i, j)``), with ``log/bonds/overlap`` and, when a contact model is given,
 ``log/bonds/force`` (normal force ``k delta^(alpha-1)``) per bond, and ``log/particles/rattler``
 (1 for a rattler: fewer than ``d + 1`` contacts, removed iteratively), which OVITO imports as
-bond and particle properties.
+bond and particle properties. A simulation code that reads bonds as bonded interactions
+(HOOMD-blue's neighbour lists exclude bonded pairs by default) must drop them first.
 
 Every failure raises :class:`~athermal.errors.FileFormatError` (bad arguments:
 :class:`~athermal.errors.InputError`) with a one-line message that names the file.
@@ -305,7 +306,7 @@ def _hoomd_frame(
     for name, value in (observables or {}).items():
         log[_LOG + _observable_name(name)] = _observable_array(name, value)
 
-    contacts = find_contacts(packing, model or ContactModel())
+    contacts = find_contacts(_near_the_cell(packing), model or ContactModel())
     log["bonds/overlap"] = contacts.overlap
     if model is not None:
         log["bonds/force"] = contacts.force_magnitude
@@ -327,6 +328,17 @@ def _hoomd_frame(
     frame.particles.types = types
     frame.log = log
     return frame
+
+
+def _near_the_cell(packing: Packing) -> Packing:
+    """``packing`` with each particle more than one cell away from the cell moved back by
+    whole lattice vectors (the contacts' search takes positions within a few cells); the others
+    unchanged, bit for bit."""
+    cells = np.floor(packing.cell.fractional(packing.positions))
+    far = np.where(np.abs(cells) > 1.0, cells, 0.0)
+    if not far.any():
+        return packing
+    return packing.with_positions(packing.positions - packing.cell.cartesian(far))
 
 
 def _observable_name(name: str) -> str:

@@ -15,6 +15,7 @@ from ..io import count_frames, read_gsd
 from ..modes import plateau_edge, save_modes, vibrational_modes
 from ..moduli import linear_response
 from ..objective import Objective
+from ..observables import measure
 from ..packing import Packing
 from ..plot import modes_figure, save
 from ..protocols.finite_strain import finite_strain_bulk, finite_strain_shear
@@ -69,6 +70,8 @@ def moduli(args: argparse.Namespace) -> None:
     quasi-static finite strain on request)."""
     t0 = time.perf_counter()
     count = count_frames(args.input)
+    if count == 0:
+        read_gsd(args.input)  # its one line: the file has no frames
     frames = range(count) if args.all_frames else [args.frame]
     rows = []
     for k in frames:
@@ -77,14 +80,16 @@ def moduli(args: argparse.Namespace) -> None:
         packing = frame.packing
         _warn_unless_relaxed(packing, model, k % count)
         lr = linear_response(packing, model)
-        row: dict[str, object] = {"frame": k % count, "phi": packing.phi}
-        if "delta_phi" in frame.log:
-            row["delta_phi"] = float(frame.log["delta_phi"])
-        row |= {
-            "pressure": lr.pressure,
+        logged = frame.log.get("delta_phi")
+        p = measure(packing, model).pressure  # every contact, as compress's
+        row: dict[str, object] = {
+            "frame": k % count,
+            "phi": packing.phi,
+            "delta_phi": None if logged is None else float(logged),
+            "pressure": p,
             "bulk": lr.bulk,
             # along growing radii, as compress's bulk_modulus: B + (alpha - d) p / d
-            "bulk_phi": lr.bulk + (model.alpha - packing.dim) * lr.pressure / packing.dim,
+            "bulk_phi": lr.bulk + (model.alpha - packing.dim) * p / packing.dim,
             "shear": lr.shear,
             "bulk_affine": lr.bulk_affine,
             "shear_affine": lr.shear_affine,
