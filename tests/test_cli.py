@@ -612,3 +612,20 @@ def test_moduli_warns_about_a_frame_that_is_not_relaxed(tmp_path, capsys):
     write_gsd(tmp_path / "r.gsd", random_packing(32, 0.9, seed=1))
     code, out, err = run(capsys, "moduli", str(tmp_path / "r.gsd"))
     assert code == 0 and "frame 0 is not relaxed" in err and "bulk" in out
+
+
+def test_figure_titles_name_the_frame_as_the_file_counts_it(tmp_path, capsys, monkeypatch):
+    import athermal.cli.basic as basic
+
+    titles = []
+    real = basic.force_distribution_figure
+
+    def recording(*args, title, **kwargs):
+        titles.append(title)
+        return real(*args, title=title, **kwargs)
+
+    monkeypatch.setattr(basic, "force_distribution_figure", recording)
+    write_gsd(tmp_path / "r.gsd", random_packing(32, 0.9, seed=1))
+    figure = str(tmp_path / "f.png")
+    assert run(capsys, "measure", str(tmp_path / "r.gsd"), "--forces-figure", figure)[0] == 0
+    assert "frame 0:" in titles[0] and "frame -1" not in titles[0]

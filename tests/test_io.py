@@ -351,3 +351,21 @@ def test_a_particle_far_outside_the_cell_is_written_with_its_contacts(tmp_path):
     assert np.array_equal(read_gsd(tmp_path / "far.gsd").packing.positions, moved)
     with gsd.hoomd.open(str(tmp_path / "far.gsd")) as traj:
         assert traj[0].bonds.N == find_contacts(packing, ContactModel(2.0)).i.size > 0
+
+
+def test_files_get_the_umask_permissions_or_keep_those_they_replace(tmp_path):
+    import os
+    import stat
+
+    packing = random_packing(16, 0.5, seed=1)
+    mask = os.umask(0o022)
+    os.umask(mask)
+    expected = 0o666 & ~mask
+    write_gsd(tmp_path / "one.gsd", packing)
+    append_gsd(tmp_path / "traj.gsd", packing)
+    append_gsd(tmp_path / "traj.gsd", packing)
+    for name in ("one.gsd", "traj.gsd"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == expected
+    os.chmod(tmp_path / "one.gsd", 0o600)
+    write_gsd(tmp_path / "one.gsd", packing)
+    assert stat.S_IMODE((tmp_path / "one.gsd").stat().st_mode) == 0o600

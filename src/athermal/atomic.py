@@ -1,16 +1,30 @@
 """Files replaced atomically and durably, the one way every writer of athermal uses: write a
 temporary file beside the target, flush it to disk, rename it onto the target and flush the
-directory. An error (a full disk, a kill) leaves a file already at the target untouched."""
+directory. An error (a full disk, a kill) leaves a file already at the target untouched. The
+file gets the permissions a new file gets under the process's umask, or keeps those of the file
+it replaces (whatever mode the library that wrote the temporary file chose)."""
 
 from __future__ import annotations
 
 import os
+import stat
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 from .errors import FileFormatError, one_line
+
+
+def _umask() -> int:
+    """The process's umask, read once at import (setting it to read it back is not safe once
+    threads write files)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()
 
 
 def _fsync(path: Path) -> None:
@@ -34,6 +48,8 @@ def replacing(
     try:
         yield temporary
         _fsync(temporary)
+        mode = stat.S_IMODE(target.stat().st_mode) if target.exists() else 0o666 & ~_UMASK
+        os.chmod(temporary, mode)
         os.replace(temporary, target)
         if os.name == "posix":
             directory = os.open(target.parent if str(target.parent) else ".", os.O_RDONLY)

@@ -52,7 +52,8 @@ def modes(args: argparse.Namespace) -> None:
     }
     if args.figure != "none" and found.complete:
         picture = Path(args.figure or Path(args.output).with_suffix(".png"))
-        title = f"{Path(args.input).name}, frame {args.frame}: N = {frame.packing.n}"
+        index = args.frame % count_frames(args.input)  # as the file counts them, not -1
+        title = f"{Path(args.input).name}, frame {index}: N = {frame.packing.n}"
         spectra = {f"phi = {frame.packing.phi:.6f}": found}
         save(modes_figure(spectra, title=title, seed=args.seed), picture)
         out["figure"] = str(picture)

@@ -12,7 +12,7 @@ from typing import Any
 from .. import bench as table1
 from ..enthalpy import relax_at_pressure
 from ..forces import ForceStatistics, force_statistics
-from ..io import read_gsd, write_gsd
+from ..io import count_frames, read_gsd, write_gsd
 from ..minimize import MinimizeResult
 from ..objective import Objective
 from ..observables import Observables, measure
@@ -72,13 +72,14 @@ def random(args: argparse.Namespace) -> None:
 def measure_file(args: argparse.Namespace) -> None:
     """``athermal measure``: the observables of one frame and what its writer logged."""
     frame = read_gsd(args.input, frame=args.frame)
+    index = args.frame % count_frames(args.input)  # as the file counts them, not -1
     model = model_from(args, frame.model)
     obs = measure(frame.packing, model)
     forces = force_statistics(frame.packing, model)
     if args.forces_figure is not None:
         figure = force_distribution_figure(
             {f"{forces.contacts} contacts": (forces.counts, forces.overflow)},
-            title=f"{Path(args.input).name}, frame {args.frame}: N = {obs.n}, phi = {obs.phi:.6f}",
+            title=f"{Path(args.input).name}, frame {index}: N = {obs.n}, phi = {obs.phi:.6f}",
         )
         save(figure, args.forces_figure)
     logged = {
@@ -93,7 +94,7 @@ def measure_file(args: argparse.Namespace) -> None:
             **_observables(obs, args.json),
             **_forces(forces, args.json),
             "alpha": model.alpha,
-            "frame": args.frame,
+            "frame": index,
             "log": logged,
         },
         args.json,
