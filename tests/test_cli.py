@@ -629,3 +629,12 @@ def test_figure_titles_name_the_frame_as_the_file_counts_it(tmp_path, capsys, mo
     figure = str(tmp_path / "f.png")
     assert run(capsys, "measure", str(tmp_path / "r.gsd"), "--forces-figure", figure)[0] == 0
     assert "frame 0:" in titles[0] and "frame -1" not in titles[0]
+
+
+def test_plain_output_summarizes_long_lists_and_json_keeps_them():
+    from athermal.cli.printer import LONGEST, lines, plain
+
+    density = [0.5 * k for k in range(100)]
+    text = "\n".join(lines(plain({"density": density, "pair": [1.0, 2.0]})))
+    assert "100 values, 0 ... 49.5, mean 24.75" in text and "pair     1, 2" in text
+    assert len(text.splitlines()) == 2 and len(density) > LONGEST

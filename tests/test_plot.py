@@ -73,7 +73,7 @@ def test_force_widths_capped_and_keyed(jammed: athermal.Packing, tmp_path: Path)
     assert widths.max() == pytest.approx(cap)  # the largest force sets the default scale
     assert widths.min() >= plot.MIN_FORCE_WIDTH
     fmax = athermal.find_contacts(jammed, MODEL).force_magnitude.max()
-    assert any(t.startswith(f"f = {fmax:.2e}") for t in _legend_texts(fig))
+    assert any(f"$f$ = {fmax:.2e}" in t for t in _legend_texts(fig))
     _png(fig, tmp_path / "jammed.png")
 
 
@@ -134,8 +134,10 @@ def test_jamming_figure_panels_share_scale(
     fig = plot.jamming_figure(snapshots, MODEL, title="N = 64")
     assert [ax.get_title() for ax in fig.axes] == ["(a) initial", "(b) unjammed", "(c) jammed"]
     shared = max(athermal.find_contacts(p, MODEL).force_magnitude.max() for _, p in snapshots)
-    keys = [t for t in _legend_texts(fig) if t.startswith("f = ")]
-    assert keys == [rf"f = {shared:.2e} $k\,\ell^{{\alpha-1}}$"]  # one key for the figure
+    keys = [t for t in _legend_texts(fig) if t.startswith("contact force")]
+    assert keys == [  # one key for the figure, saying what the line stands for
+        rf"contact force (width $\propto f$; this line: $f$ = {shared:.2e} $k\,\ell^{{\alpha-1}}$)"
+    ]
     assert len(fig.legends) == 1 and all(ax.get_legend() is None for ax in fig.axes)
     per_panel = [[c for c in ax.collections if c.get_gid() == "forces"] for ax in fig.axes]
     assert not per_panel[1]  # residual forces invisible on the shared scale

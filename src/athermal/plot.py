@@ -160,8 +160,9 @@ def _draw_packing(
 def _packing_key(
     scale: float | None, max_width: float, n_rattlers: int | None
 ) -> tuple[list[Artist], list[str]]:
-    """Legend handles: the force key (``f = scale`` at ``max_width``) and the rattler marker
-    (with its count when ``n_rattlers`` is given)."""
+    """Legend handles: the force key (a line of ``max_width`` for ``f = scale``, saying that
+    each contact's line width is proportional to its force) and the rattler marker (with its
+    count when ``n_rattlers`` is given)."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -169,7 +170,10 @@ def _packing_key(
     labels: list[str] = []
     if scale is not None:
         handles.append(Line2D([], [], color=FORCE_COLOR, linewidth=max_width))
-        labels.append(rf"f = {scale:.2e} $k\,\ell^{{\alpha-1}}$")
+        labels.append(
+            rf"contact force (width $\propto f$; this line: $f$ = {scale:.2e} "
+            rf"$k\,\ell^{{\alpha-1}}$)"
+        )
     if n_rattlers is None or n_rattlers > 0:
         handles.append(Patch(facecolor="white", edgecolor="0.45", linestyle="--"))
         labels.append("rattler" if n_rattlers is None else f"rattler ({n_rattlers})")

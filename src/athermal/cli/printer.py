@@ -15,6 +15,9 @@ DIGITS = 6
 """Significant digits of a printed number (``--json`` keeps every digit)."""
 PHI_DIGITS = 10
 """Significant digits of a packing fraction (``phi``, ``phi_c``, ...): known to 1e-6 or better."""
+LONGEST = 12
+"""A list of more numbers than this prints as its length, range and mean (``--json`` has them
+all): a histogram's 100 bins are not for reading on a terminal."""
 
 
 def _digits(key: str) -> int:
@@ -50,6 +53,12 @@ def number(value: Any, digits: int = DIGITS) -> str:
 
 def _cell(value: Any) -> str:
     if isinstance(value, list) and all(isinstance(v, int | float | None) for v in value):
+        numbers = [v for v in value if v is not None]
+        if len(value) > LONGEST and numbers:
+            return (
+                f"{len(value)} values, {number(min(numbers), 4)} ... {number(max(numbers), 4)}, "
+                f"mean {number(float(np.mean(numbers)), 4)} (--json: all)"
+            )
         return ", ".join(number(v, 4) for v in value)
     return number(value)
 
