@@ -58,8 +58,8 @@ def check_supported(method: str, precon: str) -> None:
 
 apply_compiled = jax.jit(apply)
 PAIRS = {2: 3, 3: 6}
-"""First guess of the device list's pairs per particle, by dimension (the engine's skin:
-measured 2.5-2.7 in 2D at phi = 0.84-0.9, 4.8-5.2 in 3D at 0.64-0.7)."""
+"""First guess of the device list's pairs per particle within the engine's skin, by dimension
+(above what dense packings hold: ``docs/decisions.md``, section "The list on the device")."""
 _CAPACITIES: dict[tuple[Any, ...], tuple[int, int]] = {}
 """The device list's capacities last used for packings of one size and bin layout: the engines
 of a protocol's steps start from them (no overflow to find again, no new compilation)."""
@@ -238,7 +238,6 @@ class Engine:
                 grad=grad,
                 history=history,
                 recorded=zero,
-                gmax=jnp.float64(gradients[0]),
                 code=running,
             )
         else:
@@ -320,10 +319,10 @@ class Engine:
             precon_builds=0 if self.precon is None else self.precon.n_builds,
         )
 
-    def _precon_geometry(self, lap: Hierarchy | None) -> tuple[Any, float]:
-        """The preconditioner's build and reach for the loops (never due without one)."""
+    def _precon_geometry(self, lap: Hierarchy | None) -> tuple[Any, Any]:
+        """The preconditioner's build and reach for the loops (None, None without one)."""
         if lap is None:
-            return np.zeros((self.objective.n, self.objective.dim)), np.inf
+            return None, None
         return lap.reference, lap.reach_sq
 
 

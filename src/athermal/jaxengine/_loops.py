@@ -49,11 +49,15 @@ def _stop(
     geometry: tuple[Any, ...],
     settings: tuple[Any, ...],
 ) -> Any:
-    """The code after an iterate (:data:`RUNNING` when none applies)."""
+    """The code after an iterate (:data:`RUNNING` when none applies); ``geometry`` is the
+    list's build and reach, then the preconditioner's (None, None without one: no pass over
+    the positions for it)."""
     reference, reach_sq, precon_reference, precon_reach_sq = geometry
     gtol, etol, maxiter = settings[:3]
     moved = jnp.max(jnp.sum((x - reference) ** 2, axis=1))
-    drift = jnp.max(jnp.sum((x - precon_reference) ** 2, axis=1))
+    due = False
+    if precon_reference is not None:
+        due = jnp.max(jnp.sum((x - precon_reference) ** 2, axis=1)) > precon_reach_sq
     return jnp.select(
         [
             ~(jnp.isfinite(energy) & jnp.isfinite(gmax)),
@@ -61,7 +65,7 @@ def _stop(
             iterations >= maxiter,
             recorded >= HISTORY,
             moved > reach_sq,
-            drift > precon_reach_sq,
+            due,
         ],
         [NOT_FINITE, CONVERGED, LIMIT, FULL, REBUILD, PRECON],
         RUNNING,
@@ -71,7 +75,7 @@ def _stop(
 class Fire(NamedTuple):
     """FIRE's loop state: iterate ``x``, velocity ``v``, time step ``dt``, mixing ``mix``,
     steps downhill in a row ``n_pos``, steps, energy and gradient, history ``(2, HISTORY)``,
-    entries recorded, largest gradient and the stop code."""
+    entries recorded and the stop code."""
 
     x: Any
     v: Any
@@ -83,7 +87,6 @@ class Fire(NamedTuple):
     grad: Any
     history: Any
     recorded: Any
-    gmax: Any
     code: Any
 
 
@@ -124,7 +127,7 @@ def fire_loop(
         gmax = block_max(grad)
         history = s.history.at[:, s.recorded].set(jnp.stack([energy, gmax]))
         code = _stop(step, s.recorded + 1, energy, gmax, x, geometry, settings)
-        return Fire(x, v, dt, mix, n_pos, step, energy, grad, history, s.recorded + 1, gmax, code)
+        return Fire(x, v, dt, mix, n_pos, step, energy, grad, history, s.recorded + 1, code)
 
     return jax.lax.while_loop(lambda s: s.code == RUNNING, body, state)
 

@@ -107,7 +107,8 @@ def _overlaps(x: Any, first: Any, second: Any, shift: Any, radius_sum: Any) -> t
 def energy_gradient(x: Any, pairs: tuple[Any, ...], alpha: float) -> tuple[Any, Any]:
     """The contact energy ``sum_c k delta^alpha / alpha`` and its gradient ``(N, d)`` at
     positions ``x`` ``(N, d)`` over the padded pairs (:attr:`Pairs.arrays`); ``alpha`` static
-    (a traced exponent is a general power, twice as slow)."""
+    (a traced one is a general power: ``docs/decisions.md``, "The contact exponent is
+    static")."""
     first, second, shift, radius_sum, stiffness = pairs
     sep, length, overlap = _overlaps(x, first, second, shift, radius_sum)
     energy = jnp.sum(stiffness * overlap**alpha) / alpha
