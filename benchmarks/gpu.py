@@ -115,7 +115,7 @@ def jaxmd_fire(start: Packing, model: ContactModel, gtol: float) -> dict[str, An
 
 JAX_METHODS = ("fire", "plbfgs")
 """The JAX engine's methods this benchmark times: FIRE (jax-md's method) and P-L-BFGS (the
-seed's, with the V-cycle preconditioner on the device)."""
+paper's, with the V-cycle preconditioner on the device)."""
 
 
 def timed(start: Packing, model: ContactModel, method: str) -> tuple[Any, float]:

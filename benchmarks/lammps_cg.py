@@ -1,4 +1,4 @@
-"""B1 against LAMMPS: the seed's Table cases minimized by LAMMPS ``min_style cg``.
+"""B1 against LAMMPS: the paper's Table cases minimized by LAMMPS ``min_style cg``.
 
 Each case (:func:`athermal.bench.make_case`, N = 4096, alpha = 2 and 2.5) is set up in LAMMPS,
 in-process through the ``lammps`` Python module (serial, ``-screen none -log none``), and

@@ -2,7 +2,7 @@
 Newton pays among the protocols.
 
 ``ab``: for jammed packings of the iteration experiment (``--cache``, realizations 0 .. K-1 of
-root seed 0) compressed to each Delta phi, the seed's first ``--steps`` simple-shear steps of
+root seed 0) compressed to each Delta phi, the paper's first ``--steps`` simple-shear steps of
 1e-6, each started from its linear-response prediction; every step is relaxed twice from the
 same start, by Newton-CG as it is (``follow``) and with
 :func:`athermal.minimize.newton.follow_negative_curvature` replaced by "stay" (``plain``, the
@@ -136,7 +136,7 @@ def run_ab(args: argparse.Namespace) -> None:
         f"# Newton-CG with and without following negative curvature: 2D, N = {args.n}, "
         f"alpha = 2, realizations 0-{args.seeds - 1} of root seed 0",
         "",
-        f"The seed's first {args.steps} simple-shear steps of 1e-6 at each Delta phi, each "
+        f"The paper's first {args.steps} simple-shear steps of 1e-6 at each Delta phi, each "
         "started from its linear-response prediction and relaxed to 1e-9 of the mean contact "
         "force twice from the same start: `plain` (Newton-CG before "
         "`follow_negative_curvature`, whose result the next step starts from) and `follow` "

@@ -6,10 +6,10 @@ For a jammed packing of the iteration experiment (``--cache``) compressed to eac
 1. one simple-shear step of strain ``gamma`` from the relaxed state, started affinely and
    relaxed by Newton-CG: the contacts of the relaxed start, of the affinely sheared state and
    of the relaxed end, the contacts that differ between start and end, and Newton's outer
-   iterations, factorizations and CG iterations; for the seed's step (1e-6) and for steps far
+   iterations, factorizations and CG iterations; for the paper's step (1e-6) and for steps far
    below Delta phi, where the contact network holds;
-2. ``finite_strain_shear`` over the seed's first ``--steps`` strains with each start
-   (``affine``, the seed's, and ``linear``, the linear-response prediction) and each of
+2. ``finite_strain_shear`` over the paper's first ``--steps`` strains with each start
+   (``affine``, the paper's, and ``linear``, the linear-response prediction) and each of
    Newton-CG and P-L-BFGS: iterations and wall milliseconds per step (the prediction's solve
    included), and G.
 
@@ -126,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             for r in steps
         ),
         "",
-        f"## 2. `finite_strain_shear`, the seed's first {args.steps} steps (1e-6 each)",
+        f"## 2. `finite_strain_shear`, the paper's first {args.steps} steps (1e-6 each)",
         "",
         "Mean iterations and wall milliseconds per step (one core; the linear start's solve "
         "included), and the fitted G ± its standard error.",

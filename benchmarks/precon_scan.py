@@ -1,8 +1,8 @@
 """B1 (supplement): how far the Exp preconditioner's parameters move P-L-BFGS's iteration count.
 
-On the seed's Table Cases 1 and 2 (N = 4096, alpha = 2 and 2.5, criterion 1e-9 F0), P-L-BFGS
-runs with one parameter changed at a time from the seed's defaults (sine-test ``mu``,
-``C_stab = 0.1``, ``r_cut = 2.2 r_max``, ``A = 0``, memory 10): ``mu`` scaled, the seed's
+On the paper's Table Cases 1 and 2 (N = 4096, alpha = 2 and 2.5, criterion 1e-9 F0), P-L-BFGS
+runs with one parameter changed at a time from the paper's defaults (sine-test ``mu``,
+``C_stab = 0.1``, ``r_cut = 2.2 r_max``, ``A = 0``, memory 10): ``mu`` scaled, the paper's
 literal, non-periodic perturbation ``M sin(x / L)`` for ``mu``, ``C_stab``, ``r_cut``, ``A``,
 the memory, and the contact-stiffness preconditioner with its Exp stabilization scaled down.
 Iteration counts are deterministic; the ratio is against plain L-BFGS with the same memory.
@@ -35,7 +35,7 @@ from benchmarks.machine import ROOT, pin, save
 
 @dataclass(frozen=True)
 class Variant:
-    """One change from the seed's defaults (``mu_scale`` multiplies the sine-test ``mu``)."""
+    """One change from the paper's defaults (``mu_scale`` multiplies the sine-test ``mu``)."""
 
     label: str
     precon: str = "exp"
@@ -71,7 +71,7 @@ QUICK = ("L-BFGS (m = 10)", "P-L-BFGS, seed's defaults", "mu x 3", "C_stab = 0.0
 
 def sine_mu(start: Packing, model: ContactModel, variant: Variant) -> float:
     """The sine-test ``mu`` of ``variant``'s matrix: periodic ``M sin(2 pi s)`` (athermal's),
-    or with ``literal_mu`` the seed's ``M sin(x / L)`` on wrapped positions."""
+    or with ``literal_mu`` the paper's ``M sin(x / L)`` on wrapped positions."""
     objective = Objective(start, model)
     r_cut = variant.r_cut * float(start.radii.max())
     precon = ExpPreconditioner(objective, A=variant.A, r_cut=r_cut, c_stab=variant.c_stab)

@@ -1,4 +1,4 @@
-"""Packings at fixed pressure (issue "beyond the seed"): from one jammed start per seed, the
+"""Packings at fixed pressure (issue "beyond the paper"): from one jammed start per seed, the
 packings at 7 pressures 1e-7 ... 1e-1, and at each Delta phi = phi - phi_c, z - z_iso, the
 moduli by linear response, the vibrational spectrum (zero and negative modes, omega*) and the
 force network; pooled fits of the scaling laws and the D(omega) figure of three pressures.

@@ -1,4 +1,4 @@
-"""B3 and the seed's physics checks: jamming, compression scaling, moduli, iteration counts.
+"""B3 and the paper's physics checks: jamming, compression scaling, moduli, iteration counts.
 
 The experiments are the library's (:mod:`athermal.experiments`: ``jam_packing``, ``compress``,
 ``iteration_counts``); this script runs them over realizations and writes the results. Each
@@ -12,7 +12,7 @@ experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summar
     python -m benchmarks.studies phic --n 4096 --solver direct          # ... exact factor
     python -m benchmarks.studies scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
     python -m benchmarks.studies scaling --alpha 2 --n 1024 --refit     # ... its fits again
-    python -m benchmarks.studies iterations --n 1024 --seeds 10         # seed's iteration figure
+    python -m benchmarks.studies iterations --n 1024 --seeds 10         # the paper's iteration figure
     python -m benchmarks.studies iterations --n 4096 --seeds 2 --steps 3  # ... larger, shorter
     python -m benchmarks.studies timing --n 4096                        # per minimizer
 
@@ -425,7 +425,7 @@ def run_iterations(args: argparse.Namespace) -> None:
         f"{args.seeds} realizations of root seed {args.root_seed}",
         "",
         f"Each entry: mean ± sd over realizations of the mean over the {len(spec.strains)} "
-        f"simple-shear steps {min(spec.strains):g} ... {max(spec.strains):g} (the seed's "
+        f"simple-shear steps {min(spec.strains):g} ... {max(spec.strains):g} (the paper's "
         "protocol, `athermal.experiments.iteration_counts`), tolerance 1e-9 of the mean contact "
         f"force (floored at round-off); each relaxation starts {START_TEXT[spec.start]}.",
         "",
@@ -465,7 +465,7 @@ def run_iterations(args: argparse.Namespace) -> None:
 
 
 def iterations_png(results: Path, title: str) -> Path:
-    """The seed-style figure of an iterations result file: ``<same name>.png`` beside it."""
+    """The paper-style figure of an iterations result file: ``<same name>.png`` beside it."""
     data = json.loads(results.read_text())
     deltas = data["delta_phi"]
     counts = {name: [per[f"{d:.0e}"] for d in deltas] for name, per in data["iterations"].items()}
@@ -474,7 +474,7 @@ def iterations_png(results: Path, title: str) -> Path:
 
 
 START_TEXT = {
-    "affine": "from the affinely sheared state (the seed's)",
+    "affine": "from the affinely sheared state (the paper's)",
     "linear": "from the affinely sheared state moved by the linear-response displacement "
     "(`start='linear'`; its solve counts in the wall time, not in the iterations)",
 }
@@ -631,7 +631,7 @@ def main(argv: list[str] | None = None) -> int:
         "--start",
         default="affine",
         choices=("affine", "linear"),
-        help="where each relaxation starts (default affine, the seed's; results get _linear)",
+        help="where each relaxation starts (default affine, the paper's; results get _linear)",
     )
     timing = sub.add_parser("timing")
     timing.add_argument("--n", type=int, default=4096)

@@ -1,4 +1,4 @@
-"""B1: the seed's Table — minimizers and preconditioners on the three benchmark cases.
+"""B1: the paper's Table — minimizers and preconditioners on the three benchmark cases.
 
 The cases and methods live in :mod:`athermal.bench` (also run by ``athermal bench``); this script
 adds what a results file needs: the machine, the commit, one pinned core and atomic writes
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.lammps:
         rows += lammps_rows(args.cases, args.alphas, args.repeats)
         rows.sort(key=lambda r: (r.alpha, r.case))
-    header = ["# B1 — the seed's Table (N = 4096, phi = 0.8438)", ""]
+    header = ["# B1 — the paper's Table (N = 4096, phi = 0.8438)", ""]
     header += [f"- {key}: {value}" for key, value in META.items()]
     text = "\n".join(header) + "\n\n" + markdown(rows) + "\n" + comparison(rows)
     save(args.output_dir, "table1", {"meta": dict(META), "rows": [asdict(r) for r in rows]}, text)

@@ -16,6 +16,6 @@ DATA = Path(str(resources.files("athermal.data")))  # reference configurations, 
 
 @pytest.fixture(scope="session")
 def jammed_packing_2d() -> tuple[Packing, dict[str, np.ndarray]]:
-    """The seed's Table configuration (N = 4096, alpha = 2) and its reference values."""
+    """The paper's Table configuration (N = 4096, alpha = 2) and its reference values."""
     ref = dict(np.load(DATA / "table1_N4096_alpha2.npz"))
     return Packing(ref["positions"], ref["radii"], Cell.box(ref["box"])), ref

@@ -213,7 +213,7 @@ def test_the_device_preconditioner_is_a_fixed_spd_operator(n):
 
 @pytest.fixture(scope="module")
 def table_like():
-    """The seed's Case 1 at N = 1024: a relaxed packing grown by 1 + 5e-5, and the CPU
+    """The paper's Case 1 at N = 1024: a relaxed packing grown by 1 + 5e-5, and the CPU
     engine's P-L-BFGS minimum to 1e-9 F0."""
     model = ContactModel(2.0)
     relaxed = relax(random_packing(1024, 0.86, seed=1), model, rtol=1e-12).packing

@@ -72,7 +72,7 @@ def test_methods_reach_the_known_minimum(method, fun, limit):
 
 
 def test_lbfgs_with_identity_preconditioner_equals_plain_lbfgs_when_b0_is_identity():
-    """On a function with unit Hessian the seed's scaling s.y / y.y is exactly 1."""
+    """On a function with unit Hessian the paper's scaling s.y / y.y is exactly 1."""
     start = np.linspace(-2.0, 3.0, 12)
     plain = lbfgs(two_component(unit_quadratic, start), start, gtol=1e-12)
     pre = lbfgs(two_component(unit_quadratic, start), start, gtol=1e-12, precon=Identity())
@@ -165,7 +165,7 @@ def test_two_disks_relax_to_touching():
 
 @pytest.mark.parametrize("seed", [1, 2])
 def test_preconditioners_cut_iterations_on_a_compressed_relaxed_packing(seed):
-    """The seed's Case 1 in small: a relaxed packing with radii grown by 5e-5."""
+    """The paper's Case 1 in small: a relaxed packing with radii grown by 5e-5."""
     relaxed = minimize_objective(
         Objective(random_packing(256, 0.86, seed=seed), ContactModel(2.0)), "lbfgs", rtol=1e-12
     ).packing

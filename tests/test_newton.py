@@ -136,7 +136,7 @@ def test_small_packings_relax_to_a_tight_tolerance(alpha, dim):
 
 
 def test_a_table_case_converges_in_few_iterations():
-    """The seed's Case 3 (alpha = 2, N = 4096): L-BFGS needs ~1560 iterations."""
+    """The paper's Case 3 (alpha = 2, N = 4096): L-BFGS needs ~1560 iterations."""
     alpha = 2.0
     start = make_case(reference_packing(alpha), 3)
     res = minimize_objective(Objective(start, ContactModel(alpha)), "newton", rtol=1e-9)

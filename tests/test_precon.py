@@ -121,7 +121,7 @@ def test_weights_depend_on_A():
     steep.update(obj.x0)
     off_flat = flat.matrix.toarray()[~np.eye(obj.n, dtype=bool)]
     off_steep = steep.matrix.toarray()[~np.eye(obj.n, dtype=bool)]
-    assert set(np.unique(off_flat)) == {-1.0, 0.0}  # the seed's stabilized adjacency matrix
+    assert set(np.unique(off_flat)) == {-1.0, 0.0}  # the paper's stabilized adjacency matrix
     np.testing.assert_array_equal(off_flat != 0.0, off_steep != 0.0)
     assert np.ptp(off_steep[off_steep != 0.0]) > 1.0  # near pairs weigh more than far ones
     v = rng_vector(obj, 2)

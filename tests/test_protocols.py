@@ -35,7 +35,7 @@ def jammed_256():
 
 
 def test_jamming_grows_by_dphi_then_ends_one_epsilon_above_its_own_unjammed_state():
-    """The seed's growth, then a bracket that ends with the jammed packing relaxed from the
+    """The paper's growth, then a bracket that ends with the jammed packing relaxed from the
     unjammed configuration at phi_low grown by at most epsilon (final -> its trial -> phi_low)."""
     steps = list(jamming_steps(random_packing(64, 0.8, seed=1), ContactModel(2.0), epsilon=1e-5))
     assert steps[0].phase == "start" and not steps[0].jammed
@@ -142,7 +142,7 @@ def test_next_trial_follows_the_scheme(protocol):
     assert plan(h) == ("increment", pytest.approx(0.801 + 4 * eps), 3)
     h.append(_step(4, "increment", 3, 0.801 + 4 * eps, False, 0.801 + 4 * eps, inf))
     assert plan(h) == ("increment", pytest.approx(0.801 + 12 * eps), 4)
-    # a jammed trial leaves the seed's C_ref where it was
+    # a jammed trial leaves the paper's C_ref where it was
     h = [
         _step(0, "start", -1, 0.8, False, 0.8, inf),
         _step(1, "increment", 0, 0.801, True, 0.8, 0.801),
@@ -217,7 +217,7 @@ def test_jamming_is_reproducible():
 
 @pytest.mark.slow
 def test_compression_scaling_exponents_small(jammed_256):
-    """Small form of the seed's scaling check (N = 256): p ~ Dphi^1 for one packing; z - z_iso
+    """Small form of the paper's scaling check (N = 256): p ~ Dphi^1 for one packing; z - z_iso
     ~ Dphi^0.5 and G ~ Dphi^0.5 pooled over three packings (all their points in one fit, as the
     seed's figures average realizations), each fit over the points its rules take
     (:func:`~athermal.protocols.compress.fit_points`: at N = 256 z - z_iso counts 10 contacts

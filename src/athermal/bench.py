@@ -1,4 +1,4 @@
-"""The seed's Table benchmark (docs/benchmarks.md, B1): minimizers and preconditioners, three cases.
+"""The paper's Table benchmark (docs/benchmarks.md, B1): minimizers and preconditioners, three cases.
 
 Start configurations ship with the package (``athermal/data``, see its README): N = 4096
 bidisperse disks at phi = 0.8438, relaxed, alpha = 2 and 2.5. The cases:
@@ -55,15 +55,15 @@ LABELS = (*(m.name for m in METHODS), SCIPY)
 RENAMED = {"P-L-BFGS (A=0)": "P-L-BFGS"}
 """Labels of earlier versions, still accepted (with a DeprecationWarning)."""
 QUICK_LABELS = ("L-BFGS", "P-L-BFGS", SCIPY)
-SEED_ITERATIONS = {  # the seed's own Table (alpha = 2.5, its hardware), cases 1 / 2 / 3
+PAPER_ITERATIONS = {  # the paper's own Table (alpha = 2.5, its hardware), cases 1 / 2 / 3
     "L-BFGS": (2003, 2749, 602),
     "P-L-BFGS": (705, 986, 380),
     "P-L-BFGS (A=3)": (813, 1351, 432),
     "FR-CG": (4574, 7306, 940),
     "P-FR-CG": (1101, 2013, 528),
 }
-SEED_ALPHA = 2.5
-"""The contact exponent of the seed's Table."""
+PAPER_ALPHA = 2.5
+"""The contact exponent of the paper's Table."""
 
 
 @dataclass(frozen=True)
@@ -221,9 +221,9 @@ def table1(
 
 def markdown(rows: Sequence[Row]) -> str:
     """The rows as a markdown table: seconds relative to scipy's in the same run (where it
-    ran) and, at the seed's alpha, the seed's own iteration counts."""
+    ran) and, at the paper's alpha, the paper's own iteration counts."""
     ref = {(r.alpha, r.case): r.seconds for r in rows if r.method == SCIPY}
-    seed_column = any(r.alpha == SEED_ALPHA for r in rows)
+    seed_column = any(r.alpha == PAPER_ALPHA for r in rows)
     header = "| alpha | case | method | iterations | evaluations | seconds |"
     rule = "|---:|---:|---|---:|---:|---:|"
     if ref:
@@ -231,7 +231,7 @@ def markdown(rows: Sequence[Row]) -> str:
     header += " final energy | max\\|grad\\| / F0 | converged |"
     rule += "---:|---:|---|"
     if seed_column:
-        header, rule = header + f" seed's iterations (alpha {SEED_ALPHA:g}) |", rule + "---:|"
+        header, rule = header + f" paper's iterations (alpha {PAPER_ALPHA:g}) |", rule + "---:|"
     lines = [header, rule]
     for r in rows:
         cells = [
@@ -247,7 +247,7 @@ def markdown(rows: Sequence[Row]) -> str:
             cells.append(f"{r.seconds / base:.2f}" if base else "-")
         cells += [f"{r.energy:.10e}", f"{r.grad_over_f0:.2e}", "yes" if r.converged else "no"]
         if seed_column:
-            seed = SEED_ITERATIONS.get(r.method)
-            cells.append(str(seed[r.case - 1]) if seed and r.alpha == SEED_ALPHA else "-")
+            seed = PAPER_ITERATIONS.get(r.method)
+            cells.append(str(seed[r.case - 1]) if seed and r.alpha == PAPER_ALPHA else "-")
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"

@@ -3,7 +3,7 @@
 The cell is upper triangular, as in HOOMD-blue: ``a1 = (Lx, 0, 0)``, ``a2 = (xy Ly, Ly, 0)``,
 ``a3 = (xz Lz, yz Lz, Lz)``. Fractional coordinates ``s = h^-1 x`` of wrapped positions lie in
 ``[-1/2, 1/2)`` (the cell is centred on the origin, HOOMD's convention). Lengths are in the
-user's length unit (the seed's unit cell: ``Lx = Ly = 1``).
+user's length unit (the paper's unit cell: ``Lx = Ly = 1``).
 """
 
 from __future__ import annotations

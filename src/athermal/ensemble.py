@@ -65,7 +65,7 @@ class EnsembleSpec:
 
     ``protocol``: ``jam`` (jamming by growth and bisection, ``jam``), ``compress`` (jam, then
     compress as ``compress`` says and fit the scaling laws), ``shear`` (jam, compress, then
-    shear from the state nearest ``shear.delta_phi``) or ``iterations`` (jam, then the seed's
+    shear from the state nearest ``shear.delta_phi``) or ``iterations`` (jam, then the paper's
     iteration experiment, ``iterations``).
     """
 

@@ -1,5 +1,5 @@
 """The studies built from the protocols, written once: jam -> compress -> fits, shear at a
-chosen ``Delta phi``, the seed's iteration experiment and its convergence figure.
+chosen ``Delta phi``, the paper's iteration experiment and its convergence figure.
 
 ``athermal paper``, ``athermal ensemble`` and the scripts in ``benchmarks/`` call these. Specs
 are frozen dataclasses (their fields are a run's identity); results are frozen dataclasses.
@@ -56,7 +56,7 @@ ITERATION_METHODS = (
     Minimizer("fire"),
     Minimizer("newton"),
 )
-"""The minimizers of the seed's iteration experiment (plus the contact-stiffness one, FIRE and
+"""The minimizers of the paper's iteration experiment (plus the contact-stiffness one, FIRE and
 the truncated Newton method)."""
 CONVERGENCE_METHODS = (
     Minimizer("lbfgs"),
@@ -66,7 +66,7 @@ CONVERGENCE_METHODS = (
     Minimizer("fire"),
     Minimizer("lbfgs", "contact"),
 )
-"""The minimizers of the seed's convergence figure (plus FIRE and the contact one)."""
+"""The minimizers of the paper's convergence figure (plus FIRE and the contact one)."""
 
 
 def child_seeds(root: int, count: int) -> list[int]:
@@ -246,9 +246,9 @@ def shear(compression: Compression, model: ContactModel, spec: ShearSpec) -> She
 
 @dataclass(frozen=True)
 class IterationSpec:
-    """The seed's iteration experiment: at each ``delta_phis`` above jamming, the mean number
+    """The paper's iteration experiment: at each ``delta_phis`` above jamming, the mean number
     of iterations of the quasi-static simple-shear steps ``strains`` by each of ``methods``,
-    each relaxation starting from the affinely sheared state (``start``, the seed's; or
+    each relaxation starting from the affinely sheared state (``start``, the paper's; or
     ``"linear"``, see :func:`~athermal.protocols.finite_strain_shear`)."""
 
     delta_phis: tuple[float, ...] = tuple(float(d) for d in log_spaced(1e-7, 1e-1, 1))
@@ -301,7 +301,7 @@ def iteration_counts(
 
 @dataclass(frozen=True)
 class ConvergenceSpec:
-    """The seed's convergence figure: one relaxation after growing the radii of a jammed
+    """The paper's convergence figure: one relaxation after growing the radii of a jammed
     packing by ``1 + growth``, to ``rtol`` x the mean contact force, by each of ``methods``."""
 
     growth: float = 5e-5

@@ -21,7 +21,7 @@ simple shear ``D1 = e0 e1^T`` gives ``G = E''_rel / V = -d sigma_01 / d gamma``;
 compression at fixed radii ``D = (1 + e) I`` gives ``p(e) = -(1+e)^(1-d) dE/de / (d V0)`` and so
 ``B = -V dp/dV = E''_rel / (d^2 V) + (d - 1) p / d``.
 
-The seed's finite-strain measurement (small strain steps, each relaxed) lives with the protocols
+The paper's finite-strain measurement (small strain steps, each relaxed) lives with the protocols
 (:mod:`athermal.protocols.finite_strain`).
 
 Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x length^(alpha-d).

@@ -30,14 +30,14 @@ def pressure(sigma: NDArray[np.float64]) -> float:
 
 
 def shear_stress(sigma: NDArray[np.float64]) -> float:
-    """``-sigma[0, 1]``, the seed's shear stress for simple shear ``x += gamma y``."""
+    """``-sigma[0, 1]``, the paper's shear stress for simple shear ``x += gamma y``."""
     return float(-sigma[0, 1])
 
 
 def fabric(contacts: Contacts, radii: NDArray[np.float64], cell: Cell) -> NDArray[np.float64]:
     """Fabric tensor ``(1/V) sum_c (v_i + v_j) n_c (x) n_c`` ``(d, d)``, dimensionless.
 
-    ``v`` is the particle area ``pi r^2`` in 2D (the seed's formula) and volume in 3D.
+    ``v`` is the particle area ``pi r^2`` in 2D (the paper's formula) and volume in 3D.
     """
     vol = particle_volumes(radii, cell.dim)
     weight = vol[contacts.i] + vol[contacts.j]
@@ -51,7 +51,7 @@ def isotropic_part(tensor: NDArray[np.float64]) -> float:
 
 
 def deviatoric_part(tensor: NDArray[np.float64]) -> float:
-    """``(lambda_max - lambda_min) / 2``: the seed's ``|lambda_1 - lambda_2| / 2`` in 2D."""
+    """``(lambda_max - lambda_min) / 2``: the paper's ``|lambda_1 - lambda_2| / 2`` in 2D."""
     eig = np.linalg.eigvalsh(tensor)
     return float((eig[-1] - eig[0]) / 2.0)
 

@@ -1,9 +1,9 @@
-"""``athermal paper``: the seed paper's figures, Table and scaling exponents, from one command.
+"""``athermal paper``: the paper's figures, Table and scaling exponents, from one command.
 
 :func:`reproduce` runs, on fresh seeded packings (``quick``: N = 1024 and a short Table;
-``full``: the seed's N = 4096, all Table methods, more points and realizations):
+``full``: the paper's N = 4096, all Table methods, more points and realizations):
 
-1. the jamming protocol (P-L-BFGS, the seed's method of choice): one figure with the initial,
+1. the jamming protocol (P-L-BFGS, the paper's method of choice): one figure with the initial,
    an intermediate and the jammed configuration (disks to scale, contact forces as lines on
    one absolute scale, rattlers marked);
 2. one relaxation after growing the jammed packing's radii by ``1 + 5e-5``, by L-BFGS,
@@ -19,7 +19,7 @@
 6. the Table (:mod:`athermal.bench`),
 
 and writes PNG figures and ``report.md`` (figures with captions, exponents with their fit
-windows beside the seed's values, warnings when a fit failed or a check did not pass, the
+windows beside the paper's values, warnings when a fit failed or a check did not pass, the
 Table) into the output directory. Every study is an :mod:`athermal.experiments` call.
 """
 
@@ -62,8 +62,8 @@ from .protocols.compress import (
 )
 from .relaxation import RTOL
 
-SEED_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
-"""The exponents the seed reports (approximately) for alpha = 2 and 2.5."""
+PAPER_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
+"""The exponents the paper reports (approximately) for alpha = 2 and 2.5."""
 SHEAR_INCREMENTS = (4e-4, 2e-4, 1e-4)
 STRESS_UNIT = r"$k\,\ell^{\alpha-2}$"
 """Unit of stresses and moduli in 2D: stiffness k times the length unit to the alpha - 2."""
@@ -103,6 +103,7 @@ QUICK = Settings(
     shear_delta_phi=1e-2,
     scaling_packings=4,
 )
+"""The default run (``athermal paper``, ``--quick``): N = 1024, the Table at alpha = 2, minutes."""
 FULL = Settings(
     n=4096,
     per_decade=4,
@@ -115,6 +116,7 @@ FULL = Settings(
     shear_delta_phi=1e-2,
     scaling_packings=1,
 )
+"""``athermal paper --full``: the paper's N = 4096, every Table method and alpha, hours."""
 
 
 @dataclass(frozen=True)
@@ -135,7 +137,7 @@ def reproduce(
     seed: int = 0,
     progress: Callable[[str], None] | None = None,
 ) -> PaperResult:
-    """Run every experiment of the seed paper and write its figures and report to ``directory``.
+    """Run every experiment of the paper and write its figures and report to ``directory``.
 
     The main packing has the seed of realization 0 of root ``seed``, the iteration
     experiment's realizations those of 1 ... (:func:`~athermal.experiments.child_seeds`).
@@ -204,7 +206,7 @@ def reproduce(
     used: dict[str, dict[str, list[bool]]] = {key: {} for key in QUANTITIES}
     references: dict[str, dict[str, float]] = {key: {} for key in QUANTITIES}
     compress_spec = CompressSpec(per_decade=settings.per_decade)
-    # the scaling laws pooled over packings, as the seed's figures average realizations: one
+    # the scaling laws pooled over packings, as the paper's figures average realizations: one
     # packing of N = 1024 resolves z - z_iso over three decades, where single packings'
     # exponents scatter by 0.02-0.03 (docs/jamming.md)
     starts = [(jammed.packing, phi_c)]
@@ -232,7 +234,7 @@ def reproduce(
         step_rows = [[s.row() for s in one.steps] for one in pooled]
         exponents[f"{alpha:g}"] = {}
         for key, column in zip(QUANTITIES, FIT_LAWS, strict=True):
-            references[key][label] = SEED_EXPONENTS[key][alpha]
+            references[key][label] = PAPER_EXPONENTS[key][alpha]
             used[key][label] = [
                 why is None
                 for rows in step_rows
@@ -260,7 +262,7 @@ def reproduce(
                 "delta_phi_min": fit.x_min,
                 "delta_phi_max": fit.x_max,
                 "left_out": left_out,
-                "seed": SEED_EXPONENTS[key][alpha],
+                "paper": PAPER_EXPONENTS[key][alpha],
             }
         events = dict(sum((Counter(one.fits.events) for one in pooled), Counter()))
         if events:
@@ -288,7 +290,7 @@ def reproduce(
             f"{FINITE_SIZE:g} (a finite packing's scaling regime), z - z_iso where it counts at "
             f"least {RESOLVED_CONTACTS} contacts, and no step from the first unjammed one on (the "
             "report lists what each fit left out); solid lines are the fits, dotted ones the "
-            "seed's slopes.",
+            "paper's slopes.",
         )
 
     say("iteration experiment")
@@ -312,7 +314,7 @@ def reproduce(
             title=f"N = {settings.realization_n}, alpha = 2, {settings.realizations} realizations",
             error="sd",
         ),
-        "The seed's iteration experiment: mean iterations per quasi-static simple-shear step "
+        "The paper's iteration experiment: mean iterations per quasi-static simple-shear step "
         "(strain 1e-6 ... 1e-5 in 10 steps, to 1e-9 of the mean contact force) against "
         "phi - phi_c; error bars are the standard deviation over realizations.",
     )
@@ -338,7 +340,7 @@ def reproduce(
         plot.shear_figure(
             curves, title=f"pure shear, N = {settings.n}, alpha = 2, phi - phi_c = {start_dphi:.0e}"
         ),
-        "The seed's shear test: pure shear to 2 % strain in increments 4e-4, 2e-4 and 1e-4 "
+        "The paper's shear test: pure shear to 2 % strain in increments 4e-4, 2e-4 and 1e-4 "
         f"from the compressed state at phi - phi_c = {start_dphi:.1e}; isotropic (mean "
         "eigenvalue) and deviatoric ((lambda_max - lambda_min) / 2) parts of the stress and the "
         "fabric, each on its own axis. The curves agree when the increments are quasi-static.",
@@ -404,7 +406,7 @@ def _report(
         "is the spread of the exponent fitted to each packing alone, the last column says how "
         "many steps the fits left out, and why.",
         "",
-        "| alpha | quantity | fitted ± stderr | single sd | points | Delta phi range | seed "
+        "| alpha | quantity | fitted ± stderr | single sd | points | Delta phi range | paper "
         "| left out |",
         "|---:|---|---:|---:|---:|---|---:|---|",
     ]
@@ -414,7 +416,7 @@ def _report(
                 f"| {alpha} | {key} | {fit['exponent']:.3f} ± {fit['stderr']:.3f} | "
                 + ("-" if fit["single_packing_sd"] is None else f"{fit['single_packing_sd']:.3f}")
                 + f" | {fit['points']:.0f} | {fit['delta_phi_min']:.1e} ... "
-                f"{fit['delta_phi_max']:.1e} | {fit['seed']:g} | "
+                f"{fit['delta_phi_max']:.1e} | {fit['paper']:g} | "
                 + ("; ".join(f"{n} {why}" for why, n in fit["left_out"].items()) or "none")
                 + " |"
             )

@@ -1,4 +1,4 @@
-"""Figures of the seed paper with matplotlib: packings with contact forces, convergence,
+"""Figures of the paper with matplotlib: packings with contact forces, convergence,
 scaling laws, iteration counts, shear curves and ensemble histograms. Each function returns a
 :class:`matplotlib.figure.Figure` (no global pyplot state); :func:`save` writes one atomically.
 
@@ -234,7 +234,7 @@ def packing_figure(
 def jamming_figure(
     snapshots: Sequence[tuple[str, Packing]], model: ContactModel, *, title: str = ""
 ) -> Figure:
-    """The seed's jamming figure: one panel per ``(label, packing)`` (e.g. initial,
+    """The paper's jamming figure: one panel per ``(label, packing)`` (e.g. initial,
     intermediate, jammed) side by side, titled ``(a) label``, ``(b) label``, ...; all force
     lines on ONE absolute scale, the largest force over all snapshots, with one key."""
     if not snapshots:
@@ -267,7 +267,7 @@ def convergence_figure(
     ylabel: str = r"$\max_i |\nabla_i E|$ " + GRADIENT_UNITS,
 ) -> Figure:
     """``max_i |grad_i E|`` (l-infinity gradient norm, ``k l^(alpha-1)``) against the
-    iteration, one line per method (the seed's convergence figure); ``tolerance`` (the same
+    iteration, one line per method (the paper's convergence figure); ``tolerance`` (the same
     units) as a dashed horizontal line. Put alpha and N in ``title``."""
     fig = _figure(7.0, 4.0)
     ax = fig.add_subplot()
@@ -419,7 +419,7 @@ def iterations_figure(
 
 
 def shear_figure(curves: Mapping[str, Mapping[str, Sequence[float]]], *, title: str = "") -> Figure:
-    """The seed's shear-test figure on a 2 x 2 grid against the strain (dimensionless):
+    """The paper's shear-test figure on a 2 x 2 grid against the strain (dimensionless):
     isotropic and deviatoric stress (``k l^(alpha-d)``, top) and fabric (dimensionless,
     bottom), one line per curve; ``curves[label]`` (label: the strain increment) has
     ``strain``, ``stress_iso``, ``stress_dev``, ``fabric_iso``, ``fabric_dev``. One legend."""

@@ -2,11 +2,11 @@
 
 Two preconditioners satisfy :class:`~athermal.minimize.Preconditioner`:
 
-* :class:`ExpPreconditioner`, the seed's universal preconditioner (section 3.2.2, after Packwood
+* :class:`ExpPreconditioner`, the paper's universal preconditioner (section 3.2.2, after Packwood
   et al. 2016): ``u^T P u = mu sum_{0<|r_ij|<r_cut} c_ij |u_i - u_j|^2 + mu C_stab |u|^2`` with
   ``c_ij = exp(-A (r_ij / r_nn - 1))``. ``P = L (x) I_d`` for a scalar ``(N, N)`` matrix ``L``, so
   one factorization of ``L`` solves the ``d`` Cartesian components together.
-* :class:`ContactPreconditioner`, beyond the seed, aimed at the soft modes near jamming:
+* :class:`ContactPreconditioner`, beyond the paper, aimed at the soft modes near jamming:
   ``P = K_+ + L (x) I_d``, where ``K_+`` is the contact stiffness matrix built from the positive
   (normal) part of every contact's Hessian block and ``L`` is the Exp matrix as stabilization.
 
@@ -223,7 +223,7 @@ class _PairPreconditioner(ABC):
         ``v`` is :func:`sine_perturbation`. Costs one objective evaluation when ``grad E(x)`` is
         the objective's cached one, else two; the objective's cache then holds ``x + v``. When
         the ratio is not finite and > 0 (no contacts, ``E = 0``), the previous ``mu`` is kept, or
-        on the first build the mean contact stiffness ``k`` (the Hooke scale; 1 in the seed's
+        on the first build the mean contact stiffness ``k`` (the Hooke scale; 1 in the paper's
         units).
 
         The test mode is the cell's longest wavelength, where ``v^T P_{mu=1} v`` is mostly the
@@ -277,7 +277,7 @@ class _PairPreconditioner(ABC):
 
 
 class ExpPreconditioner(_PairPreconditioner):
-    """The seed's universal preconditioner ``P = L (x) I_d`` (Exp, section 3.2.2).
+    """The paper's universal preconditioner ``P = L (x) I_d`` (Exp, section 3.2.2).
 
     ``L = mu (Lap_c + C_stab I)`` ``(N, N)``: ``Lap_c`` is the graph Laplacian of the pairs
     closer than ``r_cut`` (periodic images included) weighted by ``c_ij = exp(-A (r_ij/r_nn - 1))``.
@@ -285,11 +285,11 @@ class ExpPreconditioner(_PairPreconditioner):
     Parameters
     ----------
     objective : supplies ``N``, ``d``, radii, cell and (for ``mu``) gradients.
-    A : decay of the weights with distance (``A = 0``: plain adjacency, the seed's choice).
+    A : decay of the weights with distance (``A = 0``: plain adjacency, the paper's choice).
     r_cut : pair cut-off (length units); default ``2.2 r_max``; must be below half the narrowest
         cell width.
     c_stab : stabilization ``C_stab`` (dimensionless, > 0).
-    mu : energy scale (energy / length^2); default re-estimated at every build by the seed's
+    mu : energy scale (energy / length^2); default re-estimated at every build by the paper's
         sine test (:meth:`_estimate_mu`).
     solver : ``"direct"`` (cholespy Cholesky, SciPy ``splu`` without cholespy), ``"amg"``
         (pyamg, ``amg_cycles`` V-cycles), ``"ic0"`` (zero-fill incomplete Cholesky,

@@ -1,4 +1,4 @@
-"""Relaxing a packing: how (:class:`Minimizer`, the seed's method names and the force tolerance
+"""Relaxing a packing: how (:class:`Minimizer`, the paper's method names and the force tolerance
 :data:`RTOL`) and doing it (:func:`relax`), on the minimizers of :mod:`athermal.minimize`.
 
 The physics above the minimizer library: the tolerance relative to the mean contact force
@@ -38,7 +38,7 @@ BACKENDS: tuple[str, ...] = ("numba", "jax")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
 _NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE", "newton": "Newton-CG"}
 RTOL = 1e-9
-"""The seed's tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at the start of a
+"""The paper's tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at the start of a
 relaxation (the Table, every quasi-static step)."""
 
 
@@ -61,8 +61,8 @@ class Minimizer:
 
     Parameters
     ----------
-    method : ``lbfgs``, ``cg``, ``fire``, ``newton`` or the seed's ``plbfgs`` / ``pcg``.
-    precon : ``none``, ``exp`` (the seed's, weights parameter ``A``) or ``contact``.
+    method : ``lbfgs``, ``cg``, ``fire``, ``newton`` or the paper's ``plbfgs`` / ``pcg``.
+    precon : ``none``, ``exp`` (the paper's, weights parameter ``A``) or ``contact``.
     A : Exp weight decay (dimensionless, >= 0).
     solver : ``auto``, ``direct``, ``amg`` or ``ic0`` for the preconditioner's linear solves.
     maxiter : iteration limit of one relaxation; a protocol that reaches it stops with a
@@ -104,7 +104,7 @@ class Minimizer:
 
     @property
     def name(self) -> str:
-        """Display name as in the seed: ``L-BFGS``, ``P-L-BFGS``, ``P-FR-CG``, ``contact
+        """Display name as in the paper: ``L-BFGS``, ``P-L-BFGS``, ``P-FR-CG``, ``contact
         P-L-BFGS``, ``FIRE``; a non-zero ``A`` or a chosen solver is added in brackets."""
         base, precon = resolve_method(self.method, self.precon)
         name = _NAMES[base]
@@ -155,7 +155,7 @@ def minimize_objective(
 
     Parameters
     ----------
-    method : ``lbfgs``, ``cg``, ``fire``, ``newton``, or the seed's ``plbfgs`` / ``pcg``
+    method : ``lbfgs``, ``cg``, ``fire``, ``newton``, or the paper's ``plbfgs`` / ``pcg``
         (``newton`` takes no ``precon``: its inner CG uses its own factored Hessian).
     x0 : the start ``(N d,)`` in the objective's internal order; default ``objective.x0``.
     precon : preconditioner name, or a ready :class:`~athermal.minimize.Preconditioner`

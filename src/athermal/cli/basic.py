@@ -173,7 +173,7 @@ def relax(args: argparse.Namespace) -> None:
 
 
 def bench(args: argparse.Namespace) -> None:
-    """``athermal bench``: the seed's Table."""
+    """``athermal bench``: the paper's Table."""
     if args.quick:
         args.cases, args.alphas, args.repeats = [3], [2.0], 1
         args.methods = [

@@ -32,7 +32,7 @@ factor): the door refuses an N that would not fit the machine's memory."""
 JAMMED_PHI = {2: 0.9, 3: 0.7}
 """A packing fraction above jamming by dimension, where the door sizes the particles."""
 CUTOFF = 2.2
-"""The Exp preconditioner's neighbour cutoff in units of the largest radius (the seed's)."""
+"""The Exp preconditioner's neighbour cutoff in units of the largest radius (the paper's)."""
 MAX_STEPS = 100_000
 """Most protocol steps a command may ask for (growth steps to phi = 1, compression steps, strain
 steps): more is an increment too small to make progress."""

@@ -142,7 +142,7 @@ def _jamming(parser: argparse.ArgumentParser, prefix: str) -> None:
         default=JAM_PROTOCOL,
         choices=JAM_PROTOCOLS,
         help=f"{prefix}where each bisection trial starts: seed = the last unjammed configuration "
-        "(the seed's Algorithm 1), ohern = the previous trial (O'Hern et al.'s compression and "
+        "(the paper's Algorithm 1), ohern = the previous trial (O'Hern et al.'s compression and "
         f"decompression of one configuration); default {JAM_PROTOCOL}",
     )
 
@@ -372,7 +372,7 @@ def build() -> argparse.ArgumentParser:
 
     jam = sub.add_parser(
         "jam",
-        help="jam a random packing (growth + bisection, after the seed's Algorithm 1)",
+        help="jam a random packing (growth + bisection, after the paper's Algorithm 1)",
         description="Place N particles at random at --phi-init, then grow them by --dphi and "
         "relax until the relaxed packing is jammed (E > 0, p > 0), and bisect the packing "
         "fraction down to --epsilon; check the result (decompression unjams it, isostatic, "
@@ -513,16 +513,16 @@ def build() -> argparse.ArgumentParser:
 
     pap = sub.add_parser(
         "paper",
-        help="reproduce the seed paper's figures, Table and exponents",
+        help="reproduce the paper's figures, Table and exponents",
         description="The jamming figure, the convergence of one relaxation, the scaling laws "
         "of p, G and z for alpha = 2 and 2.5, the iteration experiment, the pure-shear test "
         "and the Table, written as PNG figures and report.md into DIR. --quick (the default) "
-        "runs at N = 1024 in minutes; --full at the seed's N = 4096 (hours).",
+        "runs at N = 1024 in minutes; --full at the paper's N = 4096 (hours).",
     )
     pap.add_argument("-o", "--output", required=True, help="directory to write into")
     size = pap.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help="N = 1024 (the default)")
-    size.add_argument("--full", action="store_true", help="the seed's N = 4096")
+    size.add_argument("--full", action="store_true", help="the paper's N = 4096")
     pap.add_argument("--seed", type=int, default=0, help="root seed")
     pap.add_argument(
         "--overwrite", action="store_true", help="replace the report of an earlier run"
@@ -532,8 +532,8 @@ def build() -> argparse.ArgumentParser:
 
     ben = sub.add_parser(
         "bench",
-        help="the seed's Table benchmark (docs/benchmarks.md, B1)",
-        description="Minimizers and preconditioners on the three cases of the seed's Table "
+        help="the paper's Table benchmark (docs/benchmarks.md, B1)",
+        description="Minimizers and preconditioners on the three cases of the paper's Table "
         "(N = 4096) to 1e-9 of the mean contact force, with scipy's L-BFGS-B as the in-run "
         "reference. Prints a markdown table.",
     )

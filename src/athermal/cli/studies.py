@@ -1,4 +1,4 @@
-"""The study subcommands: ``paper`` (the seed's figures and Table) and ``ensemble``."""
+"""The study subcommands: ``paper`` (the paper's figures and Table) and ``ensemble``."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from .printer import emit
 
 
 def paper(args: argparse.Namespace) -> None:
-    """``athermal paper``: every figure, the Table and the exponents of the seed paper."""
+    """``athermal paper``: every figure, the Table and the exponents of the paper."""
     from ..paper import FULL, QUICK, reproduce
 
     progress = Progress(args.quiet)

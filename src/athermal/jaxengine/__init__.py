@@ -1,6 +1,6 @@
 """A second engine on JAX (float64), for accelerators: the contact energy, its gradient, the
 stress and the contact count on the device, and FIRE 2.0, L-BFGS and nonlinear CG (with the
-seed's Exp preconditioner applied on the device) each as one jitted loop (issue 37).
+paper's Exp preconditioner applied on the device) each as one jitted loop (issue 37).
 
 The engine sets ``jax_enable_x64`` when imported: JAX computes in float32 by default, whose
 resolution (1e-7) is far above the force balance athermal relaxes to (1e-9 of the mean contact

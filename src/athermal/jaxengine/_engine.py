@@ -79,7 +79,7 @@ class Engine:
     ----------
     objective : the packing's :class:`~athermal.objective.Objective` (host side: the
         tolerances, FIRE's curvature bound and the preconditioner's ``mu`` come from it).
-    precon : ``none`` or ``exp`` (the seed's, on the device: :mod:`._precon`).
+    precon : ``none`` or ``exp`` (the paper's, on the device: :mod:`._precon`).
     A : the Exp weights' decay.
     """
 

@@ -1,4 +1,4 @@
-"""The seed's Exp preconditioner on the device, applied as a fixed linear operator: one
+"""The paper's Exp preconditioner on the device, applied as a fixed linear operator: one
 smoothed-aggregation V-cycle on the scalar matrix ``L = mu (Lap_c + C_stab I)``, from a zero
 start, with :data:`SWEEPS` damped Jacobi sweeps before and after each coarse correction and an
 exact solve on the coarsest level.
@@ -11,7 +11,7 @@ products over padded coordinate lists. Jacobi before and after, restriction ``P^
 exact coarse solve make the cycle symmetric, and a damping below ``2 / rho(D^-1 A)`` on every
 level (:data:`DAMPING` over Gershgorin's bound on ``rho``; 2/3 on the finest, diagonally dominant
 level) makes each sweep a contraction in the energy norm and the cycle positive definite: L-BFGS's
-``H0 = gamma P^-1`` and CG's ``P^-1`` are a fixed operator between rebuilds, as the seed's
+``H0 = gamma P^-1`` and CG's ``P^-1`` are a fixed operator between rebuilds, as the paper's
 Cholesky solve is. Why a V-cycle and not a polynomial in ``L``: ``docs/decisions.md``, section
 "The JAX engine".
 """

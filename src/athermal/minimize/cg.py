@@ -48,7 +48,7 @@ def cg(
 ) -> MinimizeResult:
     """Minimize ``problem`` from ``x0`` ``(n_dof,)`` by (preconditioned) nonlinear CG.
 
-    ``variant``: ``"fr"`` (Fletcher-Reeves, the seed's) or ``"pr+"`` (Polak-Ribiere+).
+    ``variant``: ``"fr"`` (Fletcher-Reeves, the paper's) or ``"pr+"`` (Polak-Ribiere+).
     Stopping rules as :func:`~athermal.minimize.lbfgs.lbfgs`.
     """
     choice(variant, "variant", ("fr", "pr+"))

@@ -1,4 +1,4 @@
-"""Limited-memory BFGS (seed Algorithm 2), optionally preconditioned (seed's boxed step).
+"""Limited-memory BFGS (the paper's Algorithm 2), optionally preconditioned (its boxed step).
 
 The L-BFGS step with memory ``m`` and the initial inverse Hessian ``H0 = gamma P^-1``
 (``P = I`` without a preconditioner), ``gamma = s.y / y.P^-1 y`` of the newest pair (Nocedal &
@@ -7,7 +7,7 @@ Wright, eq. 7.20, in the metric of ``P``). Steps come from the strong-Wolfe line
 
 One solve per iteration: the method keeps ``z = P^-1 g`` and, for each pair, ``P^-1 y =
 z_{k+1} - z_k``, so ``H0`` applied to the pairs is a combination of stored vectors
-(recomputed by ``m`` solves when ``P`` is rebuilt). The seed's unscaled ``H0 = P^-1`` left the
+(recomputed by ``m`` solves when ``P`` is rebuilt). The paper's unscaled ``H0 = P^-1`` left the
 Exp preconditioner too soft, the unit step never accepted; with ``gamma`` it is the accepted one.
 
 The step is the two-loop recursion's in the compact form of Byrd, Nocedal & Schnabel (1994)

@@ -1,6 +1,6 @@
 """Truncated Newton (line-search Newton-CG) with a lagged sparse Cholesky factor of the Hessian.
 
-Beyond the seed, for its open problem: near jamming every gradient method slows down as a power
+Beyond the paper, for its open problem: near jamming every gradient method slows down as a power
 of ``Delta phi`` (the soft modes of the contact network), while the exact Newton step of a
 quasi-static step is one linear solve with the stiffness matrix. Each iteration:
 

@@ -1,4 +1,4 @@
-"""Quasi-static compression above jamming: the seed's scaling-law experiment (section 4.2).
+"""Quasi-static compression above jamming: the paper's scaling-law experiment (section 4.2).
 
 From a jammed packing at ``phi_c`` the radii are grown to ``phi_c + Delta phi`` for log-spaced
 ``Delta phi`` (1e-7 ... 1e-1 by default), each state relaxed from the previous one. Every step
@@ -7,7 +7,7 @@ the isostatic value of the non-rattlers, and the bulk and shear moduli by exact 
 (:func:`~athermal.moduli.linear_response`); :func:`scaling_exponents` fits the power laws
 ``p ~ Delta phi^(alpha-1)``, ``G ~ Delta phi^(alpha-3/2)``, ``z - z_iso ~ Delta phi^(1/2)``.
 
-The bulk modulus reported is the seed's ``B = phi dp/dphi`` along this protocol (radii growing in
+The bulk modulus reported is the paper's ``B = phi dp/dphi`` along this protocol (radii growing in
 a fixed cell). Growing the radii is cell compression followed by a uniform rescaling of lengths,
 under which stresses scale as ``length^(alpha-d)``, so ``B = B_cell + (alpha - d) p / d`` with
 ``B_cell = -V dp/dV`` the fixed-radii modulus of the linear response.
@@ -156,7 +156,7 @@ def compression_steps(
         or rigid backbone (every particle a rattler), or when its overlaps put it far above
         ``phi_c`` (:data:`FAR_ABOVE`: a random placement, or a relaxed packing far above the
         jamming point it names), unless ``from_unjammed``. Its forces need not balance: a
-        packing jammed with one contact law may be compressed with another (the seed's alpha =
+        packing jammed with one contact law may be compressed with another (the paper's alpha =
         2.5 from the same jamming point), and the first step relaxes it.
     model : contact law.
     phi_c : jamming fraction ``Delta phi`` is measured from; default ``jammed.phi``.

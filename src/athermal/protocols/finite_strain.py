@@ -1,8 +1,8 @@
-"""The seed's finite-strain moduli: small quasi-static strain steps, each relaxed, and a fit.
+"""The paper's finite-strain moduli: small quasi-static strain steps, each relaxed, and a fit.
 
 "For each relaxed over-jammed configuration, we exert small shear strains from 1e-6 to 1e-5
 quasi-statically, in 10 steps" (seed, section 4.2): the slope of the shear stress gives ``G``
-and the minimizer's iterations per step are the seed's iteration experiment. The bulk modulus is
+and the minimizer's iterations per step are the paper's iteration experiment. The bulk modulus is
 measured the same way under isotropic strain of the cell at fixed radii. Both agree with
 :func:`~athermal.moduli.linear_response` to first order in the strain.
 """
@@ -28,7 +28,7 @@ from ..packing import Packing
 from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
-"""The seed's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
+"""The paper's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
 DEFAULT_STRAINS.setflags(write=False)
 StepStart = Literal["linear", "affine"]
 STEP_STARTS: tuple[str, ...] = ("linear", "affine")
@@ -52,7 +52,7 @@ class FiniteStrain:
     strains : ``(k,)`` total strain after each step.
     stresses : ``(k,)`` shear stress ``-sigma_01`` (shear) or pressure (bulk) after each
         relaxation.
-    iterations : ``(k,)`` minimizer iterations of each relaxation (the seed's iteration count).
+    iterations : ``(k,)`` minimizer iterations of each relaxation (the paper's iteration count).
     contacts : ``(k,)`` number of contacts after each relaxation.
     stress_initial : the stress of the input packing (strain 0).
     contacts_initial : number of contacts of the input packing.
@@ -90,16 +90,16 @@ def finite_strain_shear(
     packing : a relaxed configuration (the fit assumes it is at a minimum).
     model : contact law.
     strains : ``(k,)`` total shear strains, ``k >= 2``, of one sign, strictly increasing in
-        magnitude (default: the seed's 1e-6 to 1e-5 in 10 steps).
+        magnitude (default: the paper's 1e-6 to 1e-5 in 10 steps).
     minimizer : how each step is relaxed (default :data:`FINITE_STRAIN_MINIMIZER`, truncated
         Newton); its iteration limit is fatal (:class:`~athermal.errors.ConvergenceError`).
     rtol : tolerance relative to the mean contact force at the start of each relaxation,
         floored at round-off (:func:`~athermal.relaxation.round_off_floor`).
     start : where each relaxation starts: ``"affine"``, the deformed previous configuration
-        (the seed's), or ``"linear"``, that moved by the linear-response displacement
+        (the paper's), or ``"linear"``, that moved by the linear-response displacement
         (:func:`~athermal.moduli.nonaffine_displacement`, one sparse solve with the previous
         minimum's Hessian) unless it moves a particle more than the minimizers' step cap. Near
-        jamming the seed's step of 1e-6 opens a quarter of the contacts of a packing at
+        jamming the paper's step of 1e-6 opens a quarter of the contacts of a packing at
         ``Delta phi = 1e-7`` and the relaxation has to close them again; the linear start keeps
         them (``benchmarks/results/protocols/newton_diagnostics_n*.md``).
     """

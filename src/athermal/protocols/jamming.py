@@ -1,17 +1,17 @@
-"""Jamming by growth and bisection (the seed's Algorithm 1, and O'Hern et al. 2003).
+"""Jamming by growth and bisection (the paper's Algorithm 1, and O'Hern et al. 2003).
 
 **The scheme.** From a start packing at ``phi_init`` the radii grow by ``dphi`` (in packing
 fraction) and the packing is relaxed, until a relaxed state is jammed. The jamming point is then
 bisected. Two protocols differ in the configuration a bisection trial starts from:
 
-- ``seed`` (the seed's Algorithm 1): every trial grows the last unjammed configuration
+- ``seed`` (the paper's Algorithm 1): every trial grows the last unjammed configuration
   ``C_ref`` (the relaxed state at ``phi_low``); a jammed verdict leaves ``C_ref`` as it is.
 - ``ohern`` (O'Hern et al.'s compression and decompression of one configuration): every trial
   starts from the previous trial's relaxed configuration, jammed or not, so a trial below a
   jammed state decompresses that state's own basin.
 
 The run ends only when the jammed packing at ``phi_high`` is the relaxation of the unjammed
-configuration at ``phi_low``, grown by at most ``epsilon``: the seed's ``C_jam`` one ``epsilon``
+configuration at ``phi_low``, grown by at most ``epsilon``: the paper's ``C_jam`` one ``epsilon``
 above its ``C_ref``. When the bracket is that narrow but the jammed state came from another
 configuration, the unjammed one is grown to ``phi_high`` (one more trial); if it stays unjammed,
 the jammed bound belonged to another basin: the bracket reopens there and growth goes on from
@@ -89,9 +89,9 @@ JAMMING_SCHEME = 3
 """Version of the scheme (part of a run's identity: a trajectory of an older scheme is refused).
 3: the verdict independent of ``epsilon``, and the protocol chosen (``seed`` or ``ohern``)."""
 DPHI = 1e-3
-"""Default growth increment of the packing fraction (the seed's ``delta phi``)."""
+"""Default growth increment of the packing fraction (the paper's ``delta phi``)."""
 EPSILON = 1e-6
-"""Default width of the bracket the bisection ends on (the seed's ``epsilon``)."""
+"""Default width of the bracket the bisection ends on (the paper's ``epsilon``)."""
 JamProtocol = Literal["seed", "ohern"]
 JAM_PROTOCOLS: tuple[JamProtocol, ...] = ("seed", "ohern")
 """The bisection protocols (module docstring): trials from the last unjammed configuration

@@ -1,9 +1,9 @@
 """Quasi-static shear: simple or pure shear in small affine steps, each relaxed (seed 4.3).
 
 Each step maps positions and cell by the increment of the deformation (simple shear
-``x += gamma y``, or the seed's area-preserving pure shear ``D = diag(1 + gamma, 1/(1 + gamma))``,
+``x += gamma y``, or the paper's area-preserving pure shear ``D = diag(1 + gamma, 1/(1 + gamma))``,
 stretching x and compressing y) and relaxes the packing. A step reports the stress and fabric
-tensors with their isotropic and deviatoric parts (the seed's eigenvalue definitions), the
+tensors with their isotropic and deviatoric parts (the paper's eigenvalue definitions), the
 driven shear stress ``tau`` (the stress work-conjugate to the strain: ``-sigma_01`` for simple
 shear, ``(sigma_11 - sigma_00) / 2`` for pure shear, positive when loaded) and whether ``tau``
 dropped: a plastic event.
@@ -34,6 +34,8 @@ from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 
 ShearMode = Literal["simple", "pure"]
 SHEAR_MODES: tuple[str, ...] = ("simple", "pure")
+"""The shear modes: simple shear (``x += gamma y``) and pure shear (volume-preserving
+``D = diag(1 + gamma, 1 / (1 + gamma))``); ``docs/quantities.md`` gives each one's ``tau``."""
 DROP_TOL = 1e-6
 """A plastic event is a drop of ``tau`` by more than ``DROP_TOL`` x the pressure."""
 ROW_OBSERVABLES: tuple[str, ...] = (
@@ -109,7 +111,7 @@ def shear_steps(
     ----------
     start : a packing, relaxed first (step 0); usually jammed or compressed above jamming.
     model : contact law.
-    mode : ``"pure"`` (the seed's shear test) or ``"simple"``.
+    mode : ``"pure"`` (the paper's shear test) or ``"simple"``.
     strain, step : final strain and increment (dimensionless, > 0); the last increment is
         shortened to end exactly at ``strain``.
     minimizer : how each step is relaxed (default L-BFGS).
