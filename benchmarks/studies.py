@@ -12,7 +12,7 @@ experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summar
     python -m benchmarks.studies phic --n 4096 --solver direct          # ... exact factor
     python -m benchmarks.studies scaling --alpha 2 --n 1024 --seeds 5   # exponents, events
     python -m benchmarks.studies scaling --alpha 2 --n 1024 --refit     # ... its fits again
-    python -m benchmarks.studies iterations --n 1024 --seeds 10         # the paper's iteration figure
+    python -m benchmarks.studies iterations --n 1024 --seeds 10   # the paper's iteration figure
     python -m benchmarks.studies iterations --n 4096 --seeds 2 --steps 3  # ... larger, shorter
     python -m benchmarks.studies timing --n 4096                        # per minimizer
 

@@ -12,6 +12,7 @@ import inspect
 import pkgutil
 from importlib import metadata
 
+from sphinx.application import Sphinx
 from sphinx.pycode import ModuleAnalyzer
 
 import athermal
@@ -85,12 +86,12 @@ def api_reference() -> str:
     return "\n".join(parts)
 
 
-def _fill_api_page(app: object, docname: str, source: list[str]) -> None:
+def _fill_api_page(app: Sphinx, docname: str, source: list[str]) -> None:
     if docname == "api":
         source[0] = source[0].replace(
             "<!-- the reference -->", "```{eval-rst}\n" + api_reference() + "\n```"
         )
 
 
-def setup(app):  # noqa: ANN001, ANN201 (Sphinx's hook)
+def setup(app: Sphinx) -> None:
     app.connect("source-read", _fill_api_page)

@@ -40,7 +40,7 @@ def test_ovito_reads_box_radii_and_positions(written):
 
 
 def freud_box(freud, frame):
-    """The README's recipe: a 2D box from Lx, Ly and xy only (the file's Lz = 1 is HOOMD's 2D
+    """The recipe of docs/howto/files.md: a 2D box from Lx, Ly and xy only (the file's Lz = 1 is HOOMD's 2D
     convention, which freud's ``from_box`` warns about)."""
     Lx, Ly, Lz, xy, xz, yz = frame.configuration.box
     if frame.configuration.dimensions == 2:

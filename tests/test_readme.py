@@ -1,23 +1,16 @@
-"""The README's Python examples run as written and print meaningful physics."""
+"""The README's examples run as pasted, in order, in one empty folder, and print meaningful
+physics."""
 
-import importlib.util
+import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
+from pasted import Block, blocks, paste
+
 README = Path(__file__).resolve().parent.parent / "README.md"
-BLOCKS = re.findall(r"```python\n(.*?)```", README.read_text(), re.S)
-
-
-def run_example(code: str, cwd: Path) -> str:
-    done = subprocess.run(
-        [sys.executable, "-c", code], cwd=cwd, capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stderr
-    return done.stdout
+BLOCKS = blocks(README)
 
 
 def numbers(line: str, *names: str) -> list[float]:
@@ -25,24 +18,18 @@ def numbers(line: str, *names: str) -> list[float]:
     return [float(re.search(rf"{re.escape(n)} (\S+)", line).group(1).rstrip(",")) for n in names]
 
 
-def test_there_are_three_examples():
-    assert len(BLOCKS) == 3
-    assert "at.relax" in BLOCKS[0] and "at.jam" in BLOCKS[1] and "freud" in BLOCKS[2]
-
-
-def test_relaxation_example_prints_a_relaxed_jammed_packing(tmp_path):
-    out = run_example(BLOCKS[0], tmp_path).splitlines()
+def check_relaxation(out: list[str], folder: Path) -> None:
+    """The first Python example relaxed a packing above jamming."""
     converged, iterations, energy, max_gradient = out[0].split()
     assert converged == "True" and int(iterations) > 0 and float(energy) > 0.0
     assert float(max_gradient) < 1e-9
     p, tau, z = numbers(out[1], "p", "shear stress", "z")
     assert p > 0.0 and abs(tau) < 0.1 * p and 4.0 < z < 5.0
-    assert (tmp_path / "relaxed.gsd").exists()
+    assert (folder / "relaxed.gsd").exists()
 
 
-@pytest.mark.slow
-def test_protocol_example_jams_compresses_and_shears_with_the_seeds_physics(tmp_path):
-    out = run_example(BLOCKS[1], tmp_path).splitlines()
+def check_protocols(out: list[str]) -> None:
+    """The second Python example jammed, compressed and sheared with the paper's physics."""
     head = out[0]
     assert "checks passed: True" in head
     phi_c = float(re.search(r"phi_c (\S+)", head).group(1))
@@ -82,11 +69,56 @@ def test_protocol_example_jams_compresses_and_shears_with_the_seeds_physics(tmp_
     assert numbers(strains[-1], "tau")[0] > 0.0
 
 
-@pytest.mark.skipif(importlib.util.find_spec("freud") is None, reason="freud not installed")
-@pytest.mark.filterwarnings("error")  # freud warns of nothing
-def test_freud_example_reads_a_file(tmp_path):
-    import athermal as at
+def check_command_line(out: str, folder: Path) -> None:
+    """The command-line block jammed, compressed, took moduli, sheared and relaxed, and each
+    command wrote what the README says."""
+    jam, _ = json.JSONDecoder().raw_decode(out)  # the first command's JSON object
+    assert jam["checks_passed"] and 0.83 < jam["phi_c"] < 0.85
+    for name in (
+        "jammed-seed1.gsd",
+        "jam-steps.gsd",
+        "compress.gsd",
+        "compress.csv",
+        "shear.gsd",
+        "shear.csv",
+        "p.gsd",
+        "p-relaxed.gsd",
+    ):
+        assert (folder / name).exists(), name
+    assert "bulk_phi" in out  # the moduli table
 
-    packing = at.random_packing(64, 0.9, seed=1)
-    at.write_gsd(tmp_path / "jammed.gsd", packing, model=at.ContactModel(2.0))
-    run_example(BLOCKS[2], tmp_path)
+
+def check_beyond(out: str, folder: Path) -> None:
+    """The block beyond the paper wrote a packing at p = 1e-4, its modes, the force figure, a
+    polydisperse packing and its shear-stabilized state."""
+    for name in (
+        "p1e-4.gsd",
+        "p1e-4-modes.npz",
+        "p1e-4-modes.png",
+        "forces.png",
+        "poly.gsd",
+        "stabilized.gsd",
+    ):
+        assert (folder / name).exists(), name
+
+
+@pytest.mark.slow
+def test_the_examples_run_as_pasted_in_order_in_one_folder(tmp_path):
+    sections = [block.section for block in BLOCKS]
+    assert sections == [
+        "Quick start",
+        "Python example",
+        "Python example",
+        "Command line",
+        "Command line",
+    ]
+    quick = BLOCKS[0].code.splitlines()
+    assert len(quick) == 2 and quick[1] == 'python -m pip install -e ".[dev]" && python -m pytest'
+    # the quick start's first command, without the install this checkout has had
+    install, jam = quick[0].split(" && ")
+    assert install == "python -m pip install -e ."
+    paste(Block("bash", jam, "Quick start"), tmp_path)
+    check_relaxation(paste(BLOCKS[1], tmp_path).splitlines(), tmp_path)
+    check_protocols(paste(BLOCKS[2], tmp_path).splitlines())
+    check_command_line(paste(BLOCKS[3], tmp_path), tmp_path)
+    check_beyond(paste(BLOCKS[4], tmp_path), tmp_path)

@@ -5,6 +5,7 @@ import re
 from pathlib import Path
 
 import pytest
+
 from pasted import blocks, paste
 
 TUTORIAL = Path(__file__).resolve().parent.parent / "docs" / "tutorial.md"

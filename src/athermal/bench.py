@@ -1,4 +1,4 @@
-"""The paper's Table benchmark (docs/benchmarks.md, B1): minimizers and preconditioners, three cases.
+"""The paper's Table benchmark (docs/benchmarks.md, B1): minimizers and preconditioners, 3 cases.
 
 Start configurations ship with the package (``athermal/data``, see its README): N = 4096
 bidisperse disks at phi = 0.8438, relaxed, alpha = 2 and 2.5. The cases:

@@ -55,7 +55,11 @@ class _Parser(argparse.ArgumentParser):
 NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
 
 
-def _json(parser: argparse.ArgumentParser) -> None:
+Options = argparse.ArgumentParser | argparse._ArgumentGroup
+"""Where an option helper adds its options: a parser, or a group of one's options."""
+
+
+def _json(parser: Options) -> None:
     parser.add_argument(
         "--json", action="store_true", help="print one JSON object on stdout and nothing else"
     )
@@ -117,7 +121,7 @@ def _minimizer(
     _backend(parser)
 
 
-def _backend(parser: argparse.ArgumentParser) -> None:
+def _backend(parser: Options) -> None:
     parser.add_argument(
         "--backend",
         default="numba",
@@ -127,23 +131,23 @@ def _backend(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _jamming(parser: argparse.ArgumentParser, prefix: str) -> None:
-    """The jamming protocol's options (their help starting with ``prefix``)."""
-    parser.add_argument("--dphi", type=float, default=DPHI, help=f"{prefix}growth increment of phi")
+def _jamming(parser: Options) -> None:
+    """The jamming protocol's options."""
+    parser.add_argument("--dphi", type=float, default=DPHI, help="growth increment of phi")
     parser.add_argument(
         "--epsilon",
         type=float,
         default=EPSILON,
-        help=f"{prefix}bisection accuracy of phi_c (>= {RESOLUTION:g})",
+        help=f"bisection accuracy of phi_c (>= {RESOLUTION:g})",
     )
     parser.add_argument(
         "--protocol",
         dest="bisection",
         default=JAM_PROTOCOL,
         choices=JAM_PROTOCOLS,
-        help=f"{prefix}where each bisection trial starts: seed = the last unjammed configuration "
+        help="where each bisection trial starts: seed = the last unjammed configuration "
         "(the paper's Algorithm 1), ohern = the previous trial (O'Hern et al.'s compression and "
-        f"decompression of one configuration); default {JAM_PROTOCOL}",
+        "decompression of one configuration)",
     )
 
 
@@ -175,7 +179,7 @@ def _quasi_static(parser: argparse.ArgumentParser) -> None:
     _model(parser, from_file=True)
 
 
-def _packing(parser: argparse.ArgumentParser) -> None:
+def _packing(parser: Options) -> None:
     parser.add_argument("--n", type=int, default=1024, help="number of particles")
     parser.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions")
     parser.add_argument(
@@ -199,7 +203,7 @@ def _packing(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def _compression_range(parser: argparse.ArgumentParser) -> None:
+def _compression_range(parser: Options) -> None:
     parser.add_argument(
         "--from", dest="dphi_min", type=float, default=1e-7, help="smallest phi - phi_c"
     )
@@ -209,7 +213,7 @@ def _compression_range(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--per-decade", type=int, default=4, help="compression steps per decade")
 
 
-def _shear_options(parser: argparse.ArgumentParser) -> None:
+def _shear_options(parser: Options) -> None:
     parser.add_argument("--mode", default="pure", choices=SHEAR_MODES, help="shear mode")
     parser.add_argument("--strain", type=float, default=0.02, help="final strain")
     parser.add_argument("--step", type=float, default=1e-4, help="strain increment")
@@ -387,7 +391,7 @@ def build() -> argparse.ArgumentParser:
         default=None,
         help="start packing fraction (default: 0.8 in 2D, 0.6 in 3D)",
     )
-    _jamming(jam, "")
+    _jamming(jam)
     jam.add_argument(
         "--pressure",
         type=float,
@@ -468,48 +472,56 @@ def build() -> argparse.ArgumentParser:
         "ones; a summary (JSON, CSV, figure) aggregates them. Without the dask extra the "
         "realizations run one after another.",
     )
-    ens.add_argument("protocol", choices=("jam", "compress", "shear", "iterations"))
-    ens.add_argument("--realizations", type=int, required=True, help="how many (M)")
     ens.add_argument(
+        "protocol",
+        choices=("jam", "compress", "shear", "iterations"),
+        help="what each realization runs: jam a packing; jam and compress it; jam, compress and "
+        "shear it; or the paper's iteration experiment. Each option below says which use it.",
+    )
+    run = ens.add_argument_group("the ensemble (every protocol)")
+    run.add_argument("--realizations", type=int, required=True, help="how many (M)")
+    run.add_argument(
         "--workers",
         type=int,
         default=None,
         help="local worker processes (default: one per core available)",
     )
-    ens.add_argument("--scheduler", default=None, help="address of an existing scheduler")
-    ens.add_argument(
+    run.add_argument("--scheduler", default=None, help="address of an existing scheduler")
+    run.add_argument(
         "--batch",
         type=int,
         default=None,
         help="with --backend jax: relax B realizations at a time as one batch on the device "
         "(in this process, no --workers / --scheduler)",
     )
-    ens.add_argument("--seed", type=int, default=0, help="root seed")
-    ens.add_argument("-o", "--output", required=True, help="directory of the ensemble")
-    _packing(ens)
-    ens.add_argument("--alpha", type=float, default=2.0, help="contact exponent")
-    _jamming(ens, "jamming: ")
-    ens.add_argument(
-        "--method", default="lbfgs", choices=METHODS, help="jamming: minimizer of every step"
+    run.add_argument("--seed", type=int, default=0, help="root seed")
+    run.add_argument("-o", "--output", required=True, help="directory of the ensemble")
+    run.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    _json(run)
+    jamming = ens.add_argument_group("the packings and their jamming (every protocol)")
+    _packing(jamming)
+    jamming.add_argument("--alpha", type=float, default=2.0, help="contact exponent")
+    _jamming(jamming)
+    jamming.add_argument(
+        "--method", default="lbfgs", choices=METHODS, help="minimizer of every step"
     )
-    ens.add_argument(
+    jamming.add_argument(
         "--precon",
         default=None,
         choices=PRECONDITIONERS,
-        help="jamming: preconditioner (default: exp; none with --method newton)",
+        help="preconditioner (default: exp; none with --method newton)",
     )
     ens.set_defaults(default_precon="exp")
-    _backend(ens)
-    _compression_range(ens)
-    _shear_options(ens)
-    ens.add_argument(
+    _backend(jamming)
+    _compression_range(ens.add_argument_group("the compression (compress, shear)"))
+    shearing = ens.add_argument_group("the shear (shear)")
+    _shear_options(shearing)
+    shearing.add_argument(
         "--shear-delta-phi",
         type=float,
         default=1e-2,
-        help="shear: start from the compressed state nearest this phi - phi_c",
+        help="start from the compressed state nearest this phi - phi_c",
     )
-    ens.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    _json(ens)
 
     pap = sub.add_parser(
         "paper",

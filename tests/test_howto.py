@@ -1,0 +1,28 @@
+"""The how-to pages' examples run as pasted (those that need no cluster, GPU or hours)."""
+
+import importlib.util
+from pathlib import Path
+
+import pytest
+
+import athermal as at
+from athermal.io import count_frames
+from pasted import blocks, paste
+
+HOWTO = Path(__file__).resolve().parent.parent / "docs" / "howto"
+
+
+def test_a_killed_compression_resumes(tmp_path):
+    (block,) = blocks(HOWTO / "resume.md")
+    out = paste(block, tmp_path)
+    assert "resumed_steps" in out
+    assert count_frames(tmp_path / "compressed.gsd") == 25
+
+
+@pytest.mark.skipif(importlib.util.find_spec("freud") is None, reason="freud not installed")
+@pytest.mark.filterwarnings("error")  # freud warns of nothing
+def test_the_freud_example_reads_a_file(tmp_path):
+    packing = at.random_packing(64, 0.9, seed=1)
+    at.write_gsd(tmp_path / "jammed.gsd", packing, model=at.ContactModel(2.0))
+    (block,) = blocks(HOWTO / "files.md")
+    paste(block, tmp_path)
