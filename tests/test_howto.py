@@ -19,10 +19,19 @@ def test_a_killed_compression_resumes(tmp_path):
     assert count_frames(tmp_path / "compressed.gsd") == 25
 
 
+def test_the_force_network_is_drawn_from_the_bonds_alone(tmp_path):
+    model = at.ContactModel(2.0)
+    jammed = at.jam(at.random_packing(64, 0.8, seed=1), model)
+    at.write_gsd(tmp_path / "jammed.gsd", jammed.packing, model=model)
+    (block,) = [b for b in blocks(HOWTO / "files.md") if "network.png" in b.code]
+    paste(block, tmp_path)
+    assert (tmp_path / "network.png").stat().st_size > 0
+
+
 @pytest.mark.skipif(importlib.util.find_spec("freud") is None, reason="freud not installed")
 @pytest.mark.filterwarnings("error")  # freud warns of nothing
 def test_the_freud_example_reads_a_file(tmp_path):
     packing = at.random_packing(64, 0.9, seed=1)
     at.write_gsd(tmp_path / "jammed.gsd", packing, model=at.ContactModel(2.0))
-    (block,) = blocks(HOWTO / "files.md")
+    (block,) = [b for b in blocks(HOWTO / "files.md") if "freud" in b.code]
     paste(block, tmp_path)
