@@ -40,8 +40,8 @@ def test_ovito_reads_box_radii_and_positions(written):
 
 
 def freud_box(freud, frame):
-    """The recipe of docs/howto/files.md: a 2D box from Lx, Ly and xy only (the file's Lz = 1 is HOOMD's 2D
-    convention, which freud's ``from_box`` warns about)."""
+    """The recipe of docs/howto/files.md: a 2D box from Lx, Ly and xy only (the file's Lz = 1
+    is HOOMD's 2D convention, which freud's ``from_box`` warns about)."""
     Lx, Ly, Lz, xy, xz, yz = frame.configuration.box
     if frame.configuration.dimensions == 2:
         return freud.box.Box(Lx=Lx, Ly=Ly, xy=xy, is2D=True)

@@ -51,7 +51,7 @@ SEED_BOUND = 2**64
 
 _LOG = "athermal/"
 _STATE = ("position", "radius", "cell")
-_RESERVED = (*_STATE, "alpha", "stiffness", "seed")
+_RESERVED = (*_STATE, "position_lo", "alpha", "stiffness", "seed")
 # Wrapped positions are kept this far (in fractional units) inside the faces of the cell, so
 # that float32 rounding of positions and box never puts a particle on or outside a face.
 _FACE_MARGIN = 2.0**-20
@@ -71,12 +71,16 @@ class Frame:
     log : every other ``log/athermal/<name>`` quantity of the frame (``energy``, ``pressure``,
         ``stress``, ``phi``, ...) as read-only float64 arrays of the shape written (scalars as
         0-d arrays).
+    position_lo : ``(N, d)`` the low parts of double-double positions
+        ``packing.positions + position_lo`` (a certified packing, :mod:`athermal.certify`);
+        None when absent.
     """
 
     packing: Packing
     model: ContactModel | None
     seed: int | None
     log: dict[str, NDArray[np.float64]]
+    position_lo: NDArray[np.float64] | None = None
 
 
 def write_gsd(
@@ -86,6 +90,7 @@ def write_gsd(
     model: ContactModel | None = None,
     seed: int | None = None,
     observables: Mapping[str, ArrayLike] | None = None,
+    position_lo: ArrayLike | None = None,
 ) -> None:
     """Write ``packing`` as a one-frame GSD file, atomically.
 
@@ -101,6 +106,8 @@ def write_gsd(
     seed : integer in ``[0, 2**64)``, stored as uint64.
     observables : name -> float or array (at most 2D), stored as float64 under
         ``log/athermal/<name>`` (scalars as shape ``(1,)``).
+    position_lo : ``(N, d)`` low parts of double-double positions, stored as
+        ``log/athermal/position_lo`` (:attr:`Frame.position_lo`).
 
     Examples
     --------
@@ -113,7 +120,7 @@ def write_gsd(
     True
     """
     target = Path(path)
-    frame = _hoomd_frame(packing, model, seed, observables, step=0)
+    frame = _hoomd_frame(packing, model, seed, observables, step=0, position_lo=position_lo)
     _write_atomic(target, frame)
 
 
@@ -174,11 +181,16 @@ def read_gsd(path: PathLike, frame: int = -1) -> Frame:
             ) from None
     where = f"{source}: frame {index}"
     packing = _packing(where, snapshot, stored)
+    lo = None
+    if "position_lo" in stored:
+        lo = np.asarray(stored["position_lo"], dtype=np.float64)
+        _expect_shape(where, "log/athermal/position_lo", lo, packing.positions.shape)
     return Frame(
         packing=packing,
         model=_model(where, stored),
         seed=_seed(where, stored),
         log={name: _observable(value) for name, value in stored.items() if name not in _RESERVED},
+        position_lo=lo,
     )
 
 
@@ -282,6 +294,7 @@ def _hoomd_frame(
     seed: int | None,
     observables: Mapping[str, ArrayLike] | None,
     step: int,
+    position_lo: ArrayLike | None = None,
 ) -> gsd.hoomd.Frame:
     """HOOMD-schema frame with the exact state in ``log/athermal/`` (arguments validated here)."""
     if not isinstance(packing, Packing):
@@ -305,6 +318,14 @@ def _hoomd_frame(
         log[_LOG + "seed"] = np.array([int(seed)], dtype=np.uint64)
     for name, value in (observables or {}).items():
         log[_LOG + _observable_name(name)] = _observable_array(name, value)
+    if position_lo is not None:
+        lo = np.asarray(position_lo, dtype=np.float64)
+        if lo.shape != packing.positions.shape or not np.all(np.isfinite(lo)):
+            raise InputError(
+                f"position_lo: expected finite values of shape {packing.positions.shape}, got "
+                f"shape {lo.shape}"
+            )
+        log[_LOG + "position_lo"] = lo
 
     contacts = find_contacts(_near_the_cell(packing), model or ContactModel())
     log["bonds/overlap"] = contacts.overlap

@@ -180,7 +180,7 @@ def nonaffine_displacement(
     d1_arr = float_array(d1, "d1", (dim, dim))
     contacts, rattler = nonrattler_contacts(packing, model)
     _, xi = strain_terms(contacts, packing.n, d1_arr)
-    y, residual, _ = _pinned_solve(contacts, rattler, xi[:, :, None])
+    y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None])
     _warn_if_poor(residual, "nonaffine_displacement")
     return -y[:, 0].reshape(packing.n, dim)
 
@@ -323,13 +323,13 @@ def _nonaffine_correction(
     contacts: Contacts, rattler: NDArray[np.bool_], xi: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``Xi^T H^+ Xi`` for each of the ``m`` columns of ``xi`` ``(N, d, m)``, the largest
-    relative residual of the solves and the solver used (:func:`_pinned_solve`)."""
-    y, residual, solver = _pinned_solve(contacts, rattler, xi)
+    relative residual of the solves and the solver used (:func:`pinned_solve`)."""
+    y, residual, solver = pinned_solve(contacts, rattler, xi)
     n, dim, m = xi.shape
     return np.einsum("km,km->m", xi.reshape(n * dim, m), y), residual, solver
 
 
-def _pinned_solve(
+def pinned_solve(
     contacts: Contacts, rattler: NDArray[np.bool_], xi: NDArray[np.float64]
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``y = H^+ Xi`` ``(N d, m)`` for the ``m`` columns of ``xi`` ``(N, d, m)``, zero on the

@@ -13,6 +13,7 @@ from contextlib import contextmanager
 
 from ..errors import ConvergenceError, InputError
 from . import analysis, basic, protocols, studies
+from .common import NotConverged
 from .door import check_request
 from .parser import build, subparser
 
@@ -22,6 +23,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], None]] = {
     "relax": basic.relax,
     "modes": analysis.modes,
     "moduli": analysis.moduli,
+    "certify": analysis.certify_file,
     "bench": basic.bench,
     "jam": protocols.jam,
     "compress": protocols.compress,
@@ -130,7 +132,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (InputError, ConvergenceError) as exc:
         print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
         return 2 if isinstance(exc, InputError) else 3
-    except basic.NotConverged as exc:
+    except NotConverged as exc:
         print(f"athermal {args.command}: {exc}", file=sys.stderr)
         return 3
     except OSError as exc:

@@ -19,12 +19,8 @@ from ..observables import Observables, measure
 from ..packing import random_packing
 from ..plot import force_distribution_figure, save
 from ..relaxation import RTOL, relax_objective
-from .common import file_observables, minimizer_from, model_from, sizes_from
+from .common import NotConverged, file_observables, minimizer_from, model_from, sizes_from
 from .printer import emit
-
-
-class NotConverged(RuntimeError):
-    """A minimization that stopped short of its tolerance (its result was still written)."""
 
 
 def _observables(obs: Observables, as_json: bool) -> dict[str, Any]:

@@ -9,6 +9,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..certify import Certificate
 from ..contact import ContactModel
 from ..observables import Observables
 from ..precon import PreconName
@@ -28,6 +29,10 @@ class Progress:
     def close(self) -> None:
         if self.show:
             print(file=sys.stderr, flush=True)
+
+
+class NotConverged(RuntimeError):
+    """A minimization that stopped short of its tolerance (its result was still written)."""
 
 
 def model_from(args: argparse.Namespace, fallback: ContactModel | None) -> ContactModel:
@@ -80,3 +85,14 @@ def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
         "phi": obs.phi,
         "z": obs.z,
     }
+
+
+def check_certified(certificate: Certificate) -> None:
+    """Raise :class:`NotConverged` (exit code 3) when the refinement stopped short of its
+    target; the packing and its certificate were written."""
+    if not certificate.converged:
+        raise NotConverged(
+            f"not certified: the refinement reached {certificate.relative_force_balance:.1e} of "
+            f"the mean contact force, not {certificate.target:g} (the precision's limit); the "
+            "packing and its certificate are written"
+        )

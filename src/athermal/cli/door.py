@@ -93,6 +93,7 @@ def _options(args: argparse.Namespace) -> None:
         "pressure_rtol": (lambda v: 0 < v < 1, "in (0, 1)"),
         "vectors": (lambda v: v >= 0, "an integer >= 0"),
         "finite_strain": (lambda v: 0 < v <= 1e-2, "in (0, 1e-2]"),
+        "target": (lambda v: 0 < v < 1, "in (0, 1)"),
     }
     for name, (ok, rule) in rules.items():
         _number(name, getattr(args, name, None), ok, rule)
@@ -150,6 +151,8 @@ def _work(args: argparse.Namespace) -> None:
             )
         if args.precon not in (None, "none", "exp"):
             raise InputError("--precon: --pressure takes none or exp (extended to the cell)")
+    if args.command == "jam" and args.certify and args.pressure is not None:
+        raise InputError("--certify: certifies the jammed packing; drop --pressure or --certify")
     if args.command == "bench":
         _bench(args)
     if args.command == "modes":
@@ -226,7 +229,7 @@ def output_files(args: argparse.Namespace) -> dict[str, Path]:
     """The files a command will write, by the option that names them."""
     out: dict[str, Path] = {}
     command = args.command
-    if command in ("random", "relax", "jam", "compress", "shear"):
+    if command in ("random", "relax", "jam", "compress", "shear", "certify"):
         out["--output"] = Path(args.output)
     if command == "jam":
         out["--trajectory"] = Path(args.trajectory or Path(args.output).with_suffix(".steps.gsd"))

@@ -10,6 +10,7 @@ import re
 from typing import Any, NoReturn
 
 from .. import bench
+from ..certify import TARGET
 from ..linalg import SOLVERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..precon import PRECONDITIONERS
@@ -341,6 +342,30 @@ def build() -> argparse.ArgumentParser:
     )
     _model(mdl, from_file=True)
 
+    cer = sub.add_parser(
+        "certify",
+        help="certify a jammed packing: force balance beyond float64",
+        description="Refine a relaxed jammed packing by Newton's method with the residual forces "
+        "in double-double (~32 digits) until its largest net force is --target times its mean "
+        "contact force, and write it with its certificate: the force balance reached, the "
+        "contacts beyond isostatic, the lowest non-zero eigenvalue of the non-rattlers' "
+        "Hessian, the smallest contact force and gap (docs/quantities.md). The file keeps the "
+        "positions' low parts (log/athermal/position_lo). Refused: a packing that is not jammed, "
+        "not relaxed, or whose contacts change in the refinement (exit 2); exit 3 when the "
+        "precision's limit comes before --target.",
+    )
+    cer.add_argument("input", help="GSD file with a jammed packing (jam's output)")
+    cer.add_argument("-o", "--output", required=True, help="GSD file for the certified packing")
+    cer.add_argument("--frame", type=int, default=-1, help="frame index (-1: the last)")
+    cer.add_argument(
+        "--target",
+        type=float,
+        default=TARGET,
+        help="force balance to reach, x the mean contact force",
+    )
+    cer.add_argument("--overwrite", action="store_true", help="replace an existing output")
+    _model(cer, from_file=True)
+
     rel = sub.add_parser(
         "relax",
         help="one energy minimization",
@@ -401,6 +426,12 @@ def build() -> argparse.ArgumentParser:
     )
     jam.add_argument(
         "--pressure-rtol", type=float, default=1e-3, help="relative accuracy of --pressure"
+    )
+    jam.add_argument(
+        "--certify",
+        action="store_true",
+        help="refine the jammed packing in double-double to force balance 1e-20 of its mean "
+        "contact force and write its certificate with it (as athermal certify)",
     )
     jam.add_argument("-o", "--output", required=True, help="GSD file for the jammed packing")
     jam.add_argument(

@@ -17,6 +17,7 @@ from typing import Any, Generic, TypeVar
 
 import numpy as np
 
+from ..certify import certify
 from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
 from ..contact import ContactModel, find_contacts
 from ..errors import InputError
@@ -36,6 +37,7 @@ from ..protocols.pressure import pressure_search, warn_if_near_jamming
 from ..tables import Row, write_table
 from .common import (
     Progress,
+    check_certified,
     file_observables,
     minimizer_from,
     model_from,
@@ -204,12 +206,17 @@ def jam(args: argparse.Namespace) -> None:
             "pressure_drops": found.pressure_drops,
             "pressure_iterations": found.iterations,
         }
+    certified = certify(result.packing, model) if args.certify else None
+    if certified is not None:
+        final = certified.packing
     write_gsd(
         args.output,
         final,
         model=model,
         seed=args.seed,
+        position_lo=None if certified is None else certified.position_lo,
         observables={
+            **({} if certified is None else certified.certificate.log()),
             **file_observables(obs),
             "phi_c": result.phi_c,
             "phi_low": result.phi_low,
@@ -251,6 +258,7 @@ def jam(args: argparse.Namespace) -> None:
             **at_pressure,
             "jamming_check": jamming_check,
             "checks_passed": check.passed,
+            **({} if certified is None else {"certificate": asdict(certified.certificate)}),
             "steps": result.steps,
             "resumed_steps": len(done),
             "iterations": result.iterations,
@@ -264,6 +272,8 @@ def jam(args: argparse.Namespace) -> None:
         },
         args.json,
     )
+    if certified is not None:
+        check_certified(certified.certificate)
 
 
 def _frame_index(args: argparse.Namespace) -> int:
