@@ -1,7 +1,7 @@
 """Double-double arithmetic and the contact sums in it, against Python's decimal at 60 digits (an
 independent implementation: exact conversion of each float64, correctly rounded operations)."""
 
-from decimal import Decimal, getcontext
+from decimal import Decimal
 
 import numba
 import numpy as np
@@ -13,12 +13,7 @@ from athermal.contact import ContactModel
 from athermal.errors import InputError
 from athermal.neighbors import build_neighbor_list
 from athermal.packing import Packing, random_packing
-
-getcontext().prec = 60
-
-
-def exact(hi: float, lo: float = 0.0) -> Decimal:
-    return Decimal(hi) + Decimal(lo)
+from decimal_reference import decimal_sums, exact
 
 
 def pair(value: Decimal) -> tuple[float, float]:
@@ -66,34 +61,6 @@ def test_two_prod_and_two_sum_are_exact():
         (p, e), (s, f) = products(a, b)
         assert exact(p, e) == Decimal(a) * Decimal(b)
         assert exact(s, f) == Decimal(a) + Decimal(b)
-
-
-def decimal_sums(xh, xl, radii, h, first, second, images, k, alpha):
-    """The pair sums by decimal arithmetic: overlaps, gradient, virial and energy."""
-    n, d = xh.shape
-    x = [[exact(xh[i, a], xl[i, a]) for a in range(d)] for i in range(n)]
-    grad = [[Decimal(0)] * d for _ in range(n)]
-    virial = [[Decimal(0)] * d for _ in range(d)]
-    energy, overlaps = Decimal(0), []
-    for p, (i, j) in enumerate(zip(first, second, strict=True)):
-        sep = [
-            x[i][a] - x[j][a] + sum(Decimal(h[a, b]) * Decimal(images[p, b]) for b in range(d))
-            for a in range(d)
-        ]
-        r = sum(s * s for s in sep).sqrt()
-        delta = Decimal(radii[i]) + Decimal(radii[j]) - r
-        overlaps.append(delta)
-        if delta <= 0:
-            continue
-        force = Decimal(k[p]) * delta ** (Decimal(alpha) - 1)  # decimal's power: exp(y ln x)
-        energy += force * delta / Decimal(alpha)
-        for a in range(d):
-            f = force * sep[a] / r
-            grad[i][a] -= f
-            grad[j][a] += f
-            for b in range(d):
-                virial[b][a] += sep[b] * f
-    return overlaps, grad, virial, energy
 
 
 @pytest.mark.parametrize(("dim", "alpha"), [(2, 2.0), (2, 2.5), (3, 2.0), (3, 3.0)])

@@ -1,0 +1,134 @@
+"""Certified jamming points: the force balance a certificate states holds when recomputed
+independently (decimal at 60 digits), and what cannot be certified is refused."""
+
+import json
+from decimal import Decimal
+
+import numpy as np
+import pytest
+
+import athermal as at
+from athermal.certify import TARGET, certify
+from athermal.cli import main
+from athermal.errors import InputError
+from athermal.neighbors import build_neighbor_list
+from decimal_reference import decimal_sums
+
+
+@pytest.fixture(scope="module", params=[(2, 2.0, 64), (2, 2.5, 64), (3, 2.0, 48)])
+def jammed(request):
+    dim, alpha, n = request.param
+    model = at.ContactModel(alpha)
+    start = at.random_packing(n, 0.8 if dim == 2 else 0.6, dim=dim, seed=4)
+    return at.jam(start, model).packing, model
+
+
+def decimal_force_balance(packing, lo, model):
+    """``max_i |F_i|`` and the mean contact force, by decimal arithmetic from ``hi + lo``."""
+    nlist = build_neighbor_list(packing.positions, packing.radii, packing.cell, skin=0.0)
+    first, second = nlist.first.astype(np.int64), nlist.second.astype(np.int64)
+    images = np.ascontiguousarray(nlist.images[nlist.code])
+    k = np.full(first.size, model.stiffness)
+    overlaps, grad, _, _ = decimal_sums(
+        packing.positions, lo, packing.radii, packing.cell.h, first, second, images, k, model.alpha
+    )
+    forces = [Decimal(model.stiffness) * o ** Decimal(model.alpha - 1) for o in overlaps if o > 0]
+    largest = max(sum(g * g for g in row).sqrt() for row in grad)
+    return largest, sum(forces) / len(forces)
+
+
+def test_a_certified_packing_balances_its_forces_to_1e_20_of_the_mean_force(jammed):
+    packing, model = jammed
+    done = certify(packing, model)
+    cert = done.certificate
+    assert cert.converged and cert.relative_force_balance <= TARGET
+    assert cert.start_force_balance > 1e-12 * cert.mean_force  # float64's floor, far above
+    # independently, from the certified hi + lo
+    largest, mean_force = decimal_force_balance(done.packing, done.position_lo, model)
+    assert largest <= Decimal(TARGET) * mean_force
+    assert float(mean_force) == pytest.approx(cert.mean_force, rel=1e-12)
+    assert 1 <= cert.iterations <= 4
+    # a jammed packing: isostatic up to a few contacts, stable, with gaps and forces resolved
+    assert 0 <= cert.excess_contacts <= 4
+    assert cert.lowest_eigenvalue > 0.0
+    assert 0.0 < cert.smallest_force < cert.mean_force
+    assert cert.smallest_gap > 0.0
+    assert cert.pressure == pytest.approx(at.measure(packing, model).pressure, rel=1e-6)
+    # the same packing: the refinement moves the particles by a small part of an overlap (more
+    # than float64's resolution of positions: the residual forces act along soft modes)
+    moved = np.abs(done.packing.positions - packing.positions).max()
+    overlap = (cert.mean_force / model.stiffness) ** (1.0 / (model.alpha - 1.0))
+    assert moved < 1e-2 * overlap
+
+
+def test_certifying_a_certified_packing_changes_nothing(jammed):
+    packing, model = jammed
+    done = certify(packing, model)
+    again = certify(done.packing, model, done.position_lo)
+    assert again.certificate.iterations == 0
+    np.testing.assert_array_equal(again.packing.positions, done.packing.positions)
+    np.testing.assert_array_equal(again.position_lo, done.position_lo)
+
+
+def test_the_certified_state_is_read_back_exactly(jammed, tmp_path):
+    packing, model = jammed
+    done = certify(packing, model)
+    at.write_gsd(
+        tmp_path / "c.gsd",
+        done.packing,
+        model=model,
+        observables=done.certificate.log(),
+        position_lo=done.position_lo,
+    )
+    frame = at.read_gsd(tmp_path / "c.gsd")
+    np.testing.assert_array_equal(frame.packing.positions, done.packing.positions)
+    np.testing.assert_array_equal(frame.position_lo, done.position_lo)
+    assert float(frame.log["certificate_relative_force_balance"][()]) == (
+        done.certificate.relative_force_balance
+    )
+    assert "position_lo" not in frame.log
+
+
+def test_an_unjammed_packing_is_refused():
+    packing = at.random_packing(64, 0.5, seed=1)
+    with pytest.raises(InputError, match="not jammed"):
+        certify(packing, at.ContactModel(2.0))
+
+
+def test_a_packing_off_its_minimum_is_refused(jammed):
+    packing, model = jammed
+    shaken = packing.with_positions(
+        packing.positions
+        + 1e-13 * np.random.default_rng(1).standard_normal(packing.positions.shape)
+    )
+    with pytest.raises(InputError, match="not relaxed"):
+        certify(shaken, model)
+
+
+def test_another_contact_exponent_is_refused(jammed):
+    packing, _ = jammed
+    with pytest.raises(InputError, match="alpha"):
+        certify(packing, at.ContactModel(2.2))
+
+
+def test_the_command_certifies_a_file_and_jam_certifies_its_packing(tmp_path, capsys):
+    jam = ["jam", "--n", "64", "--seed", "2", "--picture", "none", "--json", "--certify"]
+    assert main([*jam, "-o", str(tmp_path / "j.gsd")]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["certificate"]["converged"] and out["certificate"]["relative_force_balance"] < 1e-20
+    frame = at.read_gsd(tmp_path / "j.gsd")
+    assert frame.position_lo is not None and "certificate_force_balance" in frame.log
+    assert main(["certify", str(tmp_path / "j.gsd"), "-o", str(tmp_path / "c.gsd"), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["iterations"] == 0 and out["converged"]
+    assert main(["jam", "--n", "64", "-o", str(tmp_path / "p.gsd"), "--certify", "--pressure",
+                 "1e-3"]) == 2  # fmt: skip
+    assert "drop --pressure or --certify" in capsys.readouterr().err
+
+
+def test_the_command_refuses_an_unjammed_file_and_writes_nothing(tmp_path, capsys):
+    at.write_gsd(tmp_path / "r.gsd", at.random_packing(64, 0.5, seed=1), model=at.ContactModel())
+    assert main(["certify", str(tmp_path / "r.gsd"), "-o", str(tmp_path / "c.gsd")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not jammed" in err
+    assert not (tmp_path / "c.gsd").exists()
