@@ -12,10 +12,11 @@ residual falls by about ``cond(H) x 1e-16`` per step until it reaches the double
 ``~1e-32`` of the positions.
 
 The contacts are those of the float64 packing; after the refinement they are derived again from
-the refined positions, in double-double, and a contact that opened or closed is refused
-(:class:`~athermal.errors.InputError`): the certificate would describe another network. Rattlers
-(fewer than ``d + 1`` contacts, removed iteratively) are not moved; a rattler that carries a load
-is refused as not relaxed.
+the refined positions, in double-double, and a contact that formed or broke between non-rattlers
+is refused (:class:`~athermal.errors.InputError`): the certificate would describe another
+network. Rattlers (fewer than ``d + 1`` contacts, removed iteratively) carry no force at a
+certified point: Newton does not move them, and one that a step makes overlap a neighbour (its
+cage moved by up to ~1e-9 along soft modes) is moved straight out of the overlap.
 """
 
 from __future__ import annotations
@@ -27,18 +28,22 @@ from numpy.typing import NDArray
 
 from .contact import ContactModel
 from .errors import ConvergenceError, InputError
-from .extended import PRECISION, contact_sums, displace, half_steps
+from .extended import PRECISION, NearPairs, PairSums, displace, half_steps
 from .modes import vibrational_modes
 from .moduli import nonrattler_contacts, pinned_solve
-from .neighbors import build_neighbor_list
 from .observables import isostatic_contacts
 from .packing import Packing
+from .relaxation import round_off_floor
 
 TARGET = 1e-20
 """Force balance a certificate asks for: ``max_i |F_i| <= TARGET x`` the mean contact force."""
 RELAXED = 1e-6
 """A packing to certify must balance its forces in float64 to this fraction of its mean contact
-force (``jam`` ends at 1e-10): a start farther from its minimum is refused as not relaxed."""
+force, or to :data:`ROUND_OFF_SLACK` x float64's round-off floor where that is larger
+(:func:`athermal.relaxation.round_off_floor`: Hertzian contacts near jamming, whose forces vanish
+faster than the floor); a start farther from its minimum is refused as not relaxed."""
+ROUND_OFF_SLACK = 10.0
+"""How far above float64's round-off floor a relaxed start may be (:data:`RELAXED`)."""
 MAX_ITERATIONS = 12
 """Newton steps at most; each gains ~8 digits near jamming, and 3-4 reach :data:`TARGET`."""
 STALL = 0.5
@@ -46,6 +51,11 @@ STALL = 0.5
 one has reached the limit of the precision."""
 LOG_PREFIX = "certificate_"
 """The certificate's fields in a GSD frame's log are ``log/athermal/certificate_<name>``."""
+RATTLER_MARGIN = 10.0
+"""A rattler that the refinement makes overlap is moved this many times the largest Newton step
+beyond the overlap, so that the next steps leave it free."""
+RATTLER_PASSES = 20
+"""Rounds of moving overlapping rattlers out at most."""
 GAP_REACH = 0.2
 """Pairs up to this many mean diameters apart (surface to surface) are the near neighbours whose
 gaps the certificate and the gap statistics take."""
@@ -114,62 +124,6 @@ class CertifiedPacking:
     certificate: Certificate
 
 
-@dataclass(frozen=True, eq=False)
-class _Sums:
-    """The pair sums at ``hi + lo``: overlaps ``(P,)`` (negative: gaps), gradient ``(N, d)``,
-    virial ``(d, d)``, energy, each as ``(hi, lo)``."""
-
-    overlap: tuple[NDArray[np.float64], NDArray[np.float64]]
-    gradient: tuple[NDArray[np.float64], NDArray[np.float64]]
-    virial: tuple[NDArray[np.float64], NDArray[np.float64]]
-    energy: tuple[float, float]
-
-    def largest_force(self) -> float:
-        """``max_i |grad_i|`` (the norm of each particle's ``hi + lo``)."""
-        g = self.gradient[0] + self.gradient[1]
-        return float(np.sqrt((g * g).sum(axis=1)).max())
-
-
-class _Pairs:
-    """The near pairs of a packing (contacts and gaps within :data:`GAP_REACH`), their images
-    and stiffnesses, fixed for a refinement."""
-
-    def __init__(self, packing: Packing, model: ContactModel) -> None:
-        skin = GAP_REACH * 2.0 * float(packing.radii.mean())
-        nlist = build_neighbor_list(packing.positions, packing.radii, packing.cell, skin=skin)
-        self.first = nlist.first.astype(np.int64)
-        self.second = nlist.second.astype(np.int64)
-        self.images = np.ascontiguousarray(nlist.images[nlist.code])
-        typeid = model.typeid(packing)
-        self.stiffness = np.ascontiguousarray(model.kmat[typeid[self.first], typeid[self.second]])
-        self.half_steps = half_steps(model.alpha)
-        self.alpha = float(model.alpha)
-        self.packing = packing
-
-    def sums(self, hi: NDArray[np.float64], lo: NDArray[np.float64]) -> _Sums:
-        """The pair sums at ``hi + lo`` ``(N, d)``."""
-        p, (n, d) = self.first.size, hi.shape
-        overlap = (np.empty(p), np.empty(p))
-        gradient = (np.empty((n, d)), np.empty((n, d)))
-        virial = (np.empty((d, d)), np.empty((d, d)))
-        energy = contact_sums(
-            np.ascontiguousarray(hi),
-            np.ascontiguousarray(lo),
-            self.packing.radii,
-            self.first,
-            self.second,
-            self.images,
-            np.ascontiguousarray(self.packing.cell.h),
-            self.stiffness,
-            self.half_steps,
-            self.alpha,
-            *overlap,
-            *gradient,
-            *virial,
-        )
-        return _Sums(overlap, gradient, virial, (float(energy[0]), float(energy[1])))
-
-
 def certify(
     packing: Packing,
     model: ContactModel,
@@ -199,8 +153,8 @@ def certify(
     ------
     InputError
         The packing is not jammed (no contacts between non-rattlers, or fewer than isostatic),
-        not relaxed (float64 force balance above :data:`RELAXED` of its mean contact force, or a
-        loaded rattler), or its contact network changed during the refinement (names the pair).
+        not relaxed (float64 force balance above :data:`RELAXED` of its mean contact force), or
+        its contact network changed during the refinement (names the pair).
     ConvergenceError
         The Newton correction could not be solved (a Hessian singular beyond the translations).
     """
@@ -221,47 +175,48 @@ def certify(
             f"{-excess if excess < 0 else 0} fewer than isostatic; jam it first"
         )
     mean_force = float(contacts.force_magnitude.mean())
-    pairs = _Pairs(packing, model)
+    pairs = NearPairs(packing, model, GAP_REACH)
     sums = pairs.sums(hi, lo)
     start = sums.largest_force()
-    if not start <= RELAXED * mean_force:
+    floor = ROUND_OFF_SLACK * round_off_floor(contacts, packing.cell)
+    if not start <= max(RELAXED * mean_force, floor):
         raise InputError(
             f"not relaxed: its largest net force is {start / mean_force:.1e} of its mean contact "
-            f"force (certify takes <= {RELAXED:g}); relax it first"
+            f"force (certify takes <= {max(RELAXED, floor / mean_force):.1e}); relax it first"
         )
-    network = sums.overlap[0] > 0.0
-    loaded = network & (rattler[pairs.first] | rattler[pairs.second])
-    if loaded.any():
-        k = int(np.flatnonzero(loaded)[0])
-        raise InputError(
-            f"not relaxed: rattler contact {pairs.first[k]}-{pairs.second[k]} carries a load"
-        )
-    force, iterations = start, 0
-    while force > target * mean_force and iterations < max_iterations:
-        current = packing.with_positions(hi)
-        step = _newton_step(current, model, sums.gradient[0], rattler)
-        displace(hi, lo, step)
-        iterations += 1
+    live_pair = ~(rattler[pairs.first] | rattler[pairs.second])
+    network = live_pair & (sums.overlap[0] > 0.0)
+    force, iterations, largest_step = start, 0, 0.0
+    while True:
+        largest_step = _free_rattlers(pairs, hi, lo, rattler, RATTLER_MARGIN * largest_step)
         sums, previous = pairs.sums(hi, lo), force
         force = sums.largest_force()
-        if force > STALL * previous:
+        if iterations and force > STALL * previous:
             break
-    _same_network(pairs, network, sums.overlap[0] > 0.0)
+        if force <= target * mean_force or iterations == max_iterations:
+            break
+        step = _newton_step(pairs, hi, sums, network, rattler)
+        largest_step = max(largest_step, float(np.abs(step).max()))
+        displace(hi, lo, step)
+        iterations += 1
+    _same_network(pairs, network, live_pair & (sums.overlap[0] > 0.0))
     refined = packing.with_positions(hi)
     certificate = _certificate(refined, model, pairs, sums, rattler, start, iterations, target)
     return CertifiedPacking(refined, lo, certificate)
 
 
 def _newton_step(
-    packing: Packing,
-    model: ContactModel,
-    gradient: NDArray[np.float64],
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    sums: PairSums,
+    network: NDArray[np.bool_],
     rattler: NDArray[np.bool_],
 ) -> NDArray[np.float64]:
-    """``-H^+ g`` ``(N, d)`` on the non-rattlers (first one pinned), zero on the rattlers."""
-    contacts, _ = nonrattler_contacts(packing, model)
-    n, dim = packing.n, packing.dim
-    y, residual, _ = pinned_solve(contacts, rattler, gradient.reshape(n, dim, 1))
+    """``-H^+ g`` ``(N, d)`` on the non-rattlers (first one pinned), zero on the rattlers, with
+    ``H`` the float64 Hessian of the contacts ``network`` at ``hi``."""
+    n, dim = hi.shape
+    contacts = pairs.contacts(hi, sums.overlap[0], network)
+    y, residual, _ = pinned_solve(contacts, rattler, sums.gradient[0].reshape(n, dim, 1))
     if not np.all(np.isfinite(y)) or residual > 1e-6:
         raise ConvergenceError(
             f"certify: the Newton correction did not solve (relative residual {residual:.1e}): "
@@ -270,11 +225,40 @@ def _newton_step(
     return -y.reshape(n, dim)
 
 
-def _same_network(pairs: _Pairs, before: NDArray[np.bool_], after: NDArray[np.bool_]) -> None:
+def _free_rattlers(
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    rattler: NDArray[np.bool_],
+    margin: float,
+) -> float:
+    """Move every rattler that overlaps a neighbour straight out of the overlap and ``margin``
+    beyond it (a rattler's place in its cage is free, and the refinement moves the cage's
+    walls); returns the largest move. A few passes: a move may touch another neighbour."""
+    largest = 0.0
+    for _ in range(RATTLER_PASSES):
+        overlap = pairs.sums(hi, lo).overlap[0]
+        hit = np.flatnonzero((overlap > 0.0) & (rattler[pairs.first] | rattler[pairs.second]))
+        if hit.size == 0:
+            return largest
+        sep = pairs.separations(hi)[hit]
+        push = (overlap[hit] + margin)[:, None] * sep / np.linalg.norm(sep, axis=1)[:, None]
+        step = np.zeros_like(hi)
+        first_moves = rattler[pairs.first[hit]]  # sep points from second to first
+        np.add.at(step, pairs.first[hit][first_moves], push[first_moves])
+        np.add.at(step, pairs.second[hit][~first_moves], -push[~first_moves])
+        largest = max(largest, float(np.abs(step).max()))
+        displace(hi, lo, step)
+    raise ConvergenceError(
+        f"certify: rattlers still overlap their neighbours after {RATTLER_PASSES} moves"
+    )
+
+
+def _same_network(pairs: NearPairs, before: NDArray[np.bool_], after: NDArray[np.bool_]) -> None:
     changed = np.flatnonzero(before != after)
     if changed.size:
         k = int(changed[0])
-        what = "opened" if before[k] else "closed"
+        what = "broke" if before[k] else "formed"
         raise InputError(
             f"the contact network changed during the refinement: contact {pairs.first[k]}-"
             f"{pairs.second[k]} {what} ({changed.size} pair(s) in all); the float64 packing is "
@@ -285,8 +269,8 @@ def _same_network(pairs: _Pairs, before: NDArray[np.bool_], after: NDArray[np.bo
 def _certificate(
     packing: Packing,
     model: ContactModel,
-    pairs: _Pairs,
-    sums: _Sums,
+    pairs: NearPairs,
+    sums: PairSums,
     rattler: NDArray[np.bool_],
     start: float,
     iterations: int,

@@ -18,10 +18,16 @@ positions of order one.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numba
 import numpy as np
+from numpy.typing import NDArray
 
+from .contact import ContactModel, Contacts
 from .errors import InputError
+from .neighbors import build_neighbor_list
+from .packing import Packing
 
 SPLITTER = 134217729.0
 """``2^27 + 1``: Dekker's constant splitting a float64 into two halves of 26 bits."""
@@ -201,3 +207,79 @@ def half_steps(alpha: float) -> int:
             f">= 2), got {alpha}"
         )
     return round(steps)
+
+
+@dataclass(frozen=True, eq=False)
+class PairSums:
+    """The pair sums at ``hi + lo``: overlaps ``(P,)`` (negative: gaps), gradient ``(N, d)``,
+    virial ``(d, d)``, energy, each as ``(hi, lo)``."""
+
+    overlap: tuple[NDArray[np.float64], NDArray[np.float64]]
+    gradient: tuple[NDArray[np.float64], NDArray[np.float64]]
+    virial: tuple[NDArray[np.float64], NDArray[np.float64]]
+    energy: tuple[float, float]
+
+    def largest_force(self) -> float:
+        """``max_i |grad_i|`` (the norm of each particle's ``hi + lo``)."""
+        g = self.gradient[0] + self.gradient[1]
+        return float(np.sqrt((g * g).sum(axis=1)).max())
+
+
+class NearPairs:
+    """The pairs of a packing within ``reach`` mean diameters of contact (surface to surface),
+    with their lattice images and stiffnesses, fixed once listed; :meth:`sums` evaluates them at
+    double-double positions."""
+
+    def __init__(self, packing: Packing, model: ContactModel, reach: float) -> None:
+        skin = reach * 2.0 * float(packing.radii.mean())
+        nlist = build_neighbor_list(packing.positions, packing.radii, packing.cell, skin=skin)
+        self.first = nlist.first.astype(np.int64)
+        self.second = nlist.second.astype(np.int64)
+        self.images = np.ascontiguousarray(nlist.images[nlist.code])
+        typeid = model.typeid(packing)
+        self.stiffness = np.ascontiguousarray(model.kmat[typeid[self.first], typeid[self.second]])
+        self.half_steps = half_steps(model.alpha)
+        self.alpha = float(model.alpha)
+        self.packing = packing
+
+    def separations(self, hi: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``x_i - x_j + h n`` ``(P, d)`` of every pair at ``hi``, float64."""
+        return hi[self.first] - hi[self.second] + self.images @ self.packing.cell.h.T
+
+    def contacts(
+        self, hi: NDArray[np.float64], overlap: NDArray[np.float64], keep: NDArray[np.bool_]
+    ) -> Contacts:
+        """The pairs ``keep`` as contacts at ``hi`` with the (double-double) ``overlap``."""
+        sep = self.separations(hi)[keep]
+        return Contacts(
+            self.first[keep],
+            self.second[keep],
+            sep,
+            np.linalg.norm(sep, axis=1),
+            overlap[keep],
+            self.stiffness[keep],
+            self.alpha,
+        )
+
+    def sums(self, hi: NDArray[np.float64], lo: NDArray[np.float64]) -> PairSums:
+        """The pair sums at ``hi + lo`` ``(N, d)``."""
+        p, (n, d) = self.first.size, hi.shape
+        overlap = (np.empty(p), np.empty(p))
+        gradient = (np.empty((n, d)), np.empty((n, d)))
+        virial = (np.empty((d, d)), np.empty((d, d)))
+        energy = contact_sums(
+            np.ascontiguousarray(hi),
+            np.ascontiguousarray(lo),
+            self.packing.radii,
+            self.first,
+            self.second,
+            self.images,
+            np.ascontiguousarray(self.packing.cell.h),
+            self.stiffness,
+            self.half_steps,
+            self.alpha,
+            *overlap,
+            *gradient,
+            *virial,
+        )
+        return PairSums(overlap, gradient, virial, (float(energy[0]), float(energy[1])))

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
+    from .criticality import CriticalExponents, WeakForcesAndGaps
     from .modes import Modes
 
 MAX_FORCE_WIDTH = 2.0
@@ -606,4 +607,61 @@ def modes_figure(spectra: Mapping[str, Modes], *, title: str = "", seed: int = 0
     pr_ax.set_ylim(0.0, 1.0)
     if title:
         fig.suptitle(title)
+    return fig
+
+
+def criticality_figure(
+    samples: Sequence[WeakForcesAndGaps], exponents: CriticalExponents, *, title: str = ""
+) -> Figure:
+    """The cumulative distributions of the pooled weak forces (extended and localized, left) and
+    gaps (right) against ``f / <f>`` and ``h`` on log-log axes, as counts per non-rattler: the
+    fitted windows shaded, each fit (solid, over its window) and the mean-field slopes
+    ``1 + theta_e`` and ``1 - gamma`` (dotted) through the fit's middle."""
+    from .criticality import GAMMA, THETA_E
+
+    live = sum(s.n_live for s in samples)
+    forces = np.concatenate([s.forces for s in samples])
+    localized = np.concatenate([s.localized for s in samples])
+    gaps = np.concatenate([s.gaps for s in samples])
+    fig = _figure(10.0, 4.2)
+    force_ax, gap_ax = fig.subplots(1, 2)
+    curves = (
+        (force_ax, forces[~localized], exponents.extended, "extended", 1.0 + THETA_E, "theta_e"),
+        (force_ax, forces[localized], exponents.localized, "localized (bucklers)", None, ""),
+        (gap_ax, gaps, exponents.gap, "gaps", 1.0 - GAMMA, "gamma"),
+    )
+    for ax, values, fit, label, mean_field, name in curves:
+        x = np.sort(values)
+        count = np.arange(1, x.size + 1) / live
+        shown = np.unique(np.geomspace(1, x.size, 300).astype(int)) - 1
+        exponent = fit.a - 1.0 if name != "gamma" else 1.0 - fit.a
+        symbol = {"theta_e": r"\theta_e", "gamma": r"\gamma", "": r"\theta_l"}[name]
+        (line,) = ax.loglog(
+            x[shown],
+            count[shown],
+            ".",
+            markersize=3,
+            label=f"{label}: ${symbol}$ = {exponent:.3f} ± {fit.stderr:.3f}",
+        )
+        low, high = fit.window
+        middle = np.sqrt(low * high)
+        at_middle = float(np.interp(np.log(middle), np.log(x), np.log(count)))
+        grid = np.geomspace(low, high, 20)
+        ax.loglog(grid, np.exp(at_middle) * (grid / middle) ** fit.a, "-", color=line.get_color())
+        if mean_field is not None:
+            ax.loglog(
+                grid,
+                np.exp(at_middle) * (grid / middle) ** mean_field,
+                ":",
+                color="black",
+                label=f"mean field, slope {mean_field:.4f}",
+            )
+        ax.axvspan(low, high, color=line.get_color(), alpha=0.06)
+    force_ax.set_xlabel(r"$f / \langle f \rangle$")
+    force_ax.set_ylabel("contacts below, per non-rattler")
+    gap_ax.set_xlabel(r"$h = r_{ij} / (r_i + r_j) - 1$")
+    gap_ax.set_ylabel("gaps below, per non-rattler")
+    for ax in (force_ax, gap_ax):
+        ax.legend(fontsize="small", loc="upper left")
+    fig.suptitle(title or f"{exponents.packings} packings, {live} non-rattlers")
     return fig

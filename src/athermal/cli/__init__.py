@@ -24,6 +24,7 @@ COMMANDS: dict[str, Callable[[argparse.Namespace], None]] = {
     "modes": analysis.modes,
     "moduli": analysis.moduli,
     "certify": analysis.certify_file,
+    "criticality": analysis.criticality,
     "bench": basic.bench,
     "jam": protocols.jam,
     "compress": protocols.compress,

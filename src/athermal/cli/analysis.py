@@ -13,13 +13,14 @@ import numpy as np
 
 from ..certify import LOG_PREFIX, certify
 from ..contact import ContactModel
+from ..criticality import GAMMA, THETA_E, critical_exponents, weak_forces_and_gaps
 from ..io import count_frames, read_gsd, write_gsd
 from ..modes import plateau_edge, save_modes, vibrational_modes
 from ..moduli import linear_response
 from ..objective import Objective
 from ..observables import measure
 from ..packing import Packing
-from ..plot import modes_figure, save
+from ..plot import criticality_figure, modes_figure, save
 from ..protocols.finite_strain import finite_strain_bulk, finite_strain_shear
 from .common import check_certified, model_from
 from .printer import emit
@@ -164,3 +165,48 @@ def certify_file(args: argparse.Namespace) -> None:
     }
     emit(out, args.json)
     check_certified(done.certificate)
+
+
+def criticality(args: argparse.Namespace) -> None:
+    """``athermal criticality``: weak forces and small gaps pooled over files, their
+    exponents."""
+    t0 = time.perf_counter()
+    samples, certified = [], 0
+    for path in args.inputs:
+        frame = read_gsd(path)
+        model = model_from(args, frame.model)
+        samples.append(weak_forces_and_gaps(frame.packing, model, frame.position_lo))
+        certified += frame.position_lo is not None
+    if certified < len(samples):
+        warnings.warn(
+            f"{len(samples) - certified} of {len(samples)} files are not certified (athermal "
+            "certify): their smallest forces and gaps carry float64's round-off",
+            stacklevel=1,
+        )
+    found = critical_exponents(samples, tuple(args.force_window), tuple(args.gap_window))
+    out: dict[str, object] = {
+        "packings": found.packings,
+        "certified": certified,
+        "non_rattlers": sum(s.n_live for s in samples),
+        "bucklers": sum(s.bucklers for s in samples),
+        "contacts": found.contacts,
+        "localized_contacts": found.localized_contacts,
+        "gaps": found.gaps,
+    }
+    for name, fit, value, mean_field in (
+        ("theta_e", found.extended, found.theta_e, THETA_E),
+        ("theta_l", found.localized, found.theta_l, None),
+        ("gamma", found.gap, found.gamma, GAMMA),
+    ):
+        out[name] = {
+            "value": value,
+            "stderr": fit.stderr,
+            "points": fit.points,
+            "window": list(fit.window),
+            "mean_field": mean_field,
+        }
+    if args.figure is not None:
+        save(criticality_figure(samples, found), args.figure)
+        out["figure"] = args.figure
+    out["seconds"] = round(time.perf_counter() - t0, 3)
+    emit(out, args.json)

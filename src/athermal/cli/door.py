@@ -151,6 +151,16 @@ def _work(args: argparse.Namespace) -> None:
             )
         if args.precon not in (None, "none", "exp"):
             raise InputError("--precon: --pressure takes none or exp (extended to the cell)")
+    if args.command == "criticality":
+        for option in ("force_window", "gap_window"):
+            low, high = getattr(args, option)
+            if not 0 < low < high:
+                raise InputError(
+                    f"--{option.replace('_', '-')}: need 0 < LOW < HIGH, got {low:g} {high:g}"
+                )
+        for path in args.inputs:
+            if not Path(path).is_file():
+                raise InputError(f"input: {path}: no such file")
     if args.command == "jam" and args.certify and args.pressure is not None:
         raise InputError("--certify: certifies the jammed packing; drop --pressure or --certify")
     if args.command == "bench":
@@ -237,6 +247,8 @@ def output_files(args: argparse.Namespace) -> dict[str, Path]:
             out["--picture"] = Path(args.picture or Path(args.output).with_suffix(".png"))
     if command in ("jam", "compress", "shear"):
         out["--table"] = Path(args.table or Path(args.output).with_suffix(".csv"))
+    if command == "criticality" and args.figure is not None:
+        out["--figure"] = Path(args.figure)
     if command == "measure" and args.forces_figure is not None:
         out["--forces-figure"] = Path(args.forces_figure)
     if command == "modes":
@@ -252,6 +264,7 @@ def _paths(args: argparse.Namespace) -> None:
     outputs = output_files(args)
     seen: dict[Path, str] = {}
     inputs = {Path(args.input).resolve()} if getattr(args, "input", None) else set()
+    inputs |= {Path(path).resolve() for path in getattr(args, "inputs", ())}
     replace = getattr(args, "overwrite", False) or getattr(args, "resume", False)
     for option, path in outputs.items():
         if str(path) in ("", "."):

@@ -11,6 +11,7 @@ from typing import Any, NoReturn
 
 from .. import bench
 from ..certify import TARGET
+from ..criticality import FORCE_WINDOW, GAP_WINDOW
 from ..linalg import SOLVERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..precon import PRECONDITIONERS
@@ -365,6 +366,38 @@ def build() -> argparse.ArgumentParser:
     )
     cer.add_argument("--overwrite", action="store_true", help="replace an existing output")
     _model(cer, from_file=True)
+
+    cri = sub.add_parser(
+        "criticality",
+        help="weak forces and small gaps of jammed packings, and their critical exponents",
+        description="Pool the contact forces f / <f> and the gaps h = r_ij / (r_i + r_j) - 1 "
+        "between non-rattlers of many jammed packings (certified ones: athermal certify, jam "
+        "--certify), split the forces into those of bucklers (particles with d + 1 contacts, "
+        "localized) and the others (extended), and fit their small-value power laws by maximum "
+        "likelihood over a window: P(f) ~ f^theta, g(h) ~ h^-gamma, beside the mean-field "
+        "theta_e = 0.42311 and gamma = 0.41269 (Charbonneau, Corwin, Parisi & Zamponi, PRL "
+        "114, 125504 (2015)).",
+    )
+    cri.add_argument("inputs", nargs="+", help="GSD files of jammed packings (the last frame)")
+    cri.add_argument(
+        "--force-window",
+        type=float,
+        nargs=2,
+        default=list(FORCE_WINDOW),
+        metavar=("LOW", "HIGH"),
+        help="window of f / <f> for the force exponents",
+    )
+    cri.add_argument(
+        "--gap-window",
+        type=float,
+        nargs=2,
+        default=list(GAP_WINDOW),
+        metavar=("LOW", "HIGH"),
+        help="window of h for the gap exponent",
+    )
+    cri.add_argument("--figure", default=None, help="PNG of the cumulative distributions and fits")
+    cri.add_argument("--overwrite", action="store_true", help="replace an existing figure")
+    _model(cri, from_file=True)
 
     rel = sub.add_parser(
         "relax",

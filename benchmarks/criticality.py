@@ -1,0 +1,167 @@
+"""The critical exponents of weak forces and small gaps at jamming, over certified packings.
+
+For each N, packings of seeds ``0 .. K-1`` are jammed (:func:`athermal.experiments.jam_packing`:
+2D, bidisperse, alpha = 2, epsilon = 1e-6, ``ohern``) and certified
+(:func:`athermal.certify.certify`); each certified packing is kept as a GSD file in the cache
+directory (a rerun reuses it). Their forces and gaps are pooled
+(:func:`athermal.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and ``gamma``
+fitted over the default windows and over a scan of others, so that the dependence on the window
+is shown beside the value. Run from the repository root::
+
+    python -m benchmarks.criticality --n 1024 --packings 120
+    python -m benchmarks.criticality --n 1024 4096 --packings 120 30
+
+Results: ``benchmarks/results/criticality.md`` and ``.json``; the figures
+``docs/figures/criticality_n<N>.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from athermal.certify import certify
+from athermal.criticality import (
+    FORCE_WINDOW,
+    GAMMA,
+    GAP_WINDOW,
+    THETA_E,
+    critical_exponents,
+    fit_truncated_power_law,
+    weak_forces_and_gaps,
+)
+from athermal.errors import ConvergenceError, InputError
+from athermal.experiments import JamSpec, jam_packing
+from athermal.io import read_gsd, write_gsd
+from athermal.plot import criticality_figure, save
+from benchmarks.machine import ROOT, pin
+from benchmarks.machine import save as save_results
+
+FORCE_SCAN = ((1e-3, 1e-1), (3e-3, 1e-1), (1e-2, 1e-1), (1e-3, 3e-2), (1e-4, 1e-1))
+GAP_SCAN = ((1e-5, 1e-2), (1e-4, 1e-2), (1e-3, 1e-2), (1e-4, 1e-3), (1e-3, 3e-2))
+
+
+def packings(n: int, count: int, cache: Path) -> tuple[list[Path], list[str]]:
+    """The certified packings of seeds ``0 .. count-1``, made where missing; the refusals."""
+    cache.mkdir(parents=True, exist_ok=True)
+    spec, files, refused = JamSpec(n=n), [], []
+    for seed in range(count):
+        path = cache / f"p{seed:04d}.gsd"
+        if not path.exists():
+            jammed = jam_packing(spec, seed)
+            try:
+                done = certify(jammed.packing, spec.model)
+            except (InputError, ConvergenceError) as exc:
+                refused.append(f"seed {seed}: {exc}")
+                continue
+            write_gsd(
+                path,
+                done.packing,
+                model=spec.model,
+                seed=seed,
+                position_lo=done.position_lo,
+                observables={**done.certificate.log(), "phi_c": jammed.phi_c},
+            )
+            print(f"N {n} seed {seed}: {done.certificate.relative_force_balance:.1e}", flush=True)
+        files.append(path)
+    return files, refused
+
+
+def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
+    """The exponents of one N at the default windows and over the scans."""
+    samples = []
+    for path in files:
+        frame = read_gsd(path)
+        samples.append(weak_forces_and_gaps(frame.packing, frame.model, frame.position_lo))
+    found = critical_exponents(samples)
+    save(criticality_figure(samples, found, title=f"N = {n}, {len(samples)} packings"), figure)
+    f = np.concatenate([s.forces for s in samples])
+    loc = np.concatenate([s.localized for s in samples])
+    gaps = np.concatenate([s.gaps for s in samples])
+    scan = {
+        "theta_e": [_fit(f[~loc], w, +1) for w in FORCE_SCAN],
+        "theta_l": [_fit(f[loc], w, +1) for w in FORCE_SCAN],
+        "gamma": [_fit(gaps, w, -1) for w in GAP_SCAN],
+    }
+    return {
+        "n": n,
+        "packings": len(samples),
+        "relative_force_balance_max": max(
+            float(read_gsd(p).log["certificate_relative_force_balance"][()]) for p in files
+        ),
+        "theta_e": [found.theta_e, found.theta_e_err, found.extended.points],
+        "theta_l": [found.theta_l, found.theta_l_err, found.localized.points],
+        "gamma": [found.gamma, found.gamma_err, found.gap.points],
+        "scan": scan,
+        "figure": figure.name,
+    }
+
+
+def _fit(values: Any, window: tuple[float, float], sign: int) -> list[float]:
+    fit = fit_truncated_power_law(values, window)
+    return [*window, sign * (fit.a - 1.0), fit.stderr, fit.points]
+
+
+def report(results: list[dict[str, Any]], refused: list[str]) -> str:
+    """The markdown: per N the exponents at the default windows, then the window scans."""
+    lines = [
+        "# Weak forces and small gaps at jamming (2D, bidisperse, alpha = 2, certified packings)",
+        "",
+        f"Default windows: f / <f> in {FORCE_WINDOW}, h in {GAP_WINDOW}. Mean field: theta_e "
+        f"= {THETA_E}, gamma = {GAMMA}.",
+        "",
+        "| N | packings | worst force balance / <f> | theta_e | theta_l | gamma |",
+        "|---:|---:|---:|---|---|---|",
+    ]
+    for r in results:
+        fits = (r[k] for k in ("theta_e", "theta_l", "gamma"))
+        cells = [f"{v:.3f} ± {e:.3f} ({p})" for v, e, p in fits]
+        lines.append(
+            f"| {r['n']} | {r['packings']} | {r['relative_force_balance_max']:.1e} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    lines += ["", "## The exponents against the window", ""]
+    lines += ["| N | exponent | window | value ± stderr (points) |", "|---:|---|---|---|"]
+    for r in results:
+        for name, rows in r["scan"].items():
+            for low, high, value, err, points in rows:
+                lines.append(
+                    f"| {r['n']} | {name} | {low:g} ... {high:g} | {value:.3f} ± {err:.3f} "
+                    f"({points:.0f}) |"
+                )
+    if refused:
+        lines += ["", "Refused by certify:", "", *[f"- {r}" for r in refused]]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--n", type=int, nargs="+", default=[1024])
+    parser.add_argument("--packings", type=int, nargs="+", default=[120])
+    parser.add_argument("--cache", type=str, nargs="+", default=None, help="one folder per N")
+    parser.add_argument("--output-dir", type=str, default=str(ROOT / "benchmarks" / "results"))
+    parser.add_argument("--figure-dir", type=str, default=str(ROOT / "docs" / "figures"))
+    args = parser.parse_args(argv)
+    pin()
+    output = Path(args.output_dir)
+    Path(args.figure_dir).mkdir(parents=True, exist_ok=True)
+    caches = args.cache or [
+        str(ROOT / "benchmarks" / "cache" / f"criticality_n{n}") for n in args.n
+    ]
+    results, refused = [], []
+    for n, count, cache in zip(args.n, args.packings, caches, strict=True):
+        files, no = packings(n, count, Path(cache))
+        refused += [f"N {n}, {r}" for r in no]
+        results.append(study(n, files, Path(args.figure_dir) / f"criticality_n{n}.png"))
+    markdown = report(results, refused) + "\n"
+    save_results(output, "criticality", {"results": results, "refused": refused}, markdown)
+    print(markdown)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

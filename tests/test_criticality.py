@@ -1,0 +1,86 @@
+"""Weak forces and small gaps: the estimator recovers known exponents, and the samples of a
+jammed packing are what the module says they are."""
+
+import numpy as np
+import pytest
+
+import athermal as at
+from athermal.certify import certify
+from athermal.criticality import (
+    critical_exponents,
+    fit_truncated_power_law,
+    weak_forces_and_gaps,
+)
+from athermal.errors import InputError
+from athermal.observables import rattlers
+
+
+@pytest.mark.parametrize("a", [0.59, 1.0, 1.42])
+def test_the_truncated_fit_recovers_a_known_exponent(a):
+    rng = np.random.default_rng(1)
+    low, high = 1e-4, 1e-1
+    u = rng.uniform(size=20000)  # inverse CDF of a x^(a-1) / (high^a - low^a) on [low, high]
+    x = (low**a + u * (high**a - low**a)) ** (1.0 / a)
+    fit = fit_truncated_power_law(np.concatenate([x, [1e-6, 0.5]]), (low, high))
+    assert fit.points == 20000
+    assert abs(fit.a - a) < 3.0 * fit.stderr
+    assert 0.003 < fit.stderr < 0.03
+
+
+def test_the_errors_of_the_fit_are_its_spread():
+    rng = np.random.default_rng(2)
+    fits = []
+    for _ in range(200):
+        x = (1e-3**0.6 + rng.uniform(size=500) * (1.0 - 1e-3**0.6)) ** (1.0 / 0.6)
+        fits.append(fit_truncated_power_law(x, (1e-3, 1.0)))
+    spread = np.std([f.a for f in fits])
+    assert np.mean([f.stderr for f in fits]) == pytest.approx(spread, rel=0.15)
+
+
+def test_too_few_values_are_refused():
+    with pytest.raises(InputError, match="at least 10"):
+        fit_truncated_power_law(np.linspace(0.1, 0.2, 5), (0.01, 1.0))
+
+
+@pytest.fixture(scope="module")
+def certified():
+    model = at.ContactModel(2.0)
+    jammed = at.jam(at.random_packing(128, 0.8, seed=3), model).packing
+    return certify(jammed, model), model
+
+
+def test_the_samples_of_a_jammed_packing(certified):
+    done, model = certified
+    sample = weak_forces_and_gaps(done.packing, model, done.position_lo)
+    contacts = at.find_contacts(done.packing, model)
+    rattler = rattlers(contacts, done.packing.n, 2)
+    live = ~(rattler[contacts.i] | rattler[contacts.j])
+    assert sample.forces.size == live.sum() == done.certificate.contacts
+    assert sample.forces.mean() == pytest.approx(1.0)
+    assert sample.forces.min() == pytest.approx(
+        done.certificate.smallest_force / done.certificate.mean_force, rel=1e-9
+    )
+    counts = np.bincount(contacts.i[live], minlength=128) + np.bincount(
+        contacts.j[live], minlength=128
+    )
+    assert sample.bucklers == int(np.sum(~rattler & (counts == 3)))
+    buckler = ~rattler & (counts == 3)
+    localized = buckler[contacts.i[live]] | buckler[contacts.j[live]]
+    assert sample.localized.sum() == localized.sum()  # the pairs come in another order
+    np.testing.assert_allclose(
+        np.sort(sample.forces[sample.localized]),
+        np.sort(contacts.force_magnitude[live][localized] / done.certificate.mean_force),
+        rtol=1e-6,
+    )
+    assert np.all(sample.gaps > 0.0) and sample.gaps.max() < 0.5  # within reach
+    sigma_min = 2.0 * done.packing.radii.min()
+    assert sample.gaps.min() * sigma_min <= done.certificate.smallest_gap * (1 + 1e-9)
+
+
+def test_pooled_exponents_need_enough_values(certified):
+    done, model = certified
+    sample = weak_forces_and_gaps(done.packing, model, done.position_lo)
+    with pytest.raises(InputError, match="at least 10"):
+        critical_exponents([sample])
+    exponents = critical_exponents([sample], force_window=(1e-2, 1.0), gap_window=(1e-3, 0.1))
+    assert exponents.packings == 1 and exponents.contacts == sample.forces.size
