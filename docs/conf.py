@@ -33,7 +33,15 @@ html_title = f"athermal {release}"
 
 # Modules whose public names are not all re-exported by ``athermal``: their other names get a
 # section of their own on the API page.
-MODULES = ("athermal.protocols", "athermal.moduli", "athermal.plot", "athermal.paper")
+MODULES = (
+    "athermal.protocols",
+    "athermal.moduli",
+    "athermal.certify",
+    "athermal.criticality",
+    "athermal.extended",
+    "athermal.plot",
+    "athermal.paper",
+)
 
 
 def _home(name: str, obj: object) -> str:

@@ -1,11 +1,14 @@
 """Weak forces and small gaps: the estimator recovers known exponents, and the samples of a
 jammed packing are what the module says they are."""
 
+import json
+
 import numpy as np
 import pytest
 
 import athermal as at
 from athermal.certify import certify
+from athermal.cli import main
 from athermal.criticality import (
     critical_exponents,
     fit_truncated_power_law,
@@ -84,3 +87,24 @@ def test_pooled_exponents_need_enough_values(certified):
         critical_exponents([sample])
     exponents = critical_exponents([sample], force_window=(1e-2, 1.0), gap_window=(1e-3, 0.1))
     assert exponents.packings == 1 and exponents.contacts == sample.forces.size
+
+
+def test_the_command_pools_files_and_refuses_bad_windows(certified, tmp_path, capsys):
+    done, model = certified
+    files = []
+    for k in range(2):
+        path = tmp_path / f"c{k}.gsd"
+        at.write_gsd(path, done.packing, model=model, position_lo=done.position_lo)
+        files.append(str(path))
+    windows = ["--force-window", "1e-2", "1", "--gap-window", "1e-3", "0.1"]
+    figure = tmp_path / "crit.png"
+    assert main(["criticality", *files, *windows, "--figure", str(figure), "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["packings"] == out["certified"] == 2
+    assert out["contacts"] == 2 * done.certificate.contacts
+    assert out["theta_e"]["mean_field"] == 0.42311 and out["gamma"]["window"] == [1e-3, 0.1]
+    assert figure.stat().st_size > 0
+    assert main(["criticality", *files, "--force-window", "1", "0.1"]) == 2
+    assert "--force-window: need 0 < LOW < HIGH" in capsys.readouterr().err
+    assert main(["criticality", str(tmp_path / "missing.gsd")]) == 2
+    assert "no such file" in capsys.readouterr().err

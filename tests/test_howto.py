@@ -1,6 +1,7 @@
 """The how-to pages' examples run as pasted (those that need no cluster, GPU or hours)."""
 
 import importlib.util
+import re
 from pathlib import Path
 
 import pytest
@@ -35,3 +36,12 @@ def test_the_freud_example_reads_a_file(tmp_path):
     at.write_gsd(tmp_path / "jammed.gsd", packing, model=at.ContactModel(2.0))
     (block,) = [b for b in blocks(HOWTO / "files.md") if "freud" in b.code]
     paste(block, tmp_path)
+
+
+def test_a_jamming_point_is_certified_and_its_exponents_fitted(tmp_path):
+    one, read, many = blocks(HOWTO / "certify.md")
+    paste(one, tmp_path)
+    balance = re.search(r"force balance (\S+) of", paste(read, tmp_path)).group(1)
+    assert float(balance) <= 1e-20
+    out = paste(many, tmp_path)
+    assert "theta_e" in out and "gamma" in out and (tmp_path / "criticality.png").exists()

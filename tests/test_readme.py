@@ -90,7 +90,7 @@ def check_command_line(out: str, folder: Path) -> None:
 
 def check_beyond(out: str, folder: Path) -> None:
     """The block beyond the paper wrote a packing at p = 1e-4, its modes, the force figure, a
-    polydisperse packing and its shear-stabilized state."""
+    polydisperse packing, its shear-stabilized state and the certified jammed packing."""
     for name in (
         "p1e-4.gsd",
         "p1e-4-modes.npz",
@@ -98,8 +98,10 @@ def check_beyond(out: str, folder: Path) -> None:
         "forces.png",
         "poly.gsd",
         "stabilized.gsd",
+        "certified.gsd",
     ):
         assert (folder / name).exists(), name
+    assert "relative_force_balance" in out
 
 
 @pytest.mark.slow
