@@ -40,6 +40,12 @@ def test_the_errors_of_the_fit_are_its_spread():
     assert np.mean([f.stderr for f in fits]) == pytest.approx(spread, rel=0.15)
 
 
+def test_values_that_follow_no_power_law_are_refused():
+    values = np.concatenate([np.full(50, 1.0001e-3), np.linspace(0.01, 0.1, 3)])
+    with pytest.raises(InputError, match="no power law"):
+        fit_truncated_power_law(values, (1e-3, 1e-1))
+
+
 def test_too_few_values_are_refused():
     with pytest.raises(InputError, match="at least 10"):
         fit_truncated_power_law(np.linspace(0.1, 0.2, 5), (0.01, 1.0))

@@ -4,11 +4,12 @@ import importlib.util
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import athermal as at
 from athermal.io import count_frames
-from pasted import blocks, paste
+from pasted import Block, blocks, paste
 
 HOWTO = Path(__file__).resolve().parent.parent / "docs" / "howto"
 
@@ -18,6 +19,12 @@ def test_a_killed_compression_resumes(tmp_path):
     out = paste(block, tmp_path)
     assert "resumed_steps" in out
     assert count_frames(tmp_path / "compressed.gsd") == 25
+    # the resumed run ends where an uninterrupted one does, bit for bit
+    paste(Block("bash", "athermal compress jammed.gsd -o clean.gsd", ""), tmp_path)
+    for frame in (0, -1):
+        resumed = at.read_gsd(tmp_path / "compressed.gsd", frame=frame).packing.positions
+        clean = at.read_gsd(tmp_path / "clean.gsd", frame=frame).packing.positions
+        np.testing.assert_array_equal(resumed, clean)
 
 
 def test_the_force_network_is_drawn_from_the_bonds_alone(tmp_path):

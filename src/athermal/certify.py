@@ -15,8 +15,9 @@ The contacts are those of the float64 packing; after the refinement they are der
 the refined positions, in double-double, and a contact that formed or broke between non-rattlers
 is refused (:class:`~athermal.errors.InputError`): the certificate would describe another
 network. Rattlers (fewer than ``d + 1`` contacts, removed iteratively) carry no force at a
-certified point: Newton does not move them, and one that a step makes overlap a neighbour (its
-cage moved by up to ~1e-9 along soft modes) is moved straight out of the overlap.
+certified point: each moves with the mean step of the non-rattlers near it (a Newton step moves
+a cage by up to ~1e-9 along soft modes), and one that still overlaps a neighbour is moved
+straight out of the overlap. A step that does not improve the force balance is undone.
 """
 
 from __future__ import annotations
@@ -45,15 +46,14 @@ faster than the floor); a start farther from its minimum is refused as not relax
 ROUND_OFF_SLACK = 10.0
 """How far above float64's round-off floor a relaxed start may be (:data:`RELAXED`)."""
 MAX_ITERATIONS = 12
-"""Newton steps at most; each gains ~8 digits near jamming, and 3-4 reach :data:`TARGET`."""
+"""Newton steps at most; each gains ~8 digits near jamming, and 2-3 reach :data:`TARGET`."""
 STALL = 0.5
 """A step that does not reduce the largest residual force below this fraction of the previous
 one has reached the limit of the precision."""
 LOG_PREFIX = "certificate_"
 """The certificate's fields in a GSD frame's log are ``log/athermal/certificate_<name>``."""
-RATTLER_MARGIN = 10.0
-"""A rattler that the refinement makes overlap is moved this many times the largest Newton step
-beyond the overlap, so that the next steps leave it free."""
+RATTLER_PUSH = 1.0
+"""A rattler that overlaps a neighbour is moved out by ``1 + RATTLER_PUSH`` times the overlap."""
 RATTLER_PASSES = 20
 """Rounds of moving overlapping rattlers out at most."""
 GAP_REACH = 0.2
@@ -162,8 +162,8 @@ def certify(
         raise InputError(f"target: must be > 0, got {target}")
     half_steps(model.alpha)
     dim = packing.dim
-    hi = np.array(packing.positions, dtype=np.float64)
-    lo = np.zeros_like(hi) if position_lo is None else np.array(position_lo, dtype=np.float64)
+    hi = np.array(packing.positions, dtype=np.float64, order="C")
+    lo = np.zeros_like(hi) if position_lo is None else np.array(position_lo, np.float64, order="C")
     if lo.shape != hi.shape:
         raise InputError(f"position_lo: expected shape {hi.shape}, got {lo.shape}")
     contacts, rattler = nonrattler_contacts(packing, model)
@@ -186,19 +186,24 @@ def certify(
         )
     live_pair = ~(rattler[pairs.first] | rattler[pairs.second])
     network = live_pair & (sums.overlap[0] > 0.0)
-    force, iterations, largest_step = start, 0, 0.0
-    while True:
-        largest_step = _free_rattlers(pairs, hi, lo, rattler, RATTLER_MARGIN * largest_step)
+    _free_rattlers(pairs, hi, lo, rattler)
+    sums = pairs.sums(hi, lo)
+    force, iterations = sums.largest_force(), 0
+    best = (force, hi.copy(), lo.copy(), sums)
+    while force > target * mean_force and iterations < max_iterations:
+        _same_network(pairs, network, live_pair & (sums.overlap[0] > 0.0))
+        step = _newton_step(pairs, hi, sums, network, rattler)
+        _carry_rattlers(pairs, step, rattler)
+        displace(hi, lo, step)
+        _free_rattlers(pairs, hi, lo, rattler)
+        iterations += 1
         sums, previous = pairs.sums(hi, lo), force
         force = sums.largest_force()
-        if iterations and force > STALL * previous:
+        if force < best[0]:
+            best = (force, hi.copy(), lo.copy(), sums)
+        if force > STALL * previous:
             break
-        if force <= target * mean_force or iterations == max_iterations:
-            break
-        step = _newton_step(pairs, hi, sums, network, rattler)
-        largest_step = max(largest_step, float(np.abs(step).max()))
-        displace(hi, lo, step)
-        iterations += 1
+    force, hi, lo, sums = best
     _same_network(pairs, network, live_pair & (sums.overlap[0] > 0.0))
     refined = packing.with_positions(hi)
     certificate = _certificate(refined, model, pairs, sums, rattler, start, iterations, target)
@@ -225,29 +230,38 @@ def _newton_step(
     return -y.reshape(n, dim)
 
 
+def _carry_rattlers(
+    pairs: NearPairs, step: NDArray[np.float64], rattler: NDArray[np.bool_]
+) -> None:
+    """Give each rattler, in ``step`` ``(N, d)``, the mean step of the non-rattlers near it: its
+    cage moves by up to ~1e-9 along soft modes, and a rattler left behind would touch it."""
+    near = rattler[pairs.first] != rattler[pairs.second]
+    cage = np.where(rattler[pairs.first[near]], pairs.second[near], pairs.first[near])
+    inside = np.where(rattler[pairs.first[near]], pairs.first[near], pairs.second[near])
+    total = np.zeros_like(step)
+    np.add.at(total, inside, step[cage])
+    count = np.bincount(inside, minlength=step.shape[0])
+    moved = rattler & (count > 0)
+    step[moved] = total[moved] / count[moved, None]
+
+
 def _free_rattlers(
-    pairs: NearPairs,
-    hi: NDArray[np.float64],
-    lo: NDArray[np.float64],
-    rattler: NDArray[np.bool_],
-    margin: float,
-) -> float:
-    """Move every rattler that overlaps a neighbour straight out of the overlap and ``margin``
-    beyond it (a rattler's place in its cage is free, and the refinement moves the cage's
-    walls); returns the largest move. A few passes: a move may touch another neighbour."""
-    largest = 0.0
+    pairs: NearPairs, hi: NDArray[np.float64], lo: NDArray[np.float64], rattler: NDArray[np.bool_]
+) -> None:
+    """Move every rattler that overlaps a neighbour straight out, by ``1 + RATTLER_PUSH`` times
+    the overlap (a rattler's place in its cage is free); a few rounds, since a move may touch
+    another neighbour."""
     for _ in range(RATTLER_PASSES):
         overlap = pairs.sums(hi, lo).overlap[0]
         hit = np.flatnonzero((overlap > 0.0) & (rattler[pairs.first] | rattler[pairs.second]))
         if hit.size == 0:
-            return largest
+            return
         sep = pairs.separations(hi)[hit]
-        push = (overlap[hit] + margin)[:, None] * sep / np.linalg.norm(sep, axis=1)[:, None]
+        push = ((1.0 + RATTLER_PUSH) * overlap[hit] / np.linalg.norm(sep, axis=1))[:, None] * sep
         step = np.zeros_like(hi)
         first_moves = rattler[pairs.first[hit]]  # sep points from second to first
         np.add.at(step, pairs.first[hit][first_moves], push[first_moves])
         np.add.at(step, pairs.second[hit][~first_moves], -push[~first_moves])
-        largest = max(largest, float(np.abs(step).max()))
         displace(hi, lo, step)
     raise ConvergenceError(
         f"certify: rattlers still overlap their neighbours after {RATTLER_PASSES} moves"
@@ -282,7 +296,8 @@ def _certificate(
     force = pairs.stiffness[touching] * overlap[touching] ** (model.alpha - 1.0)
     gaps = -overlap[live & (overlap <= 0.0)]
     n_live = int((~rattler).sum())
-    modes = vibrational_modes(packing, model, packing.dim + 1, vectors=0)
+    modes = vibrational_modes(packing, model, packing.dim + 2, vectors=0)
+    vibrations = modes.eigenvalues[np.abs(modes.eigenvalues) > modes.tolerance]
     balance = sums.largest_force()
     mean_force = float(force.mean())
     volume = packing.cell.volume
@@ -295,7 +310,7 @@ def _certificate(
         contacts=int(touching.sum()),
         n_rattlers=int(rattler.sum()),
         excess_contacts=int(touching.sum()) - isostatic_contacts(n_live, packing.dim),
-        lowest_eigenvalue=float(modes.eigenvalues[modes.zero_modes]),
+        lowest_eigenvalue=float(vibrations[0]) if vibrations.size else float("nan"),
         smallest_force=float(force.min()),
         smallest_gap=float(gaps.min()) if gaps.size else float("inf"),
         energy=sums.energy[0] + sums.energy[1],

@@ -44,11 +44,13 @@ THETA_E = 0.42311
 """The mean-field exponent of the extended weak forces (Charbonneau et al. 2014)."""
 GAMMA = 0.41269
 """The mean-field exponent of the small gaps (Charbonneau et al. 2014)."""
+A_RANGE = (1e-6, 50.0)
+"""The cumulative exponents ``a`` a fit looks for (a density ``x^(a - 1)``)."""
 FORCE_WINDOW = (1e-3, 1e-1)
 """Default window of ``f / <f>`` for the force exponents."""
 GAP_WINDOW = (1e-5, 1e-2)
 """Default window of ``h`` for the gap exponent: above the overlaps of a packing jammed at
-epsilon = 1e-6 (``delta / (r_i + r_j) ~ 1e-8``), below the first neighbour shell."""
+epsilon = 1e-6 (``delta / (r_i + r_j) ~ 1e-7`` at N = 1024), below the first neighbour shell."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,7 +156,12 @@ def fit_truncated_power_law(
         ratio = (low / high) ** a
         return 1.0 / a + mean_log - (lu - ratio * ll) / (1.0 - ratio)
 
-    a = float(scipy.optimize.brentq(score, 1e-6, 50.0, xtol=1e-14))
+    if score(A_RANGE[0]) < 0.0 or score(A_RANGE[1]) > 0.0:
+        raise InputError(
+            f"window {window}: the values follow no power law with a cumulative exponent in "
+            f"{A_RANGE}"
+        )
+    a = float(scipy.optimize.brentq(score, *A_RANGE, xtol=1e-14))
     ratio = (low / high) ** a
     # Fisher information per value: 1/a^2 - (ln(u/l))^2 r / (1 - r)^2, r = (l/u)^a
     info = 1.0 / a**2 - (lu - ll) ** 2 * ratio / (1.0 - ratio) ** 2

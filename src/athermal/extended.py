@@ -191,10 +191,10 @@ def contact_sums(  # type: ignore[no-untyped-def]
 
 @numba.njit(cache=True)
 def displace(xh, xl, step):  # type: ignore[no-untyped-def]
-    """``x += step`` in double-double, in place (``xh``, ``xl``, ``step`` of one shape)."""
-    fh, fl, fs = xh.ravel(), xl.ravel(), step.ravel()
-    for k in range(fh.size):
-        fh[k], fl[k] = add(fh[k], fl[k], fs[k], 0.0)
+    """``x += step`` in double-double, in place (``xh``, ``xl``, ``step`` ``(N, d)``)."""
+    for i in range(xh.shape[0]):
+        for a in range(xh.shape[1]):
+            xh[i, a], xl[i, a] = add(xh[i, a], xl[i, a], step[i, a], 0.0)
 
 
 def half_steps(alpha: float) -> int:

@@ -19,6 +19,7 @@ from ..bench import check_alphas
 from ..ensemble import check_batch
 from ..enthalpy import ENTHALPY_METHODS
 from ..errors import JAX_MISSING, InputError
+from ..extended import half_steps
 from ..io import SEED_BOUND
 from ..packing import check_width
 from ..protocols import PHI_INIT, RESOLUTION
@@ -161,6 +162,12 @@ def _work(args: argparse.Namespace) -> None:
         for path in args.inputs:
             if not Path(path).is_file():
                 raise InputError(f"input: {path}: no such file")
+    certifying = args.command == "jam" and args.certify
+    if certifying or (args.command in ("certify", "criticality") and args.alpha is not None):
+        try:
+            half_steps(args.alpha)
+        except InputError as exc:
+            raise InputError(f"--{exc}") from None
     if args.command == "jam" and args.certify and args.pressure is not None:
         raise InputError("--certify: certifies the jammed packing; drop --pressure or --certify")
     if args.command == "bench":

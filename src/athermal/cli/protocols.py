@@ -20,7 +20,7 @@ import numpy as np
 from ..certify import certify
 from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
 from ..contact import ContactModel, find_contacts
-from ..errors import InputError
+from ..errors import ConvergenceError, InputError
 from ..experiments import JamSpec, jam_packing
 from ..io import Frame, count_frames, read_gsd, write_gsd
 from ..packing import Packing
@@ -36,6 +36,7 @@ from ..protocols.compress import FIT_LAWS
 from ..protocols.pressure import pressure_search, warn_if_near_jamming
 from ..tables import Row, write_table
 from .common import (
+    NotConverged,
     Progress,
     check_certified,
     file_observables,
@@ -206,9 +207,13 @@ def jam(args: argparse.Namespace) -> None:
             "pressure_drops": found.pressure_drops,
             "pressure_iterations": found.iterations,
         }
-    certified = certify(result.packing, model) if args.certify else None
-    if certified is not None:
-        final = certified.packing
+    certified, refused = None, None
+    if args.certify:
+        try:
+            certified = certify(result.packing, model)
+            final = certified.packing
+        except (InputError, ConvergenceError) as exc:  # the jammed packing is written as it is
+            refused = str(exc)
     write_gsd(
         args.output,
         final,
@@ -259,6 +264,7 @@ def jam(args: argparse.Namespace) -> None:
             "jamming_check": jamming_check,
             "checks_passed": check.passed,
             **({} if certified is None else {"certificate": asdict(certified.certificate)}),
+            **({} if refused is None else {"certificate": {"refused": refused}}),
             "steps": result.steps,
             "resumed_steps": len(done),
             "iterations": result.iterations,
@@ -274,6 +280,8 @@ def jam(args: argparse.Namespace) -> None:
     )
     if certified is not None:
         check_certified(certified.certificate)
+    if refused is not None:
+        raise NotConverged(f"not certified ({refused}); the jammed packing is written uncertified")
 
 
 def _frame_index(args: argparse.Namespace) -> int:
