@@ -7,7 +7,8 @@ the defaults: ``ohern``, epsilon = 1e-6) and certified (:func:`athermal.certify.
 first packing of a size is not timed for compilation: every row is warm). Run from the
 repository root::
 
-    python -m benchmarks.certify                      # 2D and 3D, alpha 2 and 2.5, N 256-4096
+    python -m benchmarks.certify                      # 2D N 256-4096, 3D N 256-1024
+    python -m benchmarks.certify --n3d 256 1024 4096  # 3D to 4096 too (its jamming: ~15 min each)
     python -m benchmarks.certify --quick              # N = 256 only
 
 Results: ``benchmarks/results/certify.md`` and ``certify.json``.
@@ -82,19 +83,21 @@ def report(rows: list[dict[str, Any]]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--n", type=int, nargs="+", default=[256, 1024, 4096])
+    parser.add_argument("--n", type=int, nargs="+", default=[256, 1024, 4096], help="2D sizes")
+    parser.add_argument("--n3d", type=int, nargs="+", default=[256, 1024], help="3D sizes")
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     parser.add_argument("--quick", action="store_true", help="N = 256, one seed")
     parser.add_argument("--output-dir", type=str, default=str(ROOT / "benchmarks" / "results"))
     args = parser.parse_args(argv)
-    sizes, seeds = ([256], [1]) if args.quick else (args.n, args.seeds)
+    sizes = {2: [256], 3: [256]} if args.quick else {2: args.n, 3: args.n3d}
+    seeds = [1] if args.quick else args.seeds
     pin()
     one(2, 2.0, 64, 0)  # compiles the kernels, so that every row's time is warm
     one(3, 2.0, 64, 0)
     rows = []
     for dim in (2, 3):
         for alpha in (2.0, 2.5):
-            for n in sizes:
+            for n in sizes[dim]:
                 for seed in seeds:
                     rows.append(one(dim, alpha, n, seed))
                     r = rows[-1]
