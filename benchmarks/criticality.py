@@ -95,6 +95,8 @@ def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
         "theta_e": [found.theta_e, found.theta_e_err, found.extended.points],
         "theta_l": [found.theta_l, found.theta_l_err, found.localized.points],
         "gamma": [found.gamma, found.gamma_err, found.gap.points],
+        "all_forces": _fit(f, FORCE_WINDOW, +1)[2:],
+        "localized_fraction": float(loc.mean()),
         "scan": scan,
         "figure": figure.name,
     }
@@ -113,8 +115,9 @@ def report(results: list[dict[str, Any]], refused: list[str]) -> str:
         f"Default windows: f / <f> in {FORCE_WINDOW}, h in {GAP_WINDOW}. Mean field: theta_e "
         f"= {THETA_E}, gamma = {GAMMA}.",
         "",
-        "| N | packings | worst force balance / <f> | theta_e | theta_l | gamma |",
-        "|---:|---:|---:|---|---|---|",
+        "| N | packings | worst force balance / <f> | theta_e | theta_l | gamma | all forces "
+        "together: theta | contacts of bucklers |",
+        "|---:|---:|---:|---|---|---|---|---:|",
     ]
     for r in results:
         fits = (r[k] for k in ("theta_e", "theta_l", "gamma"))
@@ -122,7 +125,8 @@ def report(results: list[dict[str, Any]], refused: list[str]) -> str:
         lines.append(
             f"| {r['n']} | {r['packings']} | {r['relative_force_balance_max']:.1e} | "
             + " | ".join(cells)
-            + " |"
+            + f" | {r['all_forces'][0]:.3f} ± {r['all_forces'][1]:.3f} ({r['all_forces'][2]:.0f})"
+            + f" | {100 * r['localized_fraction']:.0f}% |"
         )
     lines += ["", "## The exponents against the window", ""]
     lines += ["| N | exponent | window | value ± stderr (points) |", "|---:|---|---|---|"]
