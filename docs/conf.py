@@ -82,10 +82,14 @@ def api_reference() -> str:
         parts += [_directive(f"athermal.{n}", getattr(athermal, n)) for n in by_module[module]]
     for module_name in MODULES:
         module = importlib.import_module(module_name)
+        documented = {n for (scope, n) in ModuleAnalyzer.for_module(module_name).find_attr_docs()}
         names = getattr(module, "__all__", None) or [
             n
             for n, v in vars(module).items()
-            if not n.startswith("_") and getattr(v, "__module__", "") == module_name
+            if not n.startswith("_")
+            and (
+                getattr(v, "__module__", "") == module_name or (n in documented and not callable(v))
+            )
         ]
         names = [n for n in sorted(names) if id(getattr(module, n)) not in seen]
         title = f"``{module_name}``"
