@@ -8,7 +8,16 @@ import numpy as np
 import pytest
 
 import athermal as at
-from athermal.certify import GAP_REACH, TARGET, _same_network, certify
+import athermal.cli.analysis as analysis
+from athermal.certify import (
+    GAP_REACH,
+    TARGET,
+    _network,
+    _same_network,
+    _trial,
+    bisect_jamming_point,
+    certify,
+)
 from athermal.cli import main
 from athermal.errors import InputError
 from athermal.extended import NearPairs
@@ -174,18 +183,67 @@ def test_a_network_that_changes_is_named():
         _same_network(pairs, np.array([True, False]), np.array([False, False]))
 
 
-def test_a_target_beyond_the_precision_is_written_and_exits_3(jammed, tmp_path, capsys):
+def test_a_refinement_cut_short_is_written_and_exits_3(jammed, tmp_path, capsys, monkeypatch):
     packing, model = jammed
     at.write_gsd(tmp_path / "j.gsd", packing, model=model)
-    code = main(["certify", str(tmp_path / "j.gsd"), "-o", str(tmp_path / "c.gsd"), "--target",
-                 "1e-40"])  # fmt: skip
+    monkeypatch.setattr(analysis, "certify", lambda *a, **k: certify(*a, **k, max_iterations=1))
+    code = main(["certify", str(tmp_path / "j.gsd"), "-o", str(tmp_path / "c.gsd")])
     assert code == 3 and "not certified" in capsys.readouterr().err
     frame = at.read_gsd(tmp_path / "c.gsd")
     assert frame.log["certificate_converged"][()] == 0.0
-    assert frame.log["certificate_relative_force_balance"][()] < 1e-20
+    assert frame.log["certificate_iterations"][()] == 1.0
 
 
 def test_an_exponent_without_double_double_powers_is_refused_at_the_door(tmp_path, capsys):
     code = main(["jam", "--n", "64", "--certify", "--alpha", "2.2", "-o", str(tmp_path / "j.gsd")])
     assert code == 2 and "--alpha" in capsys.readouterr().err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.fixture(scope="module")
+def bisected():
+    model = at.ContactModel(2.0)
+    jammed = at.jam(at.random_packing(128, 0.8, seed=5), model)
+    return jammed, bisect_jamming_point(jammed.packing, model, 1e-12), model
+
+
+def test_the_jamming_point_is_bracketed_to_1e_12_inside_float64_s_bracket(bisected):
+    jammed, point, model = bisected
+    assert 0.0 < point.phi_high - point.phi_low <= 1e-12
+    assert jammed.phi_low <= point.phi_low < point.phi_high <= jammed.phi_c
+    cert = point.jammed.certificate
+    assert point.jammed.packing.phi == point.phi_high and cert.converged
+    # at ~1e-12 above its jamming point: pressure ~1e-13, still isostatic and stable, every
+    # force balanced to double-double's floor (checked in decimal, independently)
+    assert 0.0 < cert.pressure < 1e-11 and cert.excess_contacts >= 0
+    assert cert.lowest_eigenvalue > 0.0
+    largest, _ = decimal_force_balance(point.jammed.packing, point.jammed.position_lo, model)
+    assert largest < Decimal("1e-29")
+
+
+def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
+    _, point, model = bisected
+    packing = point.jammed.packing
+    pairs = NearPairs(packing, model, GAP_REACH)
+    hi, lo = packing.positions.copy(), point.jammed.position_lo.copy()
+    bonds = pairs.sums(hi, lo).overlap[0] > 0.0
+    _, rattler = _network(pairs, hi, pairs.sums(hi, lo))
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    pairs.stiffness = np.where(live, pairs.stiffness, 0.0)
+    radii = packing.radii * (point.phi_low / point.phi_high) ** 0.5
+    verdict, _ = _trial(pairs, hi, lo, radii, bonds & live, rattler, live)
+    assert verdict is False
+
+
+def test_jam_certify_bisects_below_float64_and_refuses_it_otherwise(tmp_path, capsys):
+    out = tmp_path / "j.gsd"
+    args = ["jam", "--n", "64", "--seed", "3", "--picture", "none", "--json", "-o", str(out)]
+    assert main([*args, "--epsilon", "1e-12"]) == 2
+    assert "--certify (alpha = 2) bisects in double-double" in capsys.readouterr().err
+    assert main([*args, "--epsilon", "1e-12", "--certify"]) == 0
+    result = json.loads(capsys.readouterr().out)
+    assert result["phi_high"] - result["phi_low"] <= 1e-12
+    assert result["bisected_in_double_double"]["float64_phi_high"] >= result["phi_high"]
+    assert result["pressure"] == result["certificate"]["pressure"] < 1e-11
+    frame = at.read_gsd(out)
+    assert frame.packing.phi == result["phi_high"] and frame.position_lo is not None

@@ -46,9 +46,11 @@ def test_the_freud_example_reads_a_file(tmp_path):
 
 
 def test_a_jamming_point_is_certified_and_its_exponents_fitted(tmp_path):
-    one, read, many = blocks(HOWTO / "certify.md")
+    one, read, below, many = blocks(HOWTO / "certify.md")
     paste(one, tmp_path)
     balance = re.search(r"force balance (\S+) of", paste(read, tmp_path)).group(1)
     assert float(balance) <= 1e-20
+    width = re.search(r"\(bracket (\S+)\)", paste(below, tmp_path)).group(1)
+    assert float(width) <= 1e-12
     out = paste(many, tmp_path)
     assert "theta_e" in out and "gamma" in out and (tmp_path / "criticality.png").exists()

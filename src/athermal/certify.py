@@ -50,6 +50,19 @@ MAX_ITERATIONS = 12
 STALL = 0.5
 """A step that does not reduce the largest residual force below this fraction of the previous
 one has reached the limit of the precision."""
+FIRST_STEP = 1e-9
+"""The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
+LARGEST_STEP = 1e-8
+"""Its largest step (Newton from 5e-7 away diverged at N = 4096)."""
+MAX_TRIALS = 2000
+"""Its trials at most."""
+TRIAL_ITERATIONS = 30
+"""Newton steps, and network changes, of one trial at most."""
+TRIAL_BALANCE = 1e-14
+"""A trial's verdict needs its network's forces balanced to this fraction of their mean."""
+DD_FLOOR = 1e-30
+"""The force balance double-double reaches, in units of ``k L^(alpha - 1)`` (``L`` the cell
+width): measured 7e-33 ... 1.4e-32 at jamming points of N = 256 ... 4096 in the unit cell."""
 LOG_PREFIX = "certificate_"
 """The certificate's fields in a GSD frame's log are ``log/athermal/certificate_<name>``."""
 RATTLER_PUSH = 1.0
@@ -83,8 +96,9 @@ class Certificate:
     energy, pressure : of the refined packing, in double-double, rounded to float64.
     iterations : Newton steps taken.
     target : the relative force balance asked for.
-    converged : ``relative_force_balance <= target``; False: the precision's limit, stated by
-        ``relative_force_balance``.
+    converged : ``relative_force_balance <= target``, or ``force_balance`` at double-double's
+        floor (:func:`precision_floor`: a packing of tiny forces, ~1e-13 above its jamming
+        point, reaches ~1e-18 of its mean force); False: the refinement stalled above both.
     precision : the arithmetic used.
     """
 
@@ -190,7 +204,8 @@ def certify(
     sums = pairs.sums(hi, lo)
     force, iterations = sums.largest_force(), 0
     best = (force, hi.copy(), lo.copy(), sums)
-    while force > target * mean_force and iterations < max_iterations:
+    enough = max(target * mean_force, precision_floor(packing, model))
+    while force > enough and iterations < max_iterations:
         _same_network(pairs, network, live_pair & (sums.overlap[0] > 0.0))
         step = _newton_step(pairs, hi, sums, network, rattler)
         _carry_rattlers(pairs, step, rattler)
@@ -208,6 +223,13 @@ def certify(
     refined = packing.with_positions(hi)
     certificate = _certificate(refined, model, pairs, sums, rattler, start, iterations, target)
     return CertifiedPacking(refined, lo, certificate)
+
+
+def precision_floor(packing: Packing, model: ContactModel) -> float:
+    """The force balance double-double resolves at ``packing``: :data:`DD_FLOOR` x the largest
+    stiffness x the largest cell width^(alpha - 1) (force units)."""
+    width = float(packing.cell.widths.max())
+    return DD_FLOOR * float(model.kmat.max()) * width ** (model.alpha - 1.0)
 
 
 def _network(
@@ -343,6 +365,137 @@ def _certificate(
         pressure=float(np.trace(virial)) / (packing.dim * volume),
         iterations=iterations,
         target=target,
-        converged=balance <= target * mean_force,
+        converged=balance <= max(target * mean_force, precision_floor(packing, model)),
         precision=PRECISION,
     )
+
+
+@dataclass(frozen=True, eq=False)
+class CertifiedJamming:
+    """A jamming point bracketed below float64's resolution (:func:`bisect_jamming_point`): the
+    jammed bound at ``phi_high`` with its certificate, the unjammed bound ``phi_low``, the
+    trials, and the contacts the network shed on the way (a hyperstatic network loses the
+    contacts whose forces vanish first) and formed."""
+
+    jammed: CertifiedPacking
+    phi_low: float
+    phi_high: float
+    trials: int
+    contacts_shed: int
+    contacts_formed: int
+
+
+def bisect_jamming_point(
+    packing: Packing, model: ContactModel, epsilon: float, *, max_trials: int = MAX_TRIALS
+) -> CertifiedJamming:
+    """Bracket the jamming point of a jammed ``packing`` (``jam``'s output) to ``epsilon`` in
+    packing fraction, each verdict taken in double-double on its contact network.
+
+    Near its jamming point a packing keeps its contact network, and the contact forces vanish as
+    ``phi`` falls to ``phi_c``. A trial ``phi`` (the radii scaled, float64) balances the forces
+    by Newton's method in double-double with the network's contacts as springs of rest length
+    ``r_i + r_j`` (pushing when they overlap, pulling when apart); a pair that comes to overlap
+    joins the network. The trial is jammed when every contact of the balanced network overlaps
+    (a minimum with positive pressure), unjammed when every one is apart (the network holds only
+    in tension: relaxed, the packing loses its load) or when what is left is floppy; a contact
+    that parts while others hold leaves the network (a hyperstatic network sheds contacts down
+    to isostatic on its way to ``phi_c``) and the trial is balanced again. Rattlers carry no
+    force in the trials. The trials march down from the certified packing, each from the last
+    jammed one and at most a step away (doubled after a balanced trial up to
+    :data:`LARGEST_STEP`, quartered after one that Newton cannot balance: the network's response
+    runs along its soft modes), then bisect the last step. float64 cannot do this below ~1e-9:
+    overlaps of ~1e-17 and energies of ~1e-28 are round-off there, and a float64 minimum lies
+    ~1e-8 away along the soft modes. Harmonic contacts (alpha = 2) only: a spring in tension
+    continues the contact's force linearly.
+
+    Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
+    :class:`ConvergenceError` when a step of ``epsilon / 4`` cannot be balanced or
+    ``max_trials`` run out (never a verdict on an unbalanced state); what :func:`certify`
+    raises for the start. The returned certificate states the force balance reached: at a
+    pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean contact force.
+    """
+    if half_steps(model.alpha) != 2:
+        raise InputError("alpha: the certified bisection takes harmonic contacts (alpha = 2)")
+    if not 1e-15 <= epsilon <= 1e-6:
+        raise InputError(f"epsilon: must lie in [1e-15, 1e-6], got {epsilon}")
+    start = certify(packing, model)
+    pairs = NearPairs(start.packing, model, GAP_REACH)
+    sums = pairs.sums(start.packing.positions, start.position_lo)
+    _, rattler = _network(pairs, start.packing.positions, sums)
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    pairs.stiffness = np.where(live, pairs.stiffness, 0.0)  # rattlers carry no force here
+    bonds = live & (sums.overlap[0] > 0.0)
+    first = bonds.copy()
+    hi, lo = start.packing.positions.copy(), start.position_lo.copy()
+    phi0, radii0, dim = packing.phi, packing.radii, packing.dim
+    high, low, step, trials, radii = phi0, -1.0, FIRST_STEP, 0, radii0
+    while low < 0.0 or high - low > epsilon:
+        if trials == max_trials:
+            raise ConvergenceError(f"certify: no bracket of {epsilon:g} in {max_trials} trials")
+        phi = high - step if low < 0.0 else max(0.5 * (low + high), high - step)
+        trial_radii = radii0 * (phi / phi0) ** (1.0 / dim)
+        trial_hi, trial_lo = hi.copy(), lo.copy()
+        trials += 1
+        verdict, trial_bonds = _trial(pairs, trial_hi, trial_lo, trial_radii, bonds, rattler, live)
+        if verdict is None:
+            if step < epsilon / 4.0:
+                raise ConvergenceError(
+                    f"certify: the network's force balance at phi = {phi:.15f} does not converge"
+                )
+            step /= 4.0
+        elif verdict:
+            high, hi, lo, radii, bonds = phi, trial_hi, trial_lo, trial_radii, trial_bonds
+            step = min(2.0 * step, LARGEST_STEP)
+        else:
+            low = phi
+    final = Packing(hi, radii, packing.cell)
+    _free_rattlers(NearPairs(final, model, GAP_REACH), hi, lo, rattler)
+    jammed = certify(final.with_positions(hi), model, lo)
+    return CertifiedJamming(
+        jammed,
+        low,
+        jammed.packing.phi,
+        trials,
+        int(np.sum(first & ~bonds)),
+        int(np.sum(bonds & ~first)),
+    )
+
+
+def _trial(
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    radii: NDArray[np.float64],
+    bonds: NDArray[np.bool_],
+    rattler: NDArray[np.bool_],
+    live: NDArray[np.bool_],
+) -> tuple[bool | None, NDArray[np.bool_]]:
+    """Balance the network ``bonds`` at ``radii`` from ``hi + lo`` (updated in place): whether
+    it is jammed (None: Newton did not converge in :data:`TRIAL_ITERATIONS`), and its bonds."""
+    n, dim = hi.shape
+    sums = pairs.sums(hi, lo, radii, bonds)
+    for _ in range(TRIAL_ITERATIONS):
+        overlap = sums.overlap[0] + sums.overlap[1]
+        formed = live & ~bonds & (overlap > 0.0)
+        if formed.any():
+            bonds = bonds | formed
+            sums = pairs.sums(hi, lo, radii, bonds)
+        scale = float(np.abs(pairs.stiffness * overlap)[bonds].mean())
+        if sums.largest_force() <= TRIAL_BALANCE * scale:
+            apart = bonds & (overlap <= 0.0)
+            if not apart.any():
+                return True, bonds
+            if apart.sum() == bonds.sum():
+                return False, bonds
+            bonds = bonds & ~apart
+            sums = pairs.sums(hi, lo, radii, bonds)
+            continue
+        contacts = pairs.contacts(hi, sums.overlap[0], bonds)
+        y, residual, _ = pinned_solve(contacts, rattler, sums.gradient[0].reshape(n, dim, 1))
+        if not np.all(np.isfinite(y)) or residual > 1e-6:  # what is left is floppy
+            return False, bonds
+        step = -y.reshape(n, dim)
+        _carry_rattlers(pairs, step, rattler)
+        displace(hi, lo, step)
+        sums = pairs.sums(hi, lo, radii, bonds)
+    return None, bonds

@@ -133,7 +133,7 @@ def _power(dh, dl, half_steps):  # type: ignore[no-untyped-def]
 
 @numba.njit(cache=True)
 def contact_sums(  # type: ignore[no-untyped-def]
-    xh, xl, radii, first, second, images, h, stiffness, half_steps, alpha,
+    xh, xl, radii, first, second, images, h, stiffness, bonded, half_steps, alpha,
     overlap_h, overlap_l, grad_h, grad_l, virial_h, virial_l,
 ):  # fmt: skip
     """The pair sums of a packing in double-double; returns the energy ``(hi, lo)``.
@@ -171,7 +171,7 @@ def contact_sums(  # type: ignore[no-untyped-def]
         ch, cl = two_sum(radii[i], radii[j])
         dh, dl = sub(ch, cl, rh, rl)
         overlap_h[p], overlap_l[p] = dh, dl
-        if dh <= 0.0:
+        if dh <= 0.0 and not bonded[p]:
             continue
         fh, fl = _power(dh, dl, half_steps)
         fh, fl = mul(fh, fl, stiffness[p], 0.0)  # k delta^(alpha - 1)
@@ -261,8 +261,15 @@ class NearPairs:
             self.alpha,
         )
 
-    def sums(self, hi: NDArray[np.float64], lo: NDArray[np.float64]) -> PairSums:
-        """The pair sums at ``hi + lo`` ``(N, d)``."""
+    def sums(
+        self,
+        hi: NDArray[np.float64],
+        lo: NDArray[np.float64],
+        radii: NDArray[np.float64] | None = None,
+        bonded: NDArray[np.bool_] | None = None,
+    ) -> PairSums:
+        """The pair sums at ``hi + lo`` ``(N, d)`` (:func:`contact_sums`), with the packing's
+        radii or ``radii``, and no pair ``bonded`` unless given."""
         p, (n, d) = self.first.size, hi.shape
         overlap = (np.empty(p), np.empty(p))
         gradient = (np.empty((n, d)), np.empty((n, d)))
@@ -270,12 +277,13 @@ class NearPairs:
         energy = contact_sums(
             np.ascontiguousarray(hi),
             np.ascontiguousarray(lo),
-            self.packing.radii,
+            self.packing.radii if radii is None else np.ascontiguousarray(radii),
             self.first,
             self.second,
             self.images,
             np.ascontiguousarray(self.packing.cell.h),
             self.stiffness,
+            np.zeros(p, dtype=np.bool_) if bonded is None else np.ascontiguousarray(bonded),
             self.half_steps,
             self.alpha,
             *overlap,

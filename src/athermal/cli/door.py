@@ -71,10 +71,7 @@ def _options(args: argparse.Namespace) -> None:
         "alphas": alpha,
         "stiffness": (lambda v: v > 0, "> 0"),
         "dphi": (lambda v: v > 0, "> 0"),
-        "epsilon": (
-            lambda v: v >= RESOLUTION,
-            f">= {RESOLUTION:g} (the resolution of the jammed/unjammed verdict)",
-        ),
+        "epsilon": (lambda v: v >= 1e-15, ">= 1e-15"),
         "rtol": (lambda v: v > 0, "> 0"),
         "gtol": (lambda v: v > 0, "> 0"),
         "maxiter": (lambda v: v >= 1, "an integer >= 1"),
@@ -163,6 +160,13 @@ def _work(args: argparse.Namespace) -> None:
             if not Path(path).is_file():
                 raise InputError(f"input: {path}: no such file")
     certifying = args.command == "jam" and args.certify
+    if args.command in ("jam", "ensemble") and args.epsilon < RESOLUTION:
+        if not certifying or args.alpha != 2.0:
+            raise InputError(
+                f"--epsilon: {args.epsilon:g} is below {RESOLUTION:g}, the resolution of float64's "
+                "jammed/unjammed verdict; jam --certify (alpha = 2) bisects in double-double down "
+                "to 1e-15"
+            )
     if certifying or (args.command in ("certify", "criticality") and args.alpha is not None):
         try:
             half_steps(args.alpha)

@@ -11,22 +11,25 @@ import argparse
 import hashlib
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import numpy as np
 
-from ..certify import certify
+from ..certify import CertifiedPacking, bisect_jamming_point, certify
 from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
 from ..contact import ContactModel, find_contacts
 from ..errors import ConvergenceError, InputError
 from ..experiments import JamSpec, jam_packing
 from ..io import Frame, count_frames, read_gsd, write_gsd
+from ..observables import Observables, measure
 from ..packing import Packing
 from ..protocols import (
+    EPSILON,
     JAMMING_SCHEME,
     PHI_INIT,
+    RESOLUTION,
     compression_steps,
     log_spaced,
     scaling_exponents,
@@ -141,7 +144,7 @@ def jam(args: argparse.Namespace) -> None:
         **sizes_from(args),
         phi_init=phi_init,
         dphi=args.dphi,
-        epsilon=args.epsilon,
+        epsilon=args.epsilon if args.epsilon >= RESOLUTION else EPSILON,  # then in double-double
         protocol=args.bisection,
         minimizer=minimizer_from(args),
     )
@@ -207,10 +210,23 @@ def jam(args: argparse.Namespace) -> None:
             "pressure_drops": found.pressure_drops,
             "pressure_iterations": found.iterations,
         }
-    certified, refused = None, None
+    certified, refused, bisected = None, None, {}
+    phi_c, phi_low = result.phi_c, result.phi_low
     if args.certify:
         try:
-            certified = certify(result.packing, model)
+            if args.epsilon < RESOLUTION:  # below float64's verdict: bisect in double-double
+                point = bisect_jamming_point(result.packing, model, args.epsilon)
+                certified, phi_c, phi_low = point.jammed, point.phi_high, point.phi_low
+                obs = _certified_observables(certified, model)
+                bisected = {
+                    "float64_phi_low": result.phi_low,
+                    "float64_phi_high": result.phi_c,
+                    "trials": point.trials,
+                    "contacts_shed": point.contacts_shed,
+                    "contacts_formed": point.contacts_formed,
+                }
+            else:
+                certified = certify(result.packing, model)
             final = certified.packing
         except (InputError, ConvergenceError) as exc:  # the jammed packing is written as it is
             refused = str(exc)
@@ -223,9 +239,9 @@ def jam(args: argparse.Namespace) -> None:
         observables={
             **({} if certified is None else certified.certificate.log()),
             **file_observables(obs),
-            "phi_c": result.phi_c,
-            "phi_low": result.phi_low,
-            "phi_high": result.phi_c,
+            "phi_c": phi_c,
+            "phi_low": phi_low,
+            "phi_high": phi_c,
             **{k: v for k, v in at_pressure.items() if k in ("target_pressure", "delta_phi")},
             **{
                 f"jamming_check_{k}": float(v)
@@ -234,8 +250,8 @@ def jam(args: argparse.Namespace) -> None:
             },
         },
     )
-    bracket = result.phi_c - result.phi_low
-    phi_text = f"{result.phi_c:.{_digits(bracket)}f} (bracket {bracket:.1g})"
+    width = phi_c - phi_low
+    phi_text = f"{phi_c:.{_digits(width)}f} (bracket {width:.1g})"
     picture = None
     if args.dim == 2 and args.picture != "none":
         from ..plot import packing_figure, save
@@ -247,12 +263,12 @@ def jam(args: argparse.Namespace) -> None:
             f"phi_c = {phi_text}, z = {obs.z:.3f} (rattlers removed)"
         )
         save(packing_figure(final, model, title=title), picture)
-    bound = (lambda phi: phi) if args.json else (lambda phi: f"{phi:.{_digits(bracket) + 2}f}")
+    bound = (lambda phi: phi) if args.json else (lambda phi: f"{phi:.{_digits(width) + 2}f}")
     emit(
         {
-            "phi_c": result.phi_c if args.json else phi_text,
-            "phi_low": bound(result.phi_low),
-            "phi_high": bound(result.phi_c),
+            "phi_c": phi_c if args.json else phi_text,
+            "phi_low": bound(phi_low),
+            "phi_high": bound(phi_c),
             "protocol": args.bisection,
             "written": written,
             "energy": obs.energy,
@@ -264,6 +280,7 @@ def jam(args: argparse.Namespace) -> None:
             "jamming_check": jamming_check,
             "checks_passed": check.passed,
             **({} if certified is None else {"certificate": asdict(certified.certificate)}),
+            **({"bisected_in_double_double": bisected} if bisected else {}),
             **({} if refused is None else {"certificate": {"refused": refused}}),
             "steps": result.steps,
             "resumed_steps": len(done),
@@ -282,6 +299,23 @@ def jam(args: argparse.Namespace) -> None:
         check_certified(certified.certificate)
     if refused is not None:
         raise NotConverged(f"not certified ({refused}); the jammed packing is written uncertified")
+
+
+def _certified_observables(certified: CertifiedPacking, model: ContactModel) -> Observables:
+    """The observables of a packing bisected in double-double: energy, pressure, contacts,
+    rattlers and z from its certificate (float64 misses its smallest overlaps, ~1e-17), the
+    tensors from float64."""
+    cert = certified.certificate
+    live = certified.packing.n - cert.n_rattlers
+    return replace(
+        measure(certified.packing, model),
+        energy=cert.energy,
+        pressure=cert.pressure,
+        contacts=cert.contacts,
+        contacts_nonrattler=cert.contacts,
+        n_rattlers=cert.n_rattlers,
+        z=2.0 * cert.contacts / live,
+    )
 
 
 def _frame_index(args: argparse.Namespace) -> int:
