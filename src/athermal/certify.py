@@ -11,13 +11,16 @@ refinement (Wilkinson; Higham, *Accuracy and Stability of Numerical Algorithms*,
 residual falls by about ``cond(H) x 1e-16`` per step until it reaches the double-double floor,
 ``~1e-32`` of the positions.
 
-The contacts are those of the float64 packing; after the refinement they are derived again from
-the refined positions, in double-double, and a contact that formed or broke between non-rattlers
+The contacts are those of the start's double-double overlaps; after the refinement they are
+derived again from the refined positions, and a contact that formed or broke between non-rattlers
 is refused (:class:`~athermal.errors.InputError`): the certificate would describe another
 network. Rattlers (fewer than ``d + 1`` contacts, removed iteratively) carry no force at a
 certified point: each moves with the mean step of the non-rattlers near it (a Newton step moves
 a cage by up to ~1e-9 along soft modes), and one that still overlaps a neighbour is moved
 straight out of the overlap. A step that does not improve the force balance is undone.
+
+:func:`bisect_jamming_point` brackets a jamming point below float64's resolution (~1e-9), each
+verdict a force balance of the contact network in double-double.
 """
 
 from __future__ import annotations
