@@ -83,7 +83,8 @@ def test_contact_sums_match_decimal_arithmetic(dim, alpha):
     virial = (np.empty((dim, dim)), np.empty((dim, dim)))
     h = np.ascontiguousarray(packing.cell.h)
     energy = extended.contact_sums(
-        xh, xl, packing.radii, first, second, images, h, k, extended.half_steps(alpha), alpha,
+        xh, xl, packing.radii, first, second, images, h, k, np.zeros(first.size, dtype=bool),
+        extended.half_steps(alpha), alpha,
         *overlap, *grad, *virial,
     )  # fmt: skip
     truth = decimal_sums(xh, xl, packing.radii, h, first, second, images, k, model.alpha)
@@ -114,3 +115,27 @@ def test_displace_adds_in_double_double():
     extended.displace(xh, xl, np.array([[1e-20, -3e-25]]))
     np.testing.assert_array_equal(xh, [[1.0, 0.5]])
     np.testing.assert_array_equal(xl, [[1e-20, -3e-25]])
+
+
+def test_a_bonded_pair_apart_pulls_as_a_spring():
+    """Two disks ~1e-9 apart in a large cell: bonded, the pair is a spring of rest length
+    r_i + r_j in tension (force k delta along the branch, delta < 0); not bonded, nothing."""
+    xh = np.array([[0.0, 0.0], [1.0 + 1e-9, 0.0]])
+    xl = np.zeros_like(xh)
+    radii, h = np.array([0.5, 0.5]), 10.0 * np.eye(2)
+    pair = (np.array([0]), np.array([1]), np.zeros((1, 2)), h, np.array([2.0]))
+    gap = Decimal(xh[1, 0]) - 1  # exactly
+    for bonded in (True, False):
+        overlap = (np.empty(1), np.empty(1))
+        grad = (np.empty((2, 2)), np.empty((2, 2)))
+        virial = (np.empty((2, 2)), np.empty((2, 2)))
+        energy = extended.contact_sums(
+            xh, xl, radii, *pair, np.array([bonded]), 2, 2.0, *overlap, *grad, *virial
+        )
+        assert abs(exact(overlap[0][0], overlap[1][0]) + gap) < Decimal("1e-30")
+        if bonded:  # dE/dx_i = -f_i = -k delta n with n = -e_x, delta = -gap: -2 gap
+            assert exact(grad[0][0, 0], grad[1][0, 0]) == pytest.approx(-2 * gap, rel=1e-25)
+            assert grad[0][1, 0] == -grad[0][0, 0]
+            assert exact(*energy) == pytest.approx(gap * gap, rel=1e-25)
+        else:
+            assert not grad[0].any() and exact(*energy) == 0

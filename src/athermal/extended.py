@@ -143,9 +143,10 @@ def contact_sums(  # type: ignore[no-untyped-def]
     ``images[p]`` ``(d,)`` (integers as float64: separation ``x_i - x_j + h n``), with stiffness
     ``stiffness[p]``. ``delta^(alpha - 1) = delta^(half_steps / 2)``. Written: every pair's
     overlap ``r_i + r_j - |x_i - x_j + h n|`` (negative: a gap) into ``overlap_h/l`` ``(P,)``;
-    over the pairs that overlap, ``dE/dx`` into ``grad_h/l`` ``(N, d)`` and ``sum l (x) f``
-    (``l`` the separation, ``f`` the force on ``i``) into ``virial_h/l`` ``(d, d)``, all three
-    overwritten.
+    over the pairs that overlap, and the ``bonded[p]`` ones whatever their overlap (springs of
+    rest length ``r_i + r_j``, pulling when apart: an even ``half_steps``), ``dE/dx`` into
+    ``grad_h/l`` ``(N, d)`` and ``sum l (x) f`` (``l`` the separation, ``f`` the force on
+    ``i``) into ``virial_h/l`` ``(d, d)``, all three overwritten.
     """
     d = xh.shape[1]
     grad_h[:] = 0.0
