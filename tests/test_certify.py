@@ -226,12 +226,11 @@ def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
     packing = point.jammed.packing
     pairs = NearPairs(packing, model, GAP_REACH)
     hi, lo = packing.positions.copy(), point.jammed.position_lo.copy()
-    bonds = pairs.sums(hi, lo).overlap[0] > 0.0
-    _, rattler = _network(pairs, hi, pairs.sums(hi, lo))
-    live = ~(rattler[pairs.first] | rattler[pairs.second])
-    pairs.stiffness = np.where(live, pairs.stiffness, 0.0)
+    sums = pairs.sums(hi, lo)
+    _, rattler = _network(pairs, hi, sums)
+    bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     radii = packing.radii * (point.phi_low / point.phi_high) ** 0.5
-    verdict, _ = _trial(pairs, hi, lo, radii, bonds & live, rattler, live)
+    verdict, _, _ = _trial(pairs, pairs.stiffness.copy(), hi, lo, radii, bonds, rattler)
     assert verdict is False
 
 

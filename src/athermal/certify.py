@@ -425,9 +425,8 @@ def bisect_jamming_point(
     pairs = NearPairs(start.packing, model, GAP_REACH)
     sums = pairs.sums(start.packing.positions, start.position_lo)
     _, rattler = _network(pairs, start.packing.positions, sums)
-    live = ~(rattler[pairs.first] | rattler[pairs.second])
-    pairs.stiffness = np.where(live, pairs.stiffness, 0.0)  # rattlers carry no force here
-    bonds = live & (sums.overlap[0] > 0.0)
+    stiffness = pairs.stiffness
+    bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     first = bonds.copy()
     hi, lo = start.packing.positions.copy(), start.position_lo.copy()
     phi0, radii0, dim = packing.phi, packing.radii, packing.dim
@@ -439,7 +438,9 @@ def bisect_jamming_point(
         trial_radii = radii0 * (phi / phi0) ** (1.0 / dim)
         trial_hi, trial_lo = hi.copy(), lo.copy()
         trials += 1
-        verdict, trial_bonds = _trial(pairs, trial_hi, trial_lo, trial_radii, bonds, rattler, live)
+        verdict, trial_bonds, trial_rattler = _trial(
+            pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler
+        )
         if verdict is None:
             if step < epsilon / 4.0:
                 raise ConvergenceError(
@@ -447,10 +448,12 @@ def bisect_jamming_point(
                 )
             step /= 4.0
         elif verdict:
-            high, hi, lo, radii, bonds = phi, trial_hi, trial_lo, trial_radii, trial_bonds
+            high, hi, lo, radii = phi, trial_hi, trial_lo, trial_radii
+            bonds, rattler = trial_bonds, trial_rattler
             step = min(2.0 * step, LARGEST_STEP)
         else:
             low = phi
+    pairs.stiffness = stiffness
     final = Packing(hi, radii, packing.cell)
     _free_rattlers(NearPairs(final, model, GAP_REACH), hi, lo, rattler)
     jammed = certify(final.with_positions(hi), model, lo)
@@ -466,16 +469,21 @@ def bisect_jamming_point(
 
 def _trial(
     pairs: NearPairs,
+    stiffness: NDArray[np.float64],
     hi: NDArray[np.float64],
     lo: NDArray[np.float64],
     radii: NDArray[np.float64],
     bonds: NDArray[np.bool_],
     rattler: NDArray[np.bool_],
-    live: NDArray[np.bool_],
-) -> tuple[bool | None, NDArray[np.bool_]]:
-    """Balance the network ``bonds`` at ``radii`` from ``hi + lo`` (updated in place): whether
-    it is jammed (None: Newton did not converge in :data:`TRIAL_ITERATIONS`), and its bonds."""
+) -> tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_]]:
+    """Balance the network ``bonds`` at ``radii`` from ``hi + lo`` (updated in place), the
+    rattlers' pairs without force: whether it is jammed (None: Newton did not converge in
+    :data:`TRIAL_ITERATIONS`, or its correction could not be solved: never a verdict), its bonds
+    and its rattlers (a particle left with fewer than ``d + 1`` bonds by shed contacts joins
+    them)."""
     n, dim = hi.shape
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    pairs.stiffness = np.where(live, stiffness, 0.0)
     sums = pairs.sums(hi, lo, radii, bonds)
     for _ in range(TRIAL_ITERATIONS):
         overlap = sums.overlap[0] + sums.overlap[1]
@@ -487,18 +495,24 @@ def _trial(
         if sums.largest_force() <= TRIAL_BALANCE * scale:
             apart = bonds & (overlap <= 0.0)
             if not apart.any():
-                return True, bonds
+                return True, bonds, rattler
             if apart.sum() == bonds.sum():
-                return False, bonds
+                return False, bonds, rattler
             bonds = bonds & ~apart
+            rattler = rattler | rattlers(pairs.contacts(hi, overlap, bonds), n, dim)
+            live = ~(rattler[pairs.first] | rattler[pairs.second])
+            bonds = bonds & live
+            if not bonds.any():  # the network came apart: no load is borne
+                return False, bonds, rattler
+            pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
         contacts = pairs.contacts(hi, sums.overlap[0], bonds)
         y, residual, _ = pinned_solve(contacts, rattler, sums.gradient[0].reshape(n, dim, 1))
-        if not np.all(np.isfinite(y)) or residual > 1e-6:  # what is left is floppy
-            return False, bonds
+        if not np.all(np.isfinite(y)) or residual > 1e-6:
+            return None, bonds, rattler
         step = -y.reshape(n, dim)
         _carry_rattlers(pairs, step, rattler)
         displace(hi, lo, step)
         sums = pairs.sums(hi, lo, radii, bonds)
-    return None, bonds
+    return None, bonds, rattler
