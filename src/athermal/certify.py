@@ -28,13 +28,13 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 
 import numpy as np
-import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
-from .contact import ContactModel, Contacts, hessian
+from .contact import ContactModel, Contacts
 from .errors import ConvergenceError, InputError
 from .extended import PRECISION, NearPairs, PairSums, displace, half_steps
-from .moduli import STABILITY_TOL, pinned_solve
+from .modes import lowest_eigenpairs, zero_tolerance
+from .moduli import nonrattler_hessian, pinned_solve
 from .observables import isostatic_contacts, rattlers
 from .packing import Packing
 from .relaxation import round_off_floor
@@ -247,17 +247,12 @@ def _network(
     return pairs.contacts(hi, overlap, live), rattler
 
 
-def _lowest_eigenvalue(contacts: Contacts, rattler: NDArray[np.bool_], n: int, dim: int) -> float:
+def _lowest_eigenvalue(contacts: Contacts, rattler: NDArray[np.bool_], dim: int) -> float:
     """The smallest eigenvalue of the non-rattlers' Hessian beyond its ``d`` translations (NaN
-    when there is none): ARPACK in shift-invert about a small negative shift, from a fixed
-    start vector, as :func:`athermal.modes.vibrational_modes` does."""
-    live = np.flatnonzero(~rattler)
-    dofs = (live[:, None] * dim + np.arange(dim)).ravel()
-    h = hessian(contacts, n)[dofs][:, dofs].tocsc()
-    shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
-    k = min(dim + 2, h.shape[0] - 2)
-    values = spla.eigsh(h, k=k, sigma=-shift, which="LM", tol=1e-12, v0=np.ones(h.shape[0]))[0]
-    values = np.sort(values)[np.abs(np.sort(values)) > shift]
+    when there is none)."""
+    h, _ = nonrattler_hessian(contacts, rattler, dim)
+    values, _ = lowest_eigenpairs(h, min(dim + 2, h.shape[0] - 2))
+    values = values[np.abs(values) > zero_tolerance(h)]
     return float(values[0]) if values.size else float("nan")
 
 
@@ -348,7 +343,7 @@ def _certificate(
     gaps = -overlap[live & (overlap <= 0.0)]
     n_live = int((~rattler).sum())
     network, _ = _network(pairs, packing.positions, sums)
-    lowest = _lowest_eigenvalue(network, rattler, packing.n, packing.dim)
+    lowest = _lowest_eigenvalue(network, rattler, packing.dim)
     balance = sums.largest_force()
     mean_force = float(force.mean())
     volume = packing.cell.volume

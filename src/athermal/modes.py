@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
@@ -89,6 +90,25 @@ class Modes:
         return np.sqrt(self.eigenvalues[self.eigenvalues > self.tolerance])
 
 
+def zero_tolerance(h: sp.spmatrix) -> float:
+    """Eigenvalues of the stiffness matrix ``h`` within this of zero are zero modes:
+    :data:`~athermal.moduli.STABILITY_TOL` x its mean diagonal entry."""
+    return STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
+
+
+def lowest_eigenpairs(h: sp.spmatrix, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
+    symmetric ``h``: ARPACK in shift-invert mode about ``-zero_tolerance(h)`` (so the matrix it
+    factors is positive definite at a minimum), from a fixed start vector (reproducible)."""
+    size = h.shape[0]
+    start = np.full(size, 1.0 / np.sqrt(size))  # ARPACK's own start is random
+    values, vecs = spla.eigsh(
+        h.tocsc(), k=k, sigma=-zero_tolerance(h), which="LM", tol=1e-12, v0=start
+    )
+    order = np.argsort(values)
+    return values[order], vecs[:, order]
+
+
 def vibrational_modes(
     packing: Packing, model: ContactModel, k: int | None = None, *, vectors: int | None = None
 ) -> Modes:
@@ -105,7 +125,7 @@ def vibrational_modes(
     n_live = size // packing.dim
     if n_live < 2:
         raise InputError("modes: fewer than two particles that are not rattlers")
-    tolerance = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
+    tolerance = zero_tolerance(h)
     if k is None:
         if size > DENSE_MODES_DOFS:
             raise InputError(
@@ -116,12 +136,7 @@ def vibrational_modes(
     else:
         if int(k) != k or not 1 <= k < size - 1:
             raise InputError(f"k: need an integer in [1, {size - 2}], got {k!r}")
-        start = np.full(size, 1.0 / np.sqrt(size))  # ARPACK's own start is random
-        values, vecs = spla.eigsh(
-            h.tocsc(), k=int(k), sigma=-tolerance, which="LM", tol=1e-12, v0=start
-        )
-        order = np.argsort(values)
-        values, vecs = values[order], vecs[:, order]
+        values, vecs = lowest_eigenpairs(h, int(k))
     per_particle = (vecs**2).reshape(n_live, packing.dim, -1).sum(axis=1)  # (N', M)
     participation = per_particle.sum(axis=0) ** 2 / (n_live * (per_particle**2).sum(axis=0))
     if vectors is None:

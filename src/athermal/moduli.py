@@ -314,9 +314,18 @@ def stiffness_matrix(
     free), the flat indices ``(N' d,)`` of its rows among the ``N d`` coordinates, and the
     rattler mask ``(N,)``."""
     contacts, rattler = nonrattler_contacts(packing, model)
+    h, dofs = nonrattler_hessian(contacts, rattler, packing.dim)
+    return h, dofs, rattler
+
+
+def nonrattler_hessian(
+    contacts: Contacts, rattler: NDArray[np.bool_], dim: int
+) -> tuple[sp.csr_matrix, NDArray[np.intp]]:
+    """The Hessian ``(N' d, N' d)`` of ``contacts`` restricted to the non-rattlers, and the
+    flat indices ``(N' d,)`` of its rows among the ``N d`` coordinates."""
     live = np.flatnonzero(~rattler)
-    dofs = (live[:, None] * packing.dim + np.arange(packing.dim)).ravel()
-    return hessian(contacts, packing.n)[dofs][:, dofs].tocsr(), dofs, rattler
+    dofs = (live[:, None] * dim + np.arange(dim)).ravel()
+    return hessian(contacts, rattler.size)[dofs][:, dofs].tocsr(), dofs
 
 
 def _nonaffine_correction(
