@@ -12,11 +12,11 @@ import athermal.cli.analysis as analysis
 from athermal.certify import (
     GAP_REACH,
     TARGET,
-    _network,
     _same_network,
     _trial,
     bisect_jamming_point,
     certify,
+    contact_network,
 )
 from athermal.cli import main
 from athermal.errors import InputError
@@ -227,7 +227,7 @@ def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
     pairs = NearPairs(packing, model, GAP_REACH)
     hi, lo = packing.positions.copy(), point.jammed.position_lo.copy()
     sums = pairs.sums(hi, lo)
-    _, rattler = _network(pairs, hi, sums)
+    _, rattler = contact_network(pairs, hi, sums)
     bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     radii = packing.radii * (point.phi_low / point.phi_high) ** 0.5
     verdict, _, _ = _trial(pairs, pairs.stiffness.copy(), hi, lo, radii, bonds, rattler)

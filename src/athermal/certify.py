@@ -185,7 +185,7 @@ def certify(
         raise InputError(f"position_lo: expected shape {hi.shape}, got {lo.shape}")
     pairs = NearPairs(packing, model, GAP_REACH)
     sums = pairs.sums(hi, lo)
-    contacts, rattler = _network(pairs, hi, sums)
+    contacts, rattler = contact_network(pairs, hi, sums)
     live = int((~rattler).sum())
     excess = contacts.i.size - isostatic_contacts(live, dim)
     if contacts.i.size == 0 or excess < 0:
@@ -235,11 +235,11 @@ def precision_floor(packing: Packing, model: ContactModel) -> float:
     return DD_FLOOR * float(model.kmat.max()) * width ** (model.alpha - 1.0)
 
 
-def _network(
+def contact_network(
     pairs: NearPairs, hi: NDArray[np.float64], sums: PairSums
 ) -> tuple[Contacts, NDArray[np.bool_]]:
-    """The contacts between non-rattlers by the double-double overlaps of ``sums`` (float64
-    misses the smallest overlaps far below a jamming point's), and the rattler mask."""
+    """The contacts between non-rattlers at ``hi`` by the double-double overlaps of ``sums``
+    (float64 misses the smallest overlaps near a jamming point), and the rattler mask ``(N,)``."""
     overlap = sums.overlap[0] + sums.overlap[1]
     touching = overlap > 0.0
     rattler = rattlers(pairs.contacts(hi, overlap, touching), hi.shape[0], hi.shape[1])
@@ -342,7 +342,7 @@ def _certificate(
     force = pairs.stiffness[touching] * overlap[touching] ** (model.alpha - 1.0)
     gaps = -overlap[live & (overlap <= 0.0)]
     n_live = int((~rattler).sum())
-    network, _ = _network(pairs, packing.positions, sums)
+    network, _ = contact_network(pairs, packing.positions, sums)
     lowest = _lowest_eigenvalue(network, rattler, packing.dim)
     balance = sums.largest_force()
     mean_force = float(force.mean())
@@ -419,7 +419,7 @@ def bisect_jamming_point(
     start = certify(packing, model)
     pairs = NearPairs(start.packing, model, GAP_REACH)
     sums = pairs.sums(start.packing.positions, start.position_lo)
-    _, rattler = _network(pairs, start.packing.positions, sums)
+    _, rattler = contact_network(pairs, start.packing.positions, sums)
     stiffness = pairs.stiffness
     bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     first = bonds.copy()

@@ -33,11 +33,10 @@ import numpy as np
 import scipy.optimize
 from numpy.typing import NDArray
 
-from .certify import GAP_REACH
+from .certify import GAP_REACH, contact_network
 from .contact import ContactModel
 from .errors import InputError
 from .extended import NearPairs
-from .observables import rattlers
 from .packing import Packing
 
 THETA_E = 0.42311
@@ -114,20 +113,16 @@ def weak_forces_and_gaps(
     pairs = NearPairs(packing, model, GAP_REACH)
     lo = np.zeros_like(packing.positions) if position_lo is None else np.asarray(position_lo)
     sums = pairs.sums(np.array(packing.positions), np.array(lo))
-    overlap = sums.overlap[0] + sums.overlap[1]
-    touching = overlap > 0.0
-    contacts = pairs.contacts(packing.positions, overlap, touching)
-    rattler = rattlers(contacts, packing.n, packing.dim)
-    live_pair = ~(rattler[pairs.first] | rattler[pairs.second])
-    kept = live_pair[touching]
-    if not kept.any():
+    contacts, rattler = contact_network(pairs, packing.positions, sums)
+    if contacts.i.size == 0:
         raise InputError("weak forces: no contacts between non-rattlers (not a jammed packing)")
-    i, j = contacts.i[kept], contacts.j[kept]
+    i, j = contacts.i, contacts.j
     counts = np.bincount(i, minlength=packing.n) + np.bincount(j, minlength=packing.n)
     buckler = ~rattler & (counts == packing.dim + 1)
-    force = contacts.force_magnitude[kept]
+    force = contacts.force_magnitude
+    overlap = sums.overlap[0] + sums.overlap[1]
     sigma = packing.radii[pairs.first] + packing.radii[pairs.second]
-    gap = live_pair & ~touching
+    gap = ~(rattler[pairs.first] | rattler[pairs.second]) & (overlap <= 0.0)
     return WeakForcesAndGaps(
         forces=force / force.mean(),
         localized=buckler[i] | buckler[j],
