@@ -49,14 +49,14 @@ faster than the floor); a start farther from its minimum is refused as not relax
 ROUND_OFF_SLACK = 10.0
 """How far above float64's round-off floor a relaxed start may be (:data:`RELAXED`)."""
 MAX_ITERATIONS = 12
-"""Newton steps at most; each gains ~8 digits near jamming, and 2-3 reach :data:`TARGET`."""
+"""Newton steps at most (``docs/decisions.md``, "Certified jamming points")."""
 STALL = 0.5
 """A step that does not reduce the largest residual force below this fraction of the previous
 one has reached the limit of the precision."""
 FIRST_STEP = 1e-9
 """The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
 LARGEST_STEP = 1e-8
-"""Its largest step (Newton from 5e-7 away diverged at N = 4096)."""
+"""Its largest step (``docs/decisions.md``, "Jamming below float64's resolution")."""
 MAX_TRIALS = 2000
 """Its trials at most."""
 TRIAL_ITERATIONS = 30
@@ -65,7 +65,7 @@ TRIAL_BALANCE = 1e-14
 """A trial's verdict needs its network's forces balanced to this fraction of their mean."""
 DD_FLOOR = 1e-30
 """The force balance double-double reaches, in units of ``k L^(alpha - 1)`` (``L`` the cell
-width): measured 7e-33 ... 1.4e-32 at jamming points of N = 256 ... 4096 in the unit cell."""
+width; measured in ``docs/decisions.md``, "Certified jamming points")."""
 LOG_PREFIX = "certificate_"
 """The certificate's fields in a GSD frame's log are ``log/athermal/certificate_<name>``."""
 RATTLER_PUSH = 1.0

@@ -49,7 +49,8 @@ FORCE_WINDOW = (1e-3, 1e-1)
 """Default window of ``f / <f>`` for the force exponents."""
 GAP_WINDOW = (1e-5, 1e-2)
 """Default window of ``h`` for the gap exponent: above the overlaps of a packing jammed at
-epsilon = 1e-6 (``delta / (r_i + r_j) ~ 1e-7`` at N = 1024), below the first neighbour shell."""
+epsilon = 1e-6, below the first neighbour shell (``docs/howto/certify.md`` measures the
+exponents against the window)."""
 
 
 @dataclass(frozen=True, eq=False)
