@@ -203,8 +203,7 @@ def certify(
         )
     live_pair = ~(rattler[pairs.first] | rattler[pairs.second])
     network = live_pair & (sums.overlap[0] > 0.0)
-    _free_rattlers(pairs, hi, lo, rattler)
-    sums = pairs.sums(hi, lo)
+    sums = _free_rattlers(pairs, hi, lo, rattler)
     force, iterations = sums.largest_force(), 0
     best = (force, hi.copy(), lo.copy(), sums)
     enough = max(target * mean_force, precision_floor(packing, model))
@@ -213,9 +212,8 @@ def certify(
         step = _newton_step(pairs, hi, sums, network, rattler)
         _carry_rattlers(pairs, step, rattler)
         displace(hi, lo, step)
-        _free_rattlers(pairs, hi, lo, rattler)
+        sums, previous = _free_rattlers(pairs, hi, lo, rattler), force
         iterations += 1
-        sums, previous = pairs.sums(hi, lo), force
         force = sums.largest_force()
         if force < best[0]:
             best = (force, hi.copy(), lo.copy(), sums)
@@ -293,15 +291,16 @@ def _carry_rattlers(
 
 def _free_rattlers(
     pairs: NearPairs, hi: NDArray[np.float64], lo: NDArray[np.float64], rattler: NDArray[np.bool_]
-) -> None:
+) -> PairSums:
     """Move every rattler that overlaps a neighbour straight out, by ``1 + RATTLER_PUSH`` times
     the overlap (a rattler's place in its cage is free); a few rounds, since a move may touch
-    another neighbour."""
+    another neighbour. Returns the pair sums at the positions reached."""
     for _ in range(RATTLER_PASSES):
-        overlap = pairs.sums(hi, lo).overlap[0]
+        sums = pairs.sums(hi, lo)
+        overlap = sums.overlap[0]
         hit = np.flatnonzero((overlap > 0.0) & (rattler[pairs.first] | rattler[pairs.second]))
         if hit.size == 0:
-            return
+            return sums
         sep = pairs.separations(hi)[hit]
         push = ((1.0 + RATTLER_PUSH) * overlap[hit] / np.linalg.norm(sep, axis=1))[:, None] * sep
         step = np.zeros_like(hi)
