@@ -72,10 +72,11 @@ def packings(n: int, count: int, cache: Path) -> tuple[list[Path], list[str]]:
 
 def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
     """The exponents of one N at the default windows and over the scans."""
-    samples = []
+    samples, balances = [], []
     for path in files:
         frame = read_gsd(path)
         samples.append(weak_forces_and_gaps(frame.packing, frame.model, frame.position_lo))
+        balances.append(float(frame.log["certificate_relative_force_balance"][()]))
     found = critical_exponents(samples)
     save(criticality_figure(samples, found, title=f"N = {n}, {len(samples)} packings"), figure)
     f = np.concatenate([s.forces for s in samples])
@@ -89,9 +90,7 @@ def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
     return {
         "n": n,
         "packings": len(samples),
-        "relative_force_balance_max": max(
-            float(read_gsd(p).log["certificate_relative_force_balance"][()]) for p in files
-        ),
+        "relative_force_balance_max": max(balances),
         "theta_e": [found.theta_e, found.theta_e_err, found.extended.points],
         "theta_l": [found.theta_l, found.theta_l_err, found.localized.points],
         "gamma": [found.gamma, found.gamma_err, found.gap.points],
