@@ -1,9 +1,15 @@
-"""Periodic simulation cell: an immutable lattice ``h`` (d x d, lattice vectors as columns).
+"""Simulation cell: an immutable lattice ``h`` (d x d, lattice vectors as columns), periodic
+along every axis or bounded by flat walls along some.
 
 The cell is upper triangular, as in HOOMD-blue: ``a1 = (Lx, 0, 0)``, ``a2 = (xy Ly, Ly, 0)``,
 ``a3 = (xz Lz, yz Lz, Lz)``. Fractional coordinates ``s = h^-1 x`` of wrapped positions lie in
 ``[-1/2, 1/2)`` (the cell is centred on the origin, HOOMD's convention). Lengths are in the
 user's length unit (the paper's unit cell: ``Lx = Ly = 1``).
+
+Walls: along an axis in :attr:`Cell.walls` the cell is not periodic; its two faces
+``x_a = -L_a / 2`` and ``x_a = +L_a / 2`` are flat frictionless walls (``L_a = h[a, a]``, the
+axis untilted: row and column ``a`` of ``h`` off the diagonal are zero), so that the cell's
+volume is the space between them and the box a GSD file stores is the container.
 """
 
 from __future__ import annotations
@@ -19,11 +25,25 @@ from ._validate import float_array
 from .errors import InputError
 
 _TRIANGLE_TOL = 1e-14
+AXES = "xyz"
+"""The axes' names, ``--walls`` letters: ``x`` is axis 0."""
+
+
+def wall_axes(names: str, dim: int) -> tuple[int, ...]:
+    """The axes ``(a, ...)`` of ``names`` (``"y"``, ``"xy"``; ``""`` for none) in ``dim``
+    dimensions, sorted."""
+    axes = sorted({AXES.find(c) for c in names})
+    if -1 in axes or len(axes) != len(names) or (axes and axes[-1] >= dim):
+        raise InputError(
+            f"walls: expected distinct axes among {AXES[:dim]!r} (e.g. 'y'), got {names!r}"
+        )
+    return tuple(axes)
 
 
 @dataclass(frozen=True, eq=False)
 class Cell:
-    """Periodic cell with lattice matrix ``h`` of shape ``(d, d)``, d = 2 or 3.
+    """Cell with lattice matrix ``h`` of shape ``(d, d)``, d = 2 or 3, and walls normal to the
+    axes ``walls`` (sorted; default none: periodic along every axis).
 
     Examples
     --------
@@ -33,6 +53,7 @@ class Cell:
     """
 
     h: NDArray[np.float64]
+    walls: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
         h = np.array(float_array(self.h, "cell", (None, None)))
@@ -47,8 +68,19 @@ class Cell:
             raise InputError(
                 f"cell: singular or inverted, diagonal {np.diag(h).tolist()} must be > 0"
             )
+        walls = tuple(sorted({int(a) for a in self.walls}))
+        if walls and (walls[0] < 0 or walls[-1] >= d):
+            raise InputError(f"walls: axes must lie in 0..{d - 1}, got {list(self.walls)}")
+        for a in walls:
+            off = np.concatenate([np.delete(h[a], a), np.delete(h[:, a], a)])
+            if np.any(off != 0.0):
+                raise InputError(
+                    f"cell: walls normal to {AXES[a]} need an untilted {AXES[a]} axis (no shear "
+                    f"across or along them; frictionless flat walls cannot carry one)"
+                )
         h.setflags(write=False)
         object.__setattr__(self, "h", h)
+        object.__setattr__(self, "walls", walls)
 
     @classmethod
     def box(cls, lengths: ArrayLike) -> Cell:
@@ -85,6 +117,11 @@ class Cell:
         """Area (2D) or volume (3D) of the cell."""
         return float(np.prod(np.diag(self.h)))
 
+    @property
+    def periodic_axes(self) -> int:
+        """Number of periodic axes (``d`` minus the walled ones): the rigid translations."""
+        return self.dim - len(self.walls)
+
     @cached_property
     def inverse(self) -> NDArray[np.float64]:
         """``h^-1``, shape ``(d, d)``; its rows are the reciprocal vectors."""
@@ -119,13 +156,16 @@ class Cell:
         return np.asarray(s) @ self.h.T
 
     def wrap(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Positions ``(N, d)`` mapped into the cell: fractional coordinates in ``[-1/2, 1/2)``."""
+        """Positions ``(N, d)`` mapped into the cell: fractional coordinates in ``[-1/2, 1/2)``
+        along the periodic axes (kept along walled ones)."""
         s = self.fractional(x)
-        s -= np.floor(s + 0.5)
-        return self.cartesian(s)
+        jump = np.floor(s + 0.5)
+        jump[:, list(self.walls)] = 0.0
+        return self.cartesian(s - jump)
 
     def minimum_image(self, dx: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Shortest periodic image of separation vectors ``(M, d)``, exact in any cell.
+        """Shortest periodic image of separation vectors ``(M, d)``, exact in any cell (none
+        across walls).
 
         Fractional rounding alone fails in tilted cells, so it is done in the reduced basis of
         the same lattice and the neighbouring images of the rounded vector are searched too.
@@ -133,11 +173,13 @@ class Cell:
         dx = np.atleast_2d(np.asarray(dx, dtype=np.float64))
         cell = self.reduced()
         s = cell.fractional(dx)
-        base = cell.cartesian(s - np.round(s))
+        jump = np.round(s)
+        jump[:, list(self.walls)] = 0.0
+        base = cell.cartesian(s - jump)
         best = base.copy()
         best_len = np.einsum("ij,ij->i", base, base)
         for shift in product((-1, 0, 1), repeat=self.dim):
-            if not any(shift):
+            if not any(shift) or any(shift[a] for a in self.walls):
                 continue
             trial = base + cell.h @ np.array(shift, dtype=np.float64)
             length = np.einsum("ij,ij->i", trial, trial)
@@ -152,7 +194,7 @@ class Cell:
         d_mat = float_array(deformation, "deformation", (self.dim, self.dim))
         if np.linalg.det(d_mat) <= 0.0:
             raise InputError("deformation: determinant must be > 0")
-        return Cell(d_mat @ self.h)
+        return Cell(d_mat @ self.h, self.walls)
 
     def reduced(self) -> Cell:
         """The same lattice with every tilt at most half the box length it leans along.
@@ -165,7 +207,7 @@ class Cell:
             for row in range(col - 1, -1, -1):
                 n = np.round(h[row, col] / h[row, row])
                 h[:, col] -= n * h[:, row]
-        return Cell(h)
+        return Cell(h, self.walls)
 
     def packing_fraction(self, radii: NDArray[np.float64]) -> float:
         """Sum of disk areas (2D) or sphere volumes (3D) over the cell volume."""

@@ -15,18 +15,27 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from ._jit import _jit, _jit_fast
+from .cell import Cell
 from .errors import InputError
 from .neighbors import NeighborList
 from .packing import Packing
+from .walls import WallContacts, find_wall_contacts, wall_gradient, wall_hessian
+
+Walls = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
+"""What the kernels take of a cell's walls: the walled axes ``(W,)``, the half lengths
+``L_a / 2`` ``(W,)`` (the walls at ``x_a = -+L_a / 2``) and the wall stiffness by species
+``(T,)``; every array empty or ``(T,)`` for a periodic cell."""
 
 
 @dataclass(frozen=True, eq=False)
 class ContactModel:
     """Exponent ``alpha >= 2`` and stiffness: a scalar ``k`` or a symmetric ``(T, T)`` matrix
-    giving ``k_ij`` by the species (``Packing.types()``) of ``i`` and ``j``."""
+    giving ``k_ij`` by the species (``Packing.types()``) of ``i`` and ``j``; ``wall_stiffness``
+    ``k_w`` of a particle's contact with a wall (default its species' own ``k_ii``)."""
 
     alpha: float = 2.0
     stiffness: float | NDArray[np.float64] = 1.0
+    wall_stiffness: float | None = None
     kmat: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -48,6 +57,26 @@ class ContactModel:
         object.__setattr__(self, "kmat", kmat)
         if kmat.shape == (1, 1):
             object.__setattr__(self, "stiffness", float(kmat[0, 0]))
+        if self.wall_stiffness is not None:
+            wall = float(self.wall_stiffness)
+            if not np.isfinite(wall) or wall <= 0.0:
+                raise InputError(f"wall_stiffness: must be finite and > 0, got {wall}")
+            object.__setattr__(self, "wall_stiffness", wall)
+
+    @property
+    def kwall(self) -> NDArray[np.float64]:
+        """Wall stiffness ``(T,)`` by species: ``wall_stiffness``, or the diagonal of ``kmat``."""
+        if self.wall_stiffness is None:
+            return np.ascontiguousarray(np.diag(self.kmat))
+        return np.full(self.kmat.shape[0], self.wall_stiffness)
+
+    def walls(self, cell: Cell) -> Walls:
+        """The wall arguments of the compiled kernels for ``cell`` (:data:`Walls`)."""
+        return (
+            np.array(cell.walls, dtype=np.int64),
+            np.array([0.5 * cell.h[a, a] for a in cell.walls]),
+            self.kwall,
+        )
 
     def typeid(self, packing: Packing) -> NDArray[np.int32]:
         """Per-particle index ``(N,)`` into ``kmat`` (all zero for a scalar stiffness)."""
@@ -86,8 +115,12 @@ def energy_gradient_contacts(
     nlist: NeighborList,
     model: ContactModel,
     grad: NDArray[np.float64],
+    walls: Walls | None = None,
 ) -> tuple[float, int]:
-    """:func:`energy_gradient` and the number of overlapping pairs, from the same pass."""
+    """:func:`energy_gradient` and the number of overlapping pairs and wall contacts, from the
+    same pass (``walls``: :meth:`ContactModel.walls`; none: a periodic cell)."""
+    if walls is None:
+        walls = (np.empty(0, dtype=np.int64), np.empty(0), model.kwall)
     energy, contacts = evaluate(
         positions,
         grad,
@@ -99,6 +132,7 @@ def energy_gradient_contacts(
         typeid,
         model.kmat,
         model.alpha,
+        *walls,
     )
     return float(energy), int(contacts)
 
@@ -108,7 +142,9 @@ class Contacts:
     """The overlapping pairs (``delta > 0``) of a configuration, M of them.
 
     ``i, j`` ``(M,)``; ``branch`` ``(M, d)`` = ``x_i - x_j`` (periodic image); ``distance`` and
-    ``overlap`` ``(M,)``; ``stiffness`` ``(M,)`` = ``k_ij``; ``alpha``.
+    ``overlap`` ``(M,)``; ``stiffness`` ``(M,)`` = ``k_ij``; ``alpha``; ``walls`` the
+    particles' contacts with the cell's walls (None: no walls). The functions below (energy,
+    gradient, Hessian, stress) count both.
     """
 
     i: NDArray[np.int64]
@@ -118,9 +154,10 @@ class Contacts:
     overlap: NDArray[np.float64]
     stiffness: NDArray[np.float64]
     alpha: float
+    walls: WallContacts | None = None
 
     def subset(self, keep: NDArray[np.bool_]) -> Contacts:
-        """The contacts where ``keep`` ``(M,)`` is True."""
+        """The pair contacts where ``keep`` ``(M,)`` is True (the wall contacts kept)."""
         return Contacts(
             self.i[keep],
             self.j[keep],
@@ -129,7 +166,13 @@ class Contacts:
             self.overlap[keep],
             self.stiffness[keep],
             self.alpha,
+            self.walls,
         )
+
+    @property
+    def count(self) -> int:
+        """Pair contacts and wall contacts together."""
+        return int(self.i.size) + (0 if self.walls is None else int(self.walls.particle.size))
 
     @property
     def normal(self) -> NDArray[np.float64]:
@@ -155,7 +198,8 @@ class Contacts:
 def find_contacts(
     packing: Packing, model: ContactModel, nlist: NeighborList | None = None
 ) -> Contacts:
-    """All overlapping pairs of ``packing`` (a fresh neighbour list is built when none is given).
+    """All overlapping pairs of ``packing`` (a fresh neighbour list is built when none is given)
+    and its wall contacts.
 
     Raises :class:`~athermal.errors.InputError` naming two particles whose centres coincide."""
     if nlist is None:
@@ -174,14 +218,28 @@ def find_contacts(
     hit = overlap > 0.0
     typeid = model.typeid(packing)
     i, j = nlist.first[hit].astype(np.int64), nlist.second[hit].astype(np.int64)
+    walls = None
+    if packing.cell.walls:
+        kwall = model.kwall[typeid]
+        walls = find_wall_contacts(
+            packing.positions, packing.radii, kwall, model.alpha, packing.cell
+        )
     return Contacts(
-        i, j, sep[hit], dist[hit], overlap[hit], model.kmat[typeid[i], typeid[j]], model.alpha
+        i,
+        j,
+        sep[hit],
+        dist[hit],
+        overlap[hit],
+        model.kmat[typeid[i], typeid[j]],
+        model.alpha,
+        walls,
     )
 
 
 def total_energy(contacts: Contacts) -> float:
-    """Sum of the contact energies."""
-    return float(contacts.energy.sum())
+    """Sum of the contact energies (walls' included)."""
+    walls = 0.0 if contacts.walls is None else float(contacts.walls.energy.sum())
+    return float(contacts.energy.sum()) + walls
 
 
 def gradient(contacts: Contacts, n: int) -> NDArray[np.float64]:
@@ -192,6 +250,8 @@ def gradient(contacts: Contacts, n: int) -> NDArray[np.float64]:
         grad[:, axis] = np.bincount(contacts.j, f[:, axis], n) - np.bincount(
             contacts.i, f[:, axis], n
         )
+    if contacts.walls is not None:
+        grad += wall_gradient(contacts.walls, n)
     return grad
 
 
@@ -230,16 +290,22 @@ def assemble_blocks(
 
 def hessian(contacts: Contacts, n: int) -> sp.csr_matrix:
     """Sparse Hessian ``d^2 E / dx dx`` ``(N d, N d)``, symmetric, of the contact energy."""
-    return assemble_blocks(contacts.i, contacts.j, contact_blocks(contacts), n)
+    h = assemble_blocks(contacts.i, contacts.j, contact_blocks(contacts), n)
+    if contacts.walls is not None and contacts.walls.particle.size:
+        h = (h + wall_hessian(contacts.walls, n)).tocsr()
+    return h
 
 
 def strain_derivative(contacts: Contacts) -> NDArray[np.float64]:
     """``dE/d(epsilon)`` ``(d, d)`` under the homogeneous deformation ``x -> (I + epsilon) x``.
 
-    ``dE/d(epsilon_ab) = -sum_c f_a l_b`` (cell and positions deformed together); it equals
-    ``-V sigma``.
+    ``dE/d(epsilon_ab) = -sum_c f_a l_b`` (cell, walls and positions deformed together; a wall
+    contact's ``l`` from the wall to the centre); it equals ``-V sigma``.
     """
-    return -np.einsum("ca,cb->ab", contacts.force, contacts.branch)
+    out = -np.einsum("ca,cb->ab", contacts.force, contacts.branch)
+    if contacts.walls is not None:
+        out -= np.einsum("ca,cb->ab", contacts.walls.force, contacts.walls.branch)
+    return out
 
 
 def packing_energy(packing: Packing, model: ContactModel) -> float:
@@ -256,13 +322,20 @@ class HessianOperator:
     branch vector ``x_i - x_j`` (``l = |b|``), ``a = kappa (alpha - 1 + delta/l) / l^2``,
     ``c = kappa delta/l`` and ``kappa = k delta^(alpha-2)``; ``pairs (M, 2)``, ``sep (M, d)``
     (= ``b``) and ``coef (M, 2)`` = ``(a, c)`` hold the ``M`` contacts of ``n`` particles
-    (:meth:`athermal.objective.Objective.hessian` fills them by a compiled pass).
+    (:meth:`athermal.objective.Objective.hessian` fills them by a compiled pass). ``walls``:
+    the wall contacts' diagonal entries, particle, axis and value ``(W,)`` each
+    (:meth:`athermal.walls.WallContacts.hessian_terms`).
     """
 
     n: int
     pairs: NDArray[np.int64]
     sep: NDArray[np.float64]
     coef: NDArray[np.float64]
+    walls: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]] = (
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros(0),
+    )
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -280,7 +353,17 @@ class HessianOperator:
             np.ascontiguousarray(v, dtype=np.float64).reshape(self.n, d),
             out.reshape(self.n, d),
         )
+        particle, axis, value = self.walls
+        if particle.size:
+            index = particle * d + axis
+            np.add.at(out, index, value * np.asarray(v)[index])
         return out
+
+    def _wall_diagonal(self) -> NDArray[np.float64]:
+        """The walls' part of the diagonal ``(N d,)``."""
+        particle, axis, value = self.walls
+        d = self.sep.shape[1]
+        return np.bincount(particle * d + axis, value, self.n * d).astype(np.float64)
 
     def contact_blocks(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
         """Each contact's block ``K = a b b^T - c I`` ``(M, d, d)``, or those of the contacts
@@ -299,12 +382,17 @@ class HessianOperator:
         d = self.sep.shape[1]
         diagonal = np.empty((self.n, d, d))
         diagonal_blocks(self.pairs, self.sep, self.coef, diagonal)
+        if self.walls[0].size:
+            diagonal[:, range(d), range(d)] += self._wall_diagonal().reshape(self.n, d)
         return float(np.linalg.eigvalsh(diagonal)[:, 0].min()) if self.n else 0.0
 
     def matrix(self) -> sp.csr_matrix:
         """``H`` as a symmetric sparse matrix (for a factorization)."""
         blocks = self.contact_blocks()
-        return assemble_blocks(self.pairs[:, 0], self.pairs[:, 1], blocks, self.n)
+        h = assemble_blocks(self.pairs[:, 0], self.pairs[:, 1], blocks, self.n)
+        if self.walls[0].size:
+            h = (h + sp.diags(self._wall_diagonal())).tocsr()
+        return h
 
 
 @_jit
@@ -591,12 +679,51 @@ def block_csr(first, second, blocks, n):  # type: ignore[no-untyped-def]
 
 
 @_jit
-def evaluate(points, gradient, radii, first, second, images, shift, typeid, kmat, alpha):  # type: ignore[no-untyped-def]
+def evaluate(  # type: ignore[no-untyped-def]
+    points, gradient, radii, first, second, images, shift, typeid, kmat, alpha, walls, half, kwall
+):
     """The contact energy and overlapping pairs at ``points`` ``(N, d)``, its gradient written
     into ``gradient`` ``(N, d)``, by the kernel of the dimension (arguments as
-    :func:`energy_gradient_2d`): the one evaluation every caller uses, so
-    that the energy at a point is the same bits from Python and from compiled loops."""
+    :func:`energy_gradient_2d`), then the walls' (:func:`wall_energy_gradient`): the one
+    evaluation every caller uses, so that the energy at a point is the same bits from Python
+    and from compiled loops."""
     args = (radii, first, second, images, shift, typeid, kmat, alpha, gradient)
     if points.shape[1] == 2:
-        return energy_gradient_2d(points, *args)
-    return energy_gradient_3d(points, *args)
+        energy, contacts = energy_gradient_2d(points, *args)
+    else:
+        energy, contacts = energy_gradient_3d(points, *args)
+    if walls.size:
+        e_wall, c_wall = wall_energy_gradient(
+            points, radii, typeid, walls, half, kwall, alpha, gradient
+        )
+        energy += e_wall
+        contacts += c_wall
+    return energy, contacts
+
+
+@_jit
+def wall_energy_gradient(x, radii, typeid, walls, half, kwall, alpha, grad):  # type: ignore[no-untyped-def]
+    """Energy ``sum k_w delta^alpha / alpha`` of the particles' overlaps with the walls and
+    their number, the gradient added into ``grad (N, d)``. Along axis ``a = walls[w]`` the walls
+    lie at ``x_a = -half[w]`` and ``+half[w]``; a particle overlaps them by
+    ``delta = r_i - (x_ia + half)`` and ``r_i - (half - x_ia)`` (flat and frictionless: the
+    force is along the axis). ``kwall (T,)`` by species ``typeid``."""
+    energy = 0.0
+    contacts = 0
+    for i in range(x.shape[0]):
+        k = kwall[typeid[i]]
+        for w in range(walls.size):
+            a = walls[w]
+            low = radii[i] - (x[i, a] + half[w])
+            if low > 0.0:
+                f = _pair_force(low, k, alpha)
+                energy += f * low
+                grad[i, a] -= f
+                contacts += 1
+            high = radii[i] - (half[w] - x[i, a])
+            if high > 0.0:
+                f = _pair_force(high, k, alpha)
+                energy += f * high
+                grad[i, a] += f
+                contacts += 1
+    return energy / alpha, contacts

@@ -98,6 +98,7 @@ class EnsembleSpec:
 LATER_FIELDS: dict[tuple[str, ...], Any] = {
     ("jam", "sizes"): "bidisperse",
     ("jam", "polydispersity"): POLYDISPERSITY,
+    ("jam", "walls"): "",
     ("jam", "minimizer", "backend"): "numba",
     ("compress", "minimizer", "backend"): "numba",
     ("shear", "minimizer", "backend"): "numba",

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._validate import choice
+from .cell import Cell, wall_axes
 from .contact import ContactModel
 from .errors import InputError
 from .objective import Objective
@@ -88,7 +89,8 @@ class JamSpec:
     :func:`~athermal.packing.random_packing`), contact exponent ``alpha`` and stiffness
     ``stiffness``, placed at ``phi_init`` (default
     :data:`PHI_INIT`), grown by ``dphi`` and bisected to ``epsilon`` (packing fraction) by the
-    bisection ``protocol`` (``seed`` or ``ohern``), relaxed by ``minimizer``.
+    bisection ``protocol`` (``seed`` or ``ohern``), relaxed by ``minimizer``, in the unit cell
+    with walls normal to the axes ``walls`` (``"y"``; default none, periodic).
     """
 
     n: int = 1024
@@ -103,8 +105,10 @@ class JamSpec:
     epsilon: float = EPSILON
     protocol: JamProtocol = JAM_PROTOCOL
     minimizer: Minimizer = JAMMING_MINIMIZER
+    walls: str = ""
 
     def __post_init__(self) -> None:
+        wall_axes(self.walls, self.dim)
         if int(self.n) != self.n or self.n < 2:
             raise InputError(f"n: need an integer >= 2 particles, got {self.n!r}")
         if self.dim not in (2, 3):
@@ -131,6 +135,7 @@ class JamSpec:
             size_ratio=self.size_ratio,
             sizes=self.sizes,
             polydispersity=self.polydispersity,
+            cell=Cell(np.eye(self.dim), wall_axes(self.walls, self.dim)),
         )
 
 

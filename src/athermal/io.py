@@ -5,9 +5,15 @@ Each configuration is one frame that OVITO, freud, HOOMD-blue and ``gsd.hoomd`` 
 the origin, float32, ``z = 0`` in 2D), ``particles.diameter`` = 2 r, ``particles.typeid`` /
 ``types`` from :meth:`Packing.types`. Because those chunks are float32, the packing is also stored
 exactly in ``log/athermal/``: ``position`` ``(N, d)`` (as given, not wrapped), ``radius``
-``(N,)``, ``cell`` ``(d, d)``; then ``alpha`` and ``stiffness`` ``(T, T)`` of the contact model,
-``seed`` (uint64) and the observables of the frame. Reading prefers that copy, so a round trip
-is bit-identical; a file written by another tool is read from the HOOMD chunks.
+``(N,)``, ``cell`` ``(d, d)``, ``walls`` (int8, the walled axes: 1 = ``y``; absent for a
+periodic cell); then ``alpha`` and ``stiffness`` ``(T, T)`` of the contact model (and
+``wall_stiffness`` when set), ``seed`` (uint64) and the observables of the frame. Reading
+prefers that copy, so a round trip is bit-identical; a file written by another tool is read
+from the HOOMD chunks (as a periodic cell).
+
+Walls: the box is the cell, and its faces normal to a walled axis are the walls, so OVITO's
+simulation cell is the container; HOOMD's box has no notion of walls (its periodic flags are
+not in the schema), so a reader must take them from ``log/athermal/walls``.
 
 Float32 positions cannot resolve the contacts of a packing near jamming (overlaps of 1e-8 of a
 diameter): each frame therefore carries its contact network, found in float64 when it is
@@ -51,7 +57,7 @@ SEED_BOUND = 2**64
 
 _LOG = "athermal/"
 _STATE = ("position", "radius", "cell")
-_RESERVED = (*_STATE, "position_lo", "alpha", "stiffness", "seed")
+_RESERVED = (*_STATE, "walls", "position_lo", "alpha", "stiffness", "wall_stiffness", "seed")
 # Wrapped positions are kept this far (in fractional units) inside the faces of the cell, so
 # that float32 rounding of positions and box never puts a particle on or outside a face.
 _FACE_MARGIN = 2.0**-20
@@ -304,12 +310,16 @@ def _hoomd_frame(
         _LOG + "radius": packing.radii,
         _LOG + "cell": packing.cell.h,
     }
+    if packing.cell.walls:
+        log[_LOG + "walls"] = np.array(packing.cell.walls, dtype=np.int8)
     if model is not None:
         if not isinstance(model, ContactModel):
             raise InputError(f"model: expected a ContactModel, got {type(model).__name__}")
         model.typeid(packing)  # the stiffness matrix must match the packing's species
         log[_LOG + "alpha"] = np.array([model.alpha])
         log[_LOG + "stiffness"] = model.kmat
+        if model.wall_stiffness is not None:
+            log[_LOG + "wall_stiffness"] = np.array([model.wall_stiffness])
     if seed is not None:
         if isinstance(seed, bool) or not isinstance(seed, int | np.integer):
             raise InputError(f"seed: expected an integer, got {seed!r}")
@@ -388,10 +398,10 @@ def _observable_array(name: str, value: ArrayLike) -> NDArray[np.float64]:
 
 
 def _hoomd_positions(packing: Packing) -> NDArray[np.float32]:
-    """Positions ``(N, 3)`` float32 wrapped into the centred cell (``z = 0`` in 2D)."""
+    """Positions ``(N, 3)`` float32 wrapped into the centred cell along its periodic axes
+    (``z = 0`` in 2D)."""
     cell = packing.cell
-    s = cell.fractional(packing.positions)
-    s -= np.floor(s + 0.5)
+    s = cell.fractional(cell.wrap(packing.positions))
     np.clip(s, -0.5 + _FACE_MARGIN, 0.5 - _FACE_MARGIN, out=s)
     out = np.zeros((packing.n, 3), dtype=np.float32)
     out[:, : packing.dim] = cell.cartesian(s)
@@ -417,7 +427,10 @@ def _packing(
             _expect_shape(where, "log/athermal/position", positions, (n, dim))
             _expect_shape(where, "log/athermal/radius", radii, (n,))
             _expect_shape(where, "log/athermal/cell", h, (dim, dim))
-            cell = Cell(h)
+            walls = stored.get("walls", np.zeros(0, np.int8))
+            if walls.ndim != 1 or not np.issubdtype(walls.dtype, np.integer):
+                raise FileFormatError(f"{where}: log/athermal/walls is not a list of axes")
+            cell = Cell(h, tuple(int(a) for a in walls))
         elif present:
             missing = ", ".join(name for name in _STATE if name not in stored)
             raise FileFormatError(f"{where}: incomplete log/athermal state (missing {missing})")
@@ -450,7 +463,11 @@ def _model(where: str, stored: dict[str, NDArray[np.generic]]) -> ContactModel |
         )
     try:
         kmat = np.asarray(stiffness, dtype=np.float64).reshape(types, types)
-        return ContactModel(float(alpha.reshape(())), kmat)
+        wall = stored.get("wall_stiffness")
+        if wall is not None and wall.size != 1:
+            raise FileFormatError(f"{where}: log/athermal/wall_stiffness is not a scalar")
+        wall_stiffness = None if wall is None else float(wall.reshape(()))
+        return ContactModel(float(alpha.reshape(())), kmat, wall_stiffness)
     except InputError as exc:
         raise FileFormatError(f"{where}: {exc}") from None
 

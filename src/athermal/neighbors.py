@@ -185,7 +185,7 @@ def build_neighbor_list(
     ----------
     positions : ``(N, d)`` float64, wrapped or not.
     radii : ``(N,)`` float64.
-    cell : the periodic cell (any tilt).
+    cell : the cell (any tilt); no pair is listed across its walls.
     skin : Verlet skin in length units; default :func:`default_skin`.
     """
     x = np.ascontiguousarray(positions, dtype=np.float64)
@@ -201,13 +201,17 @@ def build_neighbor_list(
         h, hinv = np.ascontiguousarray(cell.h), np.ascontiguousarray(cell.inverse)
         first, second, image = cell_list_pairs(x, r, h, hinv, skin, nbins, reach)
         code, table = _encode_images(image, cell.dim)
+    if cell.walls:  # no pair across a wall
+        inside = ~np.any(table[:, list(cell.walls)] != 0.0, axis=1)[code]
+        first, second, code = first[inside], second[inside], code[inside]
     return NeighborList(first, second, code, table, skin, x.copy())
 
 
 def brute_force_pairs(
     positions: NDArray[np.float64], radii: NDArray[np.float64], cell: Cell, skin: float
 ) -> set[tuple[int, int, tuple[int, ...]]]:
-    """Every pair ``(i, j, n)`` with ``i <= j`` and ``|x_i - x_j + h n| < r_i + r_j + skin``.
+    """Every pair ``(i, j, n)`` with ``i <= j`` and ``|x_i - x_j + h n| < r_i + r_j + skin``
+    (``n`` zero along the cell's walled axes).
 
     O(N^2 x images), for testing :func:`build_neighbor_list`; a particle's own images count
     once (``n`` with its last non-zero component positive).
@@ -228,7 +232,7 @@ def brute_force_pairs(
             close = np.nonzero(dist < r[i] + r + skin)[0]
             for j in close:
                 n = tuple(int(v) for v in n_abs[j])
-                if j < i or (j == i and not _positive(n)):
+                if j < i or (j == i and not _positive(n)) or any(n[a] for a in cell.walls):
                     continue
                 found.add((i, int(j), n))
     return found

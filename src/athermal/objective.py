@@ -31,6 +31,7 @@ from .minimize import CompiledSearch, Hooks, compiled_function
 from .minimize._wolfe import GO_ON, STATE_SIZE, TRIAL, feed
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
+from .walls import WallContacts, find_wall_contacts
 
 MAX_STEP_FACTOR = 0.1
 """Largest displacement of one particle in one iteration, as a multiple of the mean radius."""
@@ -61,6 +62,7 @@ class Objective:
         self.skin = default_skin(self.radii) if skin is None else float(skin)
         self.x0 = np.ascontiguousarray(inner.positions).ravel().copy()
         self._typeid = model.typeid(inner)
+        self._walls = model.walls(self.cell)
         self._nlist: NeighborList | None = None
         self._shifts = np.zeros((1, self.dim))
         self._last_x = np.full(self.n_dof, np.nan)  # NaN: nothing evaluated yet
@@ -122,6 +124,7 @@ class Objective:
             nlist,
             self.model,
             grad.reshape(self.n, self.dim),
+            self._walls,
         )
         self.n_evaluations += 1
         self._last_x[:] = x
@@ -155,10 +158,10 @@ class Objective:
 
     def search_arguments(self, x: NDArray[np.float64]) -> tuple[Any, ...]:
         """The last argument of :func:`energy_search`: the radii, the current Verlet list (built
-        at ``x`` ``(N d,)`` if there is none) with the positions it was built at and its
-        reach."""
+        at ``x`` ``(N d,)`` if there is none), the walls, and the positions the list was built
+        at and its reach."""
         nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
-        return (*self._pair_arguments(nlist), nlist.reference, nlist.reach_sq)
+        return (*self._pair_arguments(nlist), *self._walls, nlist.reference, nlist.reach_sq)
 
     def _pair_arguments(self, nlist: NeighborList) -> tuple[Any, ...]:
         """What the compiled pair loops take after the positions: radii, ``nlist``'s pairs and
@@ -203,17 +206,24 @@ class Objective:
         positions_2d = positions.reshape(self.n, self.dim)
         arguments = (positions_2d, *self._pair_arguments(nlist), pairs, sep, coef)
         m = hessian_terms(*arguments)
-        return HessianOperator(self.n, pairs[:m], sep[:m], coef[:m])
+        walls = self.wall_contacts(positions_2d)
+        return HessianOperator(self.n, pairs[:m], sep[:m], coef[:m], walls.hessian_terms())
+
+    def wall_contacts(self, positions: NDArray[np.float64]) -> WallContacts:
+        """The wall contacts at ``positions`` ``(N, d)`` (internal order)."""
+        kwall = self.model.kwall[self._typeid]
+        return find_wall_contacts(positions, self.radii, kwall, self.model.alpha, self.cell)
 
     def count_contacts(self, x: NDArray[np.float64]) -> int:
-        """Number of overlapping pairs at ``x``: counted by the last evaluation when ``x`` is
-        its point, else by a compiled pass (the Verlet list is kept fresh)."""
+        """Number of overlapping pairs and wall contacts at ``x``: counted by the last
+        evaluation when ``x`` is its point, else by a compiled pass (the Verlet list is kept
+        fresh)."""
         positions = np.ascontiguousarray(x, dtype=np.float64)
         if positions.shape == self._last_x.shape and _blocks.same_values(positions, self._last_x):
             return self._last_contacts
         nlist = self.neighbor_list(positions)
         positions = positions.reshape(self.n, self.dim)
-        return int(
+        return self.wall_contacts(positions).particle.size + int(
             count_overlaps(
                 positions, self.radii, nlist.first, nlist.second, nlist.code, self._shifts
             )
@@ -283,7 +293,8 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
     ``direction`` from ``x`` ``(N d,)``: each trial point is written into ``trial``, its
     gradient into ``grad``, by the energy kernel over the Verlet list in ``arguments``
     (:meth:`Objective.search_arguments`: the radii, ``first``, ``second``, ``images`` and the
-    rest as :func:`~athermal.contact.energy_gradient_2d` takes them, then the positions
+    rest as :func:`~athermal.contact.energy_gradient_2d` takes them, the walls as
+    :func:`~athermal.contact.evaluate` takes them, then the positions
     ``reference`` ``(N, d)`` the list was built at and its reach ``reach_sq``), until the
     search ends or a trial point is farther than ``sqrt(reach_sq)`` from ``reference``.
     Returns the code, the evaluations made, the last energy and contact count, and whether it
@@ -291,7 +302,8 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
     evaluated here, or, when none was, the point out of reach).
 
     Energies and gradients are :func:`evaluate`'s, as in :meth:`Objective.__call__`."""
-    radii, first, second, images, shift, typeid, kmat, alpha, reference, reach_sq = arguments
+    radii, first, second, images, shift, typeid, kmat, alpha, walls, half, kwall = arguments[:11]
+    reference, reach_sq = arguments[11:]
     n, dim = reference.shape
     points = trial.reshape(n, dim)
     gradient = grad.reshape(n, dim)
@@ -306,7 +318,19 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
                 _place_trial(x, direction, last, reference, trial)
             return code, evaluations, energy, contacts, True
         energy, contacts = evaluate(
-            points, gradient, radii, first, second, images, shift, typeid, kmat, alpha
+            points,
+            gradient,
+            radii,
+            first,
+            second,
+            images,
+            shift,
+            typeid,
+            kmat,
+            alpha,
+            walls,
+            half,
+            kwall,
         )
         evaluations += 1
         last = a

@@ -8,20 +8,25 @@ compression and the shear stress is ``-sigma[0, 1]``. Stress in units of ``k`` x
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .cell import Cell, particle_volumes
+from .cell import AXES, Cell, particle_volumes
 from .contact import ContactModel, Contacts, find_contacts, gradient, total_energy
 from .packing import Packing
+from .walls import wall_pressures, wall_stress
 
 
 def stress(contacts: Contacts, cell: Cell) -> NDArray[np.float64]:
-    """Stress tensor ``(1/V) sum_c l_c (x) f_c`` ``(d, d)`` (symmetric)."""
-    return np.einsum("ca,cb->ab", contacts.branch, contacts.force) / cell.volume
+    """Stress tensor ``(1/V) sum_c l_c (x) f_c`` ``(d, d)`` (symmetric), wall contacts included
+    (:mod:`athermal.walls`)."""
+    sigma = np.einsum("ca,cb->ab", contacts.branch, contacts.force) / cell.volume
+    if contacts.walls is not None:
+        sigma += wall_stress(contacts.walls, cell)
+    return sigma
 
 
 def pressure(sigma: NDArray[np.float64]) -> float:
@@ -58,39 +63,58 @@ def deviatoric_part(tensor: NDArray[np.float64]) -> float:
 
 def rattlers(contacts: Contacts, n: int, dim: int) -> NDArray[np.bool_]:
     """Mask ``(N,)`` of rattlers: particles with fewer than ``d + 1`` contacts, removed
-    iteratively (removing one can turn a neighbour into a rattler)."""
+    iteratively (removing one can turn a neighbour into a rattler). A contact with a wall
+    counts as one contact of its particle: the wall is fixed, so it never becomes a rattler."""
     keep = contacts.i != contacts.j
     i, j = contacts.i[keep], contacts.j[keep]
+    on_walls = np.bincount(_wall_particles(contacts), minlength=n)
     rattler = np.zeros(n, dtype=bool)
     while True:
         live = ~(rattler[i] | rattler[j])
         counts = np.bincount(i[live], minlength=n) + np.bincount(j[live], minlength=n)
-        new = (counts < dim + 1) & ~rattler
+        new = (counts + on_walls < dim + 1) & ~rattler
         if not new.any():
             return rattler
         rattler |= new
 
 
 def coordination(contacts: Contacts, rattler: NDArray[np.bool_]) -> tuple[float, int]:
-    """Coordination ``z = 2 C' / N'`` over non-rattlers and the contact count ``C'`` among them.
+    """Coordination ``z`` over non-rattlers and the contact count ``C'`` among them: pairs
+    ``C_p`` and wall contacts ``C_w`` of non-rattlers, ``C' = C_p + C_w`` and
+    ``z = (2 C_p + C_w) / N'`` (each particle's contacts, averaged).
 
     ``z`` is 0 when every particle is a rattler (an unjammed packing).
     """
     live = ~(rattler[contacts.i] | rattler[contacts.j]) & (contacts.i != contacts.j)
     n_live = int((~rattler).sum())
-    c_live = int(live.sum())
-    return (2.0 * c_live / n_live if n_live else 0.0), c_live
+    pairs = int(live.sum())
+    walls = int((~rattler[_wall_particles(contacts)]).sum())
+    return ((2.0 * pairs + walls) / n_live if n_live else 0.0), pairs + walls
 
 
-def isostatic_contacts(n_live: int, dim: int) -> int:
-    """Contacts of ``n_live`` non-rattlers at isostaticity in a periodic cell:
-    ``N_iso = d (N' - 1) + 1`` (0 without non-rattlers)."""
-    return dim * (n_live - 1) + 1 if n_live >= 1 else 0
+def isostatic_contacts(n_live: int, dim: int, periodic: int | None = None) -> int:
+    """Contacts of ``n_live`` non-rattlers at isostaticity: ``N_iso = d N' - t + 1`` with
+    ``t = periodic`` the rigid translations (the cell's periodic axes, default ``d``: a
+    periodic cell, ``d (N' - 1) + 1``), 0 without non-rattlers.
+
+    Counting: ``d N'`` coordinates, less the ``t`` translations that move no contact (along
+    a walled axis the walls hold the packing), must be fixed by the contacts, and one more
+    contact fixes the packing fraction at the jamming point."""
+    t = dim if periodic is None else periodic
+    return dim * n_live - t + 1 if n_live >= 1 else 0
+
+
+def _wall_particles(contacts: Contacts) -> NDArray[np.int64]:
+    """The particle of each wall contact ``(W,)`` (empty without walls)."""
+    return np.zeros(0, np.int64) if contacts.walls is None else contacts.walls.particle
 
 
 @dataclass(frozen=True)
 class Observables:
-    """Everything :func:`measure` reports. Tensors are ``(d, d)`` arrays."""
+    """Everything :func:`measure` reports. Tensors are ``(d, d)`` arrays. ``contacts`` counts
+    pairs and wall contacts; ``walls`` names the walled axes (``"y"``; ``""`` periodic) and
+    ``wall_pressure`` the force per unit area on each wall (``{"y-": ..., "y+": ...}``,
+    :func:`athermal.walls.wall_pressures`)."""
 
     n: int
     dim: int
@@ -110,6 +134,8 @@ class Observables:
     n_rattlers: int
     max_gradient: float
     mean_contact_force: float
+    walls: str = ""
+    wall_pressure: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dictionary (tensors as nested lists)."""
@@ -142,10 +168,14 @@ def measure(packing: Packing, model: ContactModel) -> Observables:
         stress_dev=deviatoric_part(sigma),
         fabric_iso=isotropic_part(fab),
         fabric_dev=deviatoric_part(fab),
-        contacts=int(contacts.i.size),
+        contacts=contacts.count,
         contacts_nonrattler=c_live,
         z=z,
         n_rattlers=int(rattler.sum()),
         max_gradient=float(np.sqrt((grad**2).sum(axis=1)).max()),
         mean_contact_force=float(forces.mean()) if forces.size else 0.0,
+        walls="".join(AXES[a] for a in packing.cell.walls),
+        wall_pressure={}
+        if contacts.walls is None
+        else wall_pressures(contacts.walls, packing.cell),
     )

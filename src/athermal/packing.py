@@ -9,7 +9,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._validate import choice, float_array, positive_scalar
-from .cell import Cell, particle_volumes
+from .cell import AXES, Cell, particle_volumes
 from .errors import InputError
 
 _MAX_RADIUS_TYPES = 16
@@ -25,7 +25,8 @@ MAX_WIDTH = {"uniform": 1.0 / np.sqrt(3.0), "lognormal": 1.0}
 
 @dataclass(frozen=True, eq=False)
 class Packing:
-    """Positions ``(N, d)`` float64, radii ``(N,)`` > 0 and a periodic :class:`Cell`.
+    """Positions ``(N, d)`` float64, radii ``(N,)`` > 0 and a :class:`Cell` (periodic, or with
+    walls: every centre between them).
 
     Positions are kept as given (not wrapped); :meth:`wrapped` maps them into the cell.
     """
@@ -49,6 +50,14 @@ class Packing:
                 f"radii: largest diameter {2 * r.max():.6g} does not fit in the cell "
                 f"(narrowest width {self.cell.narrowest_width:.6g})"
             )
+        for a in self.cell.walls:
+            beyond = np.flatnonzero(np.abs(x[:, a]) > 0.5 * self.cell.h[a, a])
+            if beyond.size:
+                raise InputError(
+                    f"positions: particle {beyond[0]} lies beyond the walls normal to "
+                    f"{AXES[a]} ({beyond.size} in all): the walls are at "
+                    f"{AXES[a]} = -+{0.5 * self.cell.h[a, a]:.6g}"
+                )
         object.__setattr__(self, "positions", x)
         object.__setattr__(self, "radii", r)
 

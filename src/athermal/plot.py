@@ -83,7 +83,8 @@ def _draw_packing(
     force_scale: float | None,
     max_width: float,
 ) -> tuple[float | None, int]:
-    """Draw disks (rattlers white with a dashed grey edge), cell and force lines into ``ax``;
+    """Draw disks (rattlers white with a dashed grey edge), cell, walls (thick lines, with a
+    force line from each centre to the wall it touches) and force lines into ``ax``;
     return the force scale used (None without ``model`` or contacts) and the rattler count
     (0 when every particle is one: an unjammed packing has no network to rattle in)."""
     from matplotlib.collections import EllipseCollection, LineCollection
@@ -91,7 +92,9 @@ def _draw_packing(
 
     wrapped = packing.wrapped()
     h = packing.cell.h
-    images = np.array([(a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)], dtype=np.float64)
+    walls = packing.cell.walls
+    around = [(0,) if axis in walls else (-1, 0, 1) for axis in range(2)]
+    images = np.array([(a, b) for a in around[0] for b in around[1]], dtype=np.float64)
     shifts = images @ h.T
     centres = (wrapped.positions[None, :, :] + shifts[:, None, :]).reshape(-1, 2)
     radii = np.tile(wrapped.radii, len(images))
@@ -108,15 +111,24 @@ def _draw_packing(
         rattler = rattlers(contacts, packing.n, packing.dim)
         if rattler.all():  # no rigid network (unjammed): every disk drawn alike, none marked
             rattler[:] = False
+        # a wall contact's line runs from the centre to the wall
+        on_wall = contacts.walls
+        first = np.concatenate([contacts.i, [] if on_wall is None else on_wall.particle])
+        branch = np.concatenate(
+            [contacts.branch, np.zeros((0, 2)) if on_wall is None else on_wall.branch]
+        )
+        force = np.concatenate(
+            [contacts.force_magnitude, [] if on_wall is None else on_wall.force_magnitude]
+        )
         if force_scale is not None:
             scale = _check_force_scale(force_scale)
-        elif contacts.i.size:
-            scale = float(contacts.force_magnitude.max())
-        if scale is not None and contacts.i.size:
-            width = np.minimum(max_width * contacts.force_magnitude / scale, max_width)
+        elif force.size:
+            scale = float(force.max())
+        if scale is not None and force.size:
+            width = np.minimum(max_width * force / scale, max_width)
             visible = width >= MIN_FORCE_WIDTH
-            start = wrapped.positions[contacts.i[visible]]
-            pairs = np.stack([start, start - contacts.branch[visible]], axis=1)
+            start = wrapped.positions[first[visible].astype(np.int64)]
+            pairs = np.stack([start, start - branch[visible]], axis=1)
             segments = np.concatenate([pairs + shift for shift in shifts])
             widths = np.tile(width[visible], len(images))
     tiled = np.tile(rattler, len(images))
@@ -150,8 +162,15 @@ def _draw_packing(
         lines.set_gid("forces")
         ax.add_collection(lines)
     ax.add_patch(Polygon(corners, closed=True, fill=False, edgecolor="black", linewidth=1.0))
-    ax.set_xlim(lo[0], hi[0])
-    ax.set_ylim(lo[1], hi[1])
+    pad = np.zeros(2)
+    for axis in walls:  # a wall: a thick line on its face, drawn just outside the cell
+        pad[axis] = 0.02 * (hi[axis] - lo[axis])
+        for face in (lo[axis], hi[axis]):
+            ends = np.array([lo, hi], dtype=np.float64)
+            ends[:, axis] = face
+            ax.plot(ends[:, 0], ends[:, 1], color="black", linewidth=3.0, gid="walls")
+    ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
+    ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
     ax.set_aspect("equal")
     ax.set_xticks([])
     ax.set_yticks([])

@@ -19,7 +19,14 @@ from ..observables import Observables, measure
 from ..packing import random_packing
 from ..plot import force_distribution_figure, save
 from ..relaxation import RTOL, relax_objective
-from .common import NotConverged, file_observables, minimizer_from, model_from, sizes_from
+from .common import (
+    NotConverged,
+    cell_from,
+    file_observables,
+    minimizer_from,
+    model_from,
+    sizes_from,
+)
 from .printer import emit
 
 
@@ -54,7 +61,9 @@ def random(args: argparse.Namespace) -> None:
     """``athermal random``: a random packing and its observables."""
     model = model_from(args, None)
     start = time.perf_counter()
-    packing = random_packing(args.n, args.phi, dim=args.dim, seed=args.seed, **sizes_from(args))
+    packing = random_packing(
+        args.n, args.phi, seed=args.seed, cell=cell_from(args), **sizes_from(args)
+    )
     obs = measure(packing, model)
     write_gsd(args.output, packing, model=model, seed=args.seed, observables=file_observables(obs))
     extra = {

@@ -9,6 +9,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from ..cell import Cell, wall_axes
 from ..certify import Certificate
 from ..contact import ContactModel
 from ..observables import Observables
@@ -73,6 +74,11 @@ def sizes_from(args: argparse.Namespace) -> dict[str, Any]:
         "size_ratio": args.size_ratio,
         "polydispersity": args.polydispersity,
     }
+
+
+def cell_from(args: argparse.Namespace) -> Cell:
+    """The unit cell with the walls of ``--walls``."""
+    return Cell(np.eye(args.dim), wall_axes(args.walls, args.dim))
 
 
 def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:

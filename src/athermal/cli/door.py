@@ -16,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..bench import check_alphas
+from ..cell import wall_axes
 from ..ensemble import check_batch
 from ..enthalpy import ENTHALPY_METHODS
 from ..errors import JAX_MISSING, InputError
@@ -95,6 +96,11 @@ def _options(args: argparse.Namespace) -> None:
     }
     for name, (ok, rule) in rules.items():
         _number(name, getattr(args, name, None), ok, rule)
+    if getattr(args, "walls", ""):
+        try:
+            wall_axes(args.walls, args.dim)
+        except InputError as exc:
+            raise InputError(f"--{exc}") from None
     if getattr(args, "sizes", "bidisperse") != "bidisperse":
         try:
             check_width(args.sizes, args.polydispersity)

@@ -203,6 +203,12 @@ def _packing(parser: Options) -> None:
         default=POLYDISPERSITY,
         help="standard deviation / mean of the radii (uniform: < 0.577, log-normal: <= 1)",
     )
+    parser.add_argument(
+        "--walls",
+        default="",
+        help="flat frictionless walls normal to these axes ('y', 'x', 'xy'; 'z' in 3D), the "
+        "cell's faces there; the other axes periodic (default: none, periodic)",
+    )
 
 
 def _compression_range(parser: Options) -> None:

@@ -147,6 +147,7 @@ def jam(args: argparse.Namespace) -> None:
         epsilon=args.epsilon if args.epsilon >= RESOLUTION else EPSILON,  # then in double-double
         protocol=args.bisection,
         minimizer=minimizer_from(args),
+        walls=args.walls,
     )
     trajectory_path = args.trajectory or str(Path(args.output).with_suffix(".steps.gsd"))
     trajectory = _trajectory(

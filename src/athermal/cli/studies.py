@@ -45,6 +45,7 @@ def ensemble(args: argparse.Namespace) -> None:
             epsilon=args.epsilon,
             protocol=args.bisection,
             minimizer=Minimizer(args.method, precon_from(args), backend=args.backend),  # type: ignore[arg-type]
+            walls=args.walls,
         ),
         compress=CompressSpec(
             delta_min=args.dphi_min,

@@ -546,7 +546,8 @@ def check_jammed(
         decompression=delta,
         decompressed_energy=below.energy / (packing.n * energy_scale(below.packing.radii, model)),
         unjams=not below.jammed,
-        excess_contacts=c_live - isostatic_contacts(n_live, packing.dim),
+        excess_contacts=c_live
+        - isostatic_contacts(n_live, packing.dim, packing.cell.periodic_axes),
         allowed_excess=isostatic_allowance(n_live, packing.dim, overlap),
         overlap_dphi=overlap,
         epsilon=epsilon,
