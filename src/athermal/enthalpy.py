@@ -45,9 +45,10 @@ from .observables import stress
 from .packing import Packing
 from .precon import REBUILD_FRACTION, ExpPreconditioner
 
-CellFreedom = Literal["volume", "shape"]
-"""What of the cell relaxes: its volume (isotropic), or its volume and shape."""
-CELL_FREEDOMS: tuple[str, ...] = ("volume", "shape")
+CellFreedom = Literal["volume", "shape", "walls"]
+"""What of the cell relaxes: its volume (isotropic), its volume and shape, or the gaps between
+its walls (each walled axis stretched on its own: walls at a fixed force per unit area ``P``)."""
+CELL_FREEDOMS: tuple[str, ...] = ("volume", "shape", "walls")
 ENTHALPY_METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire")
 """The minimizers that take an enthalpy."""
 CELL_REBUILD = 0.05
@@ -63,7 +64,8 @@ class Enthalpy:
     packing : start configuration; its cell is ``h0`` (``c = 0``).
     model : contact law.
     pressure : ``P > 0`` (``k l^(alpha-d)``).
-    cell : ``"volume"`` or ``"shape"``.
+    cell : ``"volume"``, ``"shape"`` (a periodic cell) or ``"walls"`` (a cell with walls: at the
+        minimum ``sigma_aa = P`` along each walled axis, the force per unit area on its walls).
     """
 
     def __init__(
@@ -72,6 +74,14 @@ class Enthalpy:
         self.model = model
         self.pressure = positive_scalar(pressure, "pressure")
         self.freedom = choice(cell, "cell", CELL_FREEDOMS)
+        self.walls = packing.cell.walls
+        if self.freedom == "walls" and not self.walls:
+            raise InputError("cell: 'walls' frees the gaps between walls; this cell has none")
+        if self.freedom == "shape" and self.walls:
+            raise InputError(
+                "cell: 'shape' would tilt a cell with walls; free the walls ('walls') or the "
+                "volume ('volume')"
+            )
         self.radii = packing.radii
         self.h0 = packing.cell.h
         self.v0 = packing.cell.volume
@@ -102,13 +112,18 @@ class Enthalpy:
         c = np.asarray(x[self.n * d :]).reshape(d, d)
         if self.freedom == "shape":
             return np.eye(d) + np.triu(c) / self.scale
+        if self.freedom == "walls":
+            f = np.eye(d)
+            for a in self.walls:
+                f[a, a] += c[a, a] / self.scale
+            return f
         return (1.0 + c[0, 0] / self.scale) * np.eye(d)
 
     def packing(self, x: NDArray[np.float64], *, internal: bool = False) -> Packing:
         """The configuration at ``x``: positions ``F u``, cell ``F h0`` (one particle order)."""
         f = self.deformation(x)
         u = np.asarray(x[: self.n * self.dim]).reshape(self.n, self.dim)
-        return Packing(u @ f.T, self.radii, Cell(f @ self.h0))
+        return Packing(u @ f.T, self.radii, Cell(f @ self.h0, self.walls))
 
     def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         """``H`` and its gradient ``((N + d) d,)`` at ``x``."""
@@ -127,6 +142,9 @@ class Enthalpy:
         cell_grad = np.zeros((d, d))
         if self.freedom == "shape":
             cell_grad[self._upper] = d_f[self._upper] / self.scale
+        elif self.freedom == "walls":
+            for a in self.walls:
+                cell_grad[a, a] = d_f[a, a] / self.scale
         else:
             cell_grad[0, 0] = np.trace(d_f) / self.scale
         grad[self.n * d :] = cell_grad.ravel()
@@ -225,8 +243,8 @@ def relax_at_pressure(
     rtol: float = 1e-9,
     maxiter: int = 100_000,
 ) -> EnthalpyResult:
-    """Minimize ``H = U + P V`` over the positions and the cell (``cell``: its volume, or its
-    volume and shape) from ``packing``, by ``method`` (``lbfgs``, ``cg`` or ``fire``) with
+    """Minimize ``H = U + P V`` over the positions and the cell (``cell``: its volume, its
+    volume and shape, or the gaps between its walls) from ``packing``, by ``method`` (``lbfgs``, ``cg`` or ``fire``) with
     ``precon`` ``"none"`` or ``"exp"`` (:class:`EnthalpyPreconditioner`).
 
     The tolerance is ``gtol`` on the largest block of the gradient (:attr:`Enthalpy.hooks`), or

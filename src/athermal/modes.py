@@ -3,10 +3,11 @@ Hessian, unit masses), the density of states ``D(omega)``, participation ratios 
 frequency ``omega*``.
 
 Rattlers (:func:`~athermal.observables.rattlers`) and their contacts are removed; the Hessian
-of the remaining ``N'`` particles is taken whole, so that its ``d`` translations are exact zero
-modes. A stable minimum has exactly ``d`` eigenvalues within round-off of zero
+of the remaining ``N'`` particles is taken whole, so that its ``t`` translations (``t = d`` in
+a periodic cell, the periodic axes between walls) are exact zero modes. A stable minimum has
+exactly ``t`` eigenvalues within round-off of zero
 (:data:`~athermal.moduli.STABILITY_TOL` x the mean diagonal entry) and none below it; the
-remaining ``d (N' - 1)`` are the vibrations, ``omega = sqrt(lambda)`` in units of
+remaining ``d N' - t`` are the vibrations, ``omega = sqrt(lambda)`` in units of
 ``sqrt(k l^(alpha-2) / m)`` (``m = 1``).
 
 Near jamming ``D(omega)`` develops a plateau that extends down to ``omega* ~ Delta z`` (Silbert,
@@ -75,7 +76,8 @@ class Modes:
 
     @property
     def zero_modes(self) -> int:
-        """Eigenvalues within the tolerance of zero (``d`` at a stable minimum)."""
+        """Eigenvalues within the tolerance of zero (the translations, ``d`` in a periodic cell,
+        at a stable minimum)."""
         return int(np.sum(np.abs(self.eigenvalues) <= self.tolerance))
 
     @property

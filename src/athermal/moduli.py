@@ -73,7 +73,8 @@ class LinearResponse:
     Attributes
     ----------
     bulk : bulk modulus ``B = -V dp/dV`` at fixed radii (non-affine relaxation included).
-    shear : shear modulus ``G = -d sigma_01 / d gamma`` under simple shear ``x += gamma y``.
+    shear : shear modulus ``G = -d sigma_01 / d gamma`` under simple shear ``x += gamma y``
+        (between walls normal to x or y: the pure-shear modulus, :func:`linear_response`).
     bulk_affine, shear_affine : the same without relaxation (Born terms, prestress included).
     pressure : ``p`` from the contacts between non-rattlers.
     n_rattlers : particles left out (:func:`~athermal.observables.rattlers`).
@@ -100,7 +101,8 @@ def strain_terms(
 
     Parameters
     ----------
-    contacts : the contacts to sum over (all of them are used).
+    contacts : the contacts to sum over (all of them are used), wall contacts included: a
+        wall's distance to a centre is ``n.D r`` (``D`` must keep the walls untilted).
     n : number of particles N.
     d1, d2 : ``(d, d)`` first and second derivatives of the deformation ``D(gamma)`` at
         ``gamma = 0`` (``d2`` None: zero, as for simple shear and isotropic strain).
@@ -128,6 +130,17 @@ def strain_terms(
         xi[:, axis] = np.bincount(contacts.i, k_a[:, axis], n) - np.bincount(
             contacts.j, k_a[:, axis], n
         )
+    if contacts.walls is not None and contacts.walls.particle.size:
+        wall = contacts.walls  # a flat wall: distance n.D r, no tangential term, no partner
+        w_unit, w_r = wall.normal, wall.branch
+        w_na = np.einsum("cd,cd->c", w_unit, w_r @ d1.T)
+        w_ddphi = wall.stiffness * (wall.alpha - 1.0) * wall.overlap ** (wall.alpha - 2.0)
+        curvature += float(np.sum(w_ddphi * w_na**2))
+        if d2 is not None:
+            curvature -= float(
+                np.sum(wall.force_magnitude * np.einsum("cd,cd->c", w_unit, w_r @ d2.T))
+            )
+        np.add.at(xi, wall.particle, (w_ddphi * w_na)[:, None] * w_unit)
     return curvature, xi
 
 
@@ -160,7 +173,9 @@ def relaxed_strain_curvature(
     d2_arr = None if d2 is None else float_array(d2, "d2", (dim, dim))
     contacts, rattler = nonrattler_contacts(packing, model)
     affine, xi = strain_terms(contacts, packing.n, d1_arr, d2_arr)
-    correction, residual, _ = _nonaffine_correction(contacts, rattler, xi[:, :, None])
+    correction, residual, _ = _nonaffine_correction(
+        contacts, rattler, xi[:, :, None], packing.cell.walls
+    )
     _warn_if_poor(residual, "relaxed_strain_curvature")
     return affine, affine - float(correction[0])
 
@@ -180,7 +195,7 @@ def nonaffine_displacement(
     d1_arr = float_array(d1, "d1", (dim, dim))
     contacts, rattler = nonrattler_contacts(packing, model)
     _, xi = strain_terms(contacts, packing.n, d1_arr)
-    y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None])
+    y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None], packing.cell.walls)
     _warn_if_poor(residual, "nonaffine_displacement")
     return -y[:, 0].reshape(packing.n, dim)
 
@@ -190,7 +205,12 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
 
     One factorization of the Hessian serves both: simple shear ``D1 = e0 e1^T`` gives
     ``G = E''_rel / V``; isotropic strain ``D1 = I`` gives ``B = E''_rel / (d^2 V) + (d-1) p / d``
-    (radii fixed). Moduli in units of ``k`` x length^(alpha-d).
+    (radii fixed; walls moving with the cell). Moduli in units of ``k`` x length^(alpha-d).
+    Between walls normal to x or y, simple shear would tilt the walls, which carry no shear
+    stress; there ``G`` is the biaxial test's: pure shear ``D = diag(1 + gamma, 1 / (1 +
+    gamma))`` (walls moving), ``G = (1/2) d tau / d gamma`` with ``tau = (sigma_yy -
+    sigma_xx) / 2``, which is ``E''_rel / (4 V) + tau / 2`` (``E' = 2 V tau / (1 + gamma)``),
+    and equals the simple-shear ``G`` of an isotropic solid.
 
     Examples
     --------
@@ -204,23 +224,41 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
     """
     dim, volume = packing.dim, packing.cell.volume
     contacts, rattler = nonrattler_contacts(packing, model)
-    p = pressure(stress(contacts, packing.cell))
-    shear_aff, xi_shear = strain_terms(contacts, packing.n, simple_shear(1.0, dim) - np.eye(dim))
+    sigma = stress(contacts, packing.cell)
+    p = pressure(sigma)
+    walls = packing.cell.walls
+    if {0, 1} & set(walls):  # simple shear would tilt the walls: the biaxial test's modulus
+        d1, d2 = pure_shear_derivatives(dim)
+        shear_aff, xi_shear = strain_terms(contacts, packing.n, d1, d2)
+        scale, offset = 1.0 / (4.0 * volume), 0.25 * float(sigma[1, 1] - sigma[0, 0])
+    else:
+        shear_aff, xi_shear = strain_terms(
+            contacts, packing.n, simple_shear(1.0, dim) - np.eye(dim)
+        )
+        scale, offset = 1.0 / volume, 0.0
     bulk_aff, xi_bulk = strain_terms(contacts, packing.n, np.eye(dim))
     correction, residual, solver = _nonaffine_correction(
-        contacts, rattler, np.stack([xi_shear, xi_bulk], axis=-1)
+        contacts, rattler, np.stack([xi_shear, xi_bulk], axis=-1), walls
     )
     iso = (dim - 1) * p / dim
     return LinearResponse(
         bulk=(bulk_aff - float(correction[1])) / (dim**2 * volume) + iso,
-        shear=(shear_aff - float(correction[0])) / volume,
+        shear=(shear_aff - float(correction[0])) * scale + offset,
         bulk_affine=bulk_aff / (dim**2 * volume) + iso,
-        shear_affine=shear_aff / volume,
+        shear_affine=shear_aff * scale + offset,
         pressure=p,
         n_rattlers=int(rattler.sum()),
         residual=residual,
         solver=solver,
     )
+
+
+def pure_shear_derivatives(dim: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``D'(0)``, ``D''(0)`` ``(d, d)`` of pure shear ``D = diag(1 + g, 1 / (1 + g))`` (``z``
+    kept in 3D): ``diag(1, -1)`` and ``diag(0, 2)``."""
+    d1, d2 = np.zeros((dim, dim)), np.zeros((dim, dim))
+    d1[0, 0], d1[1, 1], d2[1, 1] = 1.0, -1.0, 2.0
+    return d1, d2
 
 
 @dataclass(frozen=True)
@@ -267,13 +305,14 @@ def stability(packing: Packing, model: ContactModel) -> Stability:
     h, dofs, _ = stiffness_matrix(packing, model)
     if dofs.size <= dim:
         return Stability(True, None, None, 0.0)
-    pinned = h[dim:, dim:]
+    keep = _unpinned(dofs.size, dim, packing.cell.walls)
+    pinned = h[keep][:, keep]
     shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
     test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
     if _cholesky_solve(test, np.zeros((pinned.shape[0], 1))) is not None:
         return Stability(True, None, None, shift)
-    # the free Hessian of the non-rattlers: its translations are exact zero modes, so its
-    # lowest eigenpair is the packing's (pinning a particle would shift the eigenvalues)
+    # the free Hessian of the non-rattlers: its translations (along the periodic axes) are exact
+    # zero modes, so its lowest eigenpair is the packing's (pinning would shift the eigenvalues)
     if h.shape[0] <= DENSE_EIGEN_DOFS:
         values, vectors = np.linalg.eigh(h.toarray())
     else:
@@ -329,34 +368,48 @@ def nonrattler_hessian(
 
 
 def _nonaffine_correction(
-    contacts: Contacts, rattler: NDArray[np.bool_], xi: NDArray[np.float64]
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    xi: NDArray[np.float64],
+    walls: tuple[int, ...] = (),
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``Xi^T H^+ Xi`` for each of the ``m`` columns of ``xi`` ``(N, d, m)``, the largest
     relative residual of the solves and the solver used (:func:`pinned_solve`)."""
-    y, residual, solver = pinned_solve(contacts, rattler, xi)
+    y, residual, solver = pinned_solve(contacts, rattler, xi, walls)
     n, dim, m = xi.shape
     return np.einsum("km,km->m", xi.reshape(n * dim, m), y), residual, solver
 
 
 def pinned_solve(
-    contacts: Contacts, rattler: NDArray[np.bool_], xi: NDArray[np.float64]
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    xi: NDArray[np.float64],
+    walls: tuple[int, ...] = (),
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``y = H^+ Xi`` ``(N d, m)`` for the ``m`` columns of ``xi`` ``(N, d, m)``, zero on the
     rattlers, with the largest relative residual and the solver used.
 
-    H is restricted to the non-rattlers with the first of them pinned (its ``d`` coordinates
-    removed), which takes out the translations, and factored once for all columns (:func:`_solve`).
+    H is restricted to the non-rattlers with the first of them pinned along the periodic axes
+    (those not in ``walls``, the walled axes of the cell), which takes out the translations,
+    and factored once for all columns (:func:`_solve`).
     """
     n, dim, m = xi.shape
     y = np.zeros((n * dim, m))
     live = np.flatnonzero(~rattler)
     if live.size <= 1:
         return y, 0.0, "none"
-    dofs = (live[1:, None] * dim + np.arange(dim)).ravel()
+    dofs = (live[:, None] * dim + np.arange(dim)).ravel()[_unpinned(live.size * dim, dim, walls)]
     b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
     h = hessian(contacts, n)[dofs][:, dofs].tocsr()
     y[dofs], residual, solver = _solve(h, b)
     return y, residual, solver
+
+
+def _unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:
+    """The rows ``(size - t,)`` of ``size`` flat coordinates left when the first particle is
+    pinned along the ``t`` periodic axes (those not in ``walls``)."""
+    periodic = [a for a in range(dim) if a not in walls]
+    return np.setdiff1d(np.arange(size), periodic)
 
 
 def _solve(

@@ -12,6 +12,7 @@ from typing import Any, NoReturn
 from .. import bench
 from ..certify import TARGET
 from ..criticality import FORCE_WINDOW, GAP_WINDOW
+from ..enthalpy import CELL_FREEDOMS
 from ..linalg import SOLVERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..precon import PRECONDITIONERS
@@ -222,7 +223,13 @@ def _compression_range(parser: Options) -> None:
 
 
 def _shear_options(parser: Options) -> None:
-    parser.add_argument("--mode", default="pure", choices=SHEAR_MODES, help="shear mode")
+    parser.add_argument(
+        "--mode",
+        default="pure",
+        choices=SHEAR_MODES,
+        help="simple or pure shear, or uniaxial compression of the last axis (between walls "
+        "normal to it: a wall moving in)",
+    )
     parser.add_argument("--strain", type=float, default=0.02, help="final strain")
     parser.add_argument("--step", type=float, default=1e-4, help="strain increment")
 
@@ -426,8 +433,9 @@ def build() -> argparse.ArgumentParser:
     rel.add_argument(
         "--cell",
         default="volume",
-        choices=("volume", "shape"),
-        help="with --pressure: what of the cell relaxes",
+        choices=CELL_FREEDOMS,
+        help="with --pressure: what of the cell relaxes (walls: the gaps between the walls, "
+        "at the force per unit area --pressure on them)",
     )
     tol = rel.add_mutually_exclusive_group()
     tol.add_argument("--gtol", type=float, help="absolute tolerance on max_i |grad_i|")

@@ -37,6 +37,7 @@ from ..protocols import (
 )
 from ..protocols.compress import FIT_LAWS
 from ..protocols.pressure import pressure_search, warn_if_near_jamming
+from ..protocols.shear import check_mode
 from ..tables import Row, write_table
 from .common import (
     NotConverged,
@@ -421,9 +422,10 @@ def compress(args: argparse.Namespace) -> None:
 
 
 def shear(args: argparse.Namespace) -> None:
-    """``athermal shear``: quasi-static simple or pure shear."""
+    """``athermal shear``: quasi-static simple or pure shear, or uniaxial compression."""
     t0 = time.perf_counter()
     packing, model, frame, index = _start(args)
+    check_mode(args.mode, args.strain, packing.cell)
     trajectory = _trajectory(
         args,
         args.output,

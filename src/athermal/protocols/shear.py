@@ -1,12 +1,19 @@
-"""Quasi-static shear: simple or pure shear in small affine steps, each relaxed (seed 4.3).
+"""Quasi-static shear: simple or pure shear, or uniaxial compression, in small affine steps,
+each relaxed (seed 4.3).
 
 Each step maps positions and cell by the increment of the deformation (simple shear
-``x += gamma y``, or the paper's area-preserving pure shear ``D = diag(1 + gamma, 1/(1 + gamma))``,
-stretching x and compressing y) and relaxes the packing. A step reports the stress and fabric
-tensors with their isotropic and deviatoric parts (the paper's eigenvalue definitions), the
-driven shear stress ``tau`` (the stress work-conjugate to the strain: ``-sigma_01`` for simple
-shear, ``(sigma_11 - sigma_00) / 2`` for pure shear, positive when loaded) and whether ``tau``
-dropped: a plastic event.
+``x += gamma y``, the paper's area-preserving pure shear ``D = diag(1 + gamma, 1/(1 + gamma))``,
+stretching x and compressing y, or uniaxial compression ``D = diag(1, ..., 1 - gamma)`` of the
+last axis: between walls normal to it, a wall moving in) and relaxes the packing. A step
+reports the stress and fabric tensors with their isotropic and deviatoric parts (the paper's
+eigenvalue definitions), the driven stress ``tau`` (the stress work-conjugate to the strain:
+``-sigma_01`` for simple shear, ``(sigma_11 - sigma_00) / 2`` for pure shear, ``sigma_ee`` of
+the compressed axis, positive when loaded) and whether ``tau`` dropped: a plastic event.
+
+With walls (:attr:`Cell.walls <athermal.cell.Cell.walls>`) pure shear is the biaxial test (walls
+normal to y move in as the periodic x stretches) and uniaxial compression moves the walls normal
+to the last axis; simple shear tilts the cell, which frictionless flat walls cannot carry, and
+is refused (:func:`check_mode`).
 
 The cell changes at every step, so each relaxation starts from a fresh objective and
 preconditioner: a step depends on its start configuration alone.
@@ -24,7 +31,7 @@ from numpy.typing import NDArray
 
 from .._records import Value, as_row
 from .._validate import choice, positive_scalar
-from ..cell import pure_shear, simple_shear
+from ..cell import Cell, pure_shear, simple_shear
 from ..contact import ContactModel
 from ..errors import InputError
 from ..objective import Objective
@@ -32,10 +39,11 @@ from ..observables import Observables, measure
 from ..packing import Packing
 from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 
-ShearMode = Literal["simple", "pure"]
-SHEAR_MODES: tuple[str, ...] = ("simple", "pure")
-"""The shear modes: simple shear (``x += gamma y``) and pure shear (volume-preserving
-``D = diag(1 + gamma, 1 / (1 + gamma))``); ``docs/quantities.md`` gives each one's ``tau``."""
+ShearMode = Literal["simple", "pure", "uniaxial"]
+SHEAR_MODES: tuple[str, ...] = ("simple", "pure", "uniaxial")
+"""The modes: simple shear (``x += gamma y``), pure shear (volume-preserving
+``D = diag(1 + gamma, 1 / (1 + gamma))``) and uniaxial compression of the last axis
+(``D = diag(1, ..., 1 - gamma)``); ``docs/quantities.md`` gives each one's ``tau``."""
 DROP_TOL = 1e-6
 """A plastic event is a drop of ``tau`` by more than ``DROP_TOL`` x the pressure."""
 ROW_OBSERVABLES: tuple[str, ...] = (
@@ -54,14 +62,37 @@ ROW_OBSERVABLES: tuple[str, ...] = (
 
 def deformation(mode: ShearMode, gamma: float, dim: int) -> NDArray[np.float64]:
     """The total deformation ``D(gamma)`` ``(d, d)`` of ``mode`` at strain ``gamma``."""
-    return simple_shear(gamma, dim) if mode == "simple" else pure_shear(gamma, dim)
+    if mode == "simple":
+        return simple_shear(gamma, dim)
+    if mode == "pure":
+        return pure_shear(gamma, dim)
+    d_mat = np.eye(dim)
+    d_mat[-1, -1] = 1.0 - gamma
+    return d_mat
 
 
 def driven_stress(mode: ShearMode, sigma: NDArray[np.float64]) -> float:
-    """``tau``: ``-sigma_01`` (simple) or ``(sigma_11 - sigma_00) / 2`` (pure shear)."""
+    """``tau``: ``-sigma_01`` (simple), ``(sigma_11 - sigma_00) / 2`` (pure shear) or
+    ``sigma_ee`` of the last axis (uniaxial compression)."""
     if mode == "simple":
         return float(-sigma[0, 1])
-    return 0.5 * float(sigma[1, 1] - sigma[0, 0])
+    if mode == "pure":
+        return 0.5 * float(sigma[1, 1] - sigma[0, 0])
+    return float(sigma[-1, -1])
+
+
+def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
+    """Refuse (:class:`InputError`) a ``mode`` the cell's walls cannot take (simple shear
+    tilts x along y) and a uniaxial ``strain`` that leaves no cell (>= 1)."""
+    choice(mode, "mode", SHEAR_MODES)
+    if mode == "simple" and {0, 1} & set(cell.walls):
+        raise InputError(
+            "mode: simple shear (x += gamma y) would tilt a cell with walls normal to "
+            f"{'x' if 0 in cell.walls else 'y'}, and flat frictionless walls carry no shear "
+            "stress; use pure shear or uniaxial compression"
+        )
+    if mode == "uniaxial" and not strain < 1.0:
+        raise InputError(f"strain: uniaxial compression needs a strain < 1, got {strain:g}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,7 +142,8 @@ def shear_steps(
     ----------
     start : a packing, relaxed first (step 0); usually jammed or compressed above jamming.
     model : contact law.
-    mode : ``"pure"`` (the paper's shear test) or ``"simple"``.
+    mode : ``"pure"`` (the paper's shear test), ``"simple"`` or ``"uniaxial"``
+        (:func:`check_mode`).
     strain, step : final strain and increment (dimensionless, > 0); the last increment is
         shortened to end exactly at ``strain``.
     minimizer : how each step is relaxed (default L-BFGS).
@@ -121,8 +153,8 @@ def shear_steps(
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one, bit for bit as an uninterrupted run.
     """
-    choice(mode, "mode", SHEAR_MODES)
     strain = positive_scalar(strain, "strain")
+    check_mode(mode, strain, start.cell)
     step = positive_scalar(step, "step")
     if step > strain:
         raise InputError(f"step: the increment {step:g} exceeds the final strain {strain:g}")
