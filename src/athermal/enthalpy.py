@@ -244,8 +244,9 @@ def relax_at_pressure(
     maxiter: int = 100_000,
 ) -> EnthalpyResult:
     """Minimize ``H = U + P V`` over the positions and the cell (``cell``: its volume, its
-    volume and shape, or the gaps between its walls) from ``packing``, by ``method`` (``lbfgs``, ``cg`` or ``fire``) with
-    ``precon`` ``"none"`` or ``"exp"`` (:class:`EnthalpyPreconditioner`).
+    volume and shape, or the gaps between its walls) from ``packing``, by ``method``
+    (``lbfgs``, ``cg`` or ``fire``) with ``precon`` ``"none"`` or ``"exp"``
+    (:class:`EnthalpyPreconditioner`).
 
     The tolerance is ``gtol`` on the largest block of the gradient (:attr:`Enthalpy.hooks`), or
     ``rtol`` x ``P <2r>^(d-1)``, the contact force a pressure ``P`` implies (measured: the mean
