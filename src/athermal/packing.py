@@ -45,6 +45,13 @@ class Packing:
             raise InputError("positions: a packing needs at least one particle")
         if np.any(r <= 0.0):
             raise InputError(f"radii: must be > 0 (found {int(np.sum(r <= 0.0))} that are not)")
+        for a in self.cell.walls:
+            if 2.0 * r.max() >= self.cell.h[a, a]:
+                raise InputError(
+                    f"walls: the gap between the walls normal to {AXES[a]} "
+                    f"({self.cell.h[a, a]:.6g}) leaves no room for the largest particle "
+                    f"(diameter {2 * r.max():.6g})"
+                )
         if 2.0 * r.max() >= self.cell.narrowest_width:
             raise InputError(
                 f"radii: largest diameter {2 * r.max():.6g} does not fit in the cell "
