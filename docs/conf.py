@@ -34,8 +34,11 @@ html_title = f"athermal {release}"
 # Modules whose public names are not all re-exported by ``athermal``: their other names get a
 # section of their own on the API page.
 MODULES = (
+    "athermal.cell",
     "athermal.protocols",
     "athermal.moduli",
+    "athermal.walls",
+    "athermal.enthalpy",
     "athermal.certify",
     "athermal.criticality",
     "athermal.extended",

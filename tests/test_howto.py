@@ -54,3 +54,10 @@ def test_a_jamming_point_is_certified_and_its_exponents_fitted(tmp_path):
     assert float(width) <= 1e-12
     out = paste(many, tmp_path)
     assert "theta_e" in out and "gamma" in out and (tmp_path / "criticality.png").exists()
+
+
+def test_packings_between_walls(tmp_path):
+    commands, read = blocks(HOWTO / "walls.md")
+    paste(commands, tmp_path)
+    out = paste(read, tmp_path)
+    assert "walls y" in out and "sigma_yy = 0.001000000" in out

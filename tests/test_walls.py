@@ -221,9 +221,7 @@ def test_wall_pressure_against_wall_strain_near_jamming(alpha):
     for seed in (5, 6, 7):
         result = jam(walled(2, (1,), n=128, phi=0.75, seed=seed), model)
         steps = list(
-            shear_steps(
-                result.packing, model, mode="uniaxial", strain=1e-3, step=1e-4, rtol=1e-10
-            )
+            shear_steps(result.packing, model, mode="uniaxial", strain=1e-3, step=1e-4, rtol=1e-10)
         )
         strain = np.array([s.strain for s in steps[1:]])
         tau = np.array([s.tau for s in steps[1:]])

@@ -269,7 +269,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         energy=obs.energy,
         pressure=obs.pressure,
         z=obs.z,
-        z_iso=isostatic_z(obs.n - obs.n_rattlers, spec.jam.dim),
+        z_iso=isostatic_z(obs.n - obs.n_rattlers, spec.jam.dim, jammed.packing.cell.periodic_axes),
         n_rattlers=obs.n_rattlers,
         excess_contacts=check.excess_contacts,
         unjams_when_decompressed=check.unjams,

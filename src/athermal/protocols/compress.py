@@ -90,10 +90,11 @@ def log_spaced(start: float = 1e-7, stop: float = 1e-1, per_decade: int = 4) -> 
     return np.logspace(np.log10(start), np.log10(stop), count)
 
 
-def isostatic_z(n_live: int, dim: int) -> float:
-    """Isostatic coordination of ``n_live`` non-rattlers in a periodic cell:
-    ``2 N_c / N'`` with ``N_c = d (N' - 1) + 1`` contacts (tends to ``2 d``)."""
-    return 2.0 * isostatic_contacts(n_live, dim) / n_live if n_live >= 1 else 0.0
+def isostatic_z(n_live: int, dim: int, periodic: int | None = None) -> float:
+    """Isostatic coordination of ``n_live`` non-rattlers: ``2 N_iso / N'`` with
+    ``N_iso = d N' - t + 1`` contacts (:func:`~athermal.observables.isostatic_contacts`, ``t =
+    periodic`` axes, default ``d``); tends to ``2 d``."""
+    return 2.0 * isostatic_contacts(n_live, dim, periodic) / n_live if n_live >= 1 else 0.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -101,9 +102,11 @@ class CompressionStep:
     """One relaxed state of the compression (units: ``k`` and the cell's lengths).
 
     ``bulk_modulus`` is ``phi dp/dphi`` along the protocol, ``shear_modulus`` the simple-shear
-    ``G``, both by linear response (negative for a minimum unstable to shear: the event
-    ``unstable to shear``, and no modulus in the fits); ``z_excess = z - z_iso`` over the
-    non-rattlers (``-2 d`` when every particle is a rattler); ``events`` what happened
+    ``G`` (between walls normal to x or y the pure-shear one,
+    :func:`~athermal.moduli.linear_response`), both by linear response (negative for a minimum
+    unstable to shear: the event ``unstable to shear``, and no modulus in the fits);
+    ``z_excess = 2 (C' - N_iso) / N'`` over the non-rattlers, ``z - z_iso`` in a periodic cell
+    (``-2 d`` when every particle is a rattler); ``events`` what happened
     (names from :data:`EVENTS`), ``saddles`` how many saddles were left on the way and
     ``substeps`` how many relaxations the step took (more than 1 after a pressure drop,
     :data:`MAX_SPLITS`).
@@ -256,6 +259,8 @@ def compression_steps(
             events.append("saddle left")
         if moduli.shear < 0.0:
             events.append("unstable to shear")
+        dim = jammed.dim
+        iso = isostatic_contacts(n_live, dim, jammed.cell.periodic_axes)
         yield CompressionStep(
             index=index,
             delta_phi=dphi,
@@ -265,7 +270,7 @@ def compression_steps(
             shear_stress=obs.shear_stress,
             contacts=obs.contacts,
             z=obs.z,
-            z_excess=obs.z - isostatic_z(n_live, jammed.dim) if n_live else -2.0 * jammed.dim,
+            z_excess=2.0 * (obs.contacts_nonrattler - iso) / n_live if n_live else -2.0 * dim,
             n_rattlers=obs.n_rattlers,
             bulk_modulus=moduli.bulk + (model.alpha - jammed.dim) * obs.pressure / jammed.dim,
             shear_modulus=moduli.shear,
