@@ -261,20 +261,29 @@ def test_command_line_walls(tmp_path, capsys):
     code, text, _ = run(capsys, "measure", str(out), "--json")
     assert code == 0 and json.loads(text)["walls"] == "y"
     # bad input: one line, exit 2, nothing written
+    bad = str(tmp_path / "bad.gsd")
     for argv in (
-        ("random", "--walls", "q", "-o", str(tmp_path / "bad.gsd")),
-        ("shear", str(out), "--mode", "simple", "-o", str(tmp_path / "bad.gsd")),
-        (
-            "relax",
-            str(out),
-            "--pressure",
-            "1e-3",
-            "--cell",
-            "shape",
-            "-o",
-            str(tmp_path / "bad.gsd"),
-        ),
+        ("random", "--walls", "q", "-o", bad),
+        ("shear", str(out), "--mode", "simple", "-o", bad),
+        ("relax", str(out), "--pressure", "1e-3", "--cell", "shape", "-o", bad),
+        ("jam", "--walls", "y", "--certify", "-o", bad),
+        ("certify", str(out), "-o", bad),
     ):
         code, _, err = run(capsys, *argv)
         assert code == 2 and len(err.strip().splitlines()) == 1, (argv, err)
+        assert not (tmp_path / "bad.gsd").exists()
+
+
+def test_the_jax_engine_refuses_walls(tmp_path, capsys):
+    pytest.importorskip("jax")
+    out = tmp_path / "w.gsd"
+    write_gsd(out, walled(2, (1,), n=32, phi=0.8), model=ContactModel())
+    bad = str(tmp_path / "bad.gsd")
+    for argv in (
+        ("jam", "--walls", "y", "--backend", "jax", "-o", bad),
+        ("relax", str(out), "--backend", "jax", "-o", bad),
+        ("compress", str(out), "--backend", "jax", "-o", bad),
+    ):
+        code, _, err = run(capsys, *argv)
+        assert code == 2 and "no walls" in err and len(err.strip().splitlines()) == 1, argv
         assert not (tmp_path / "bad.gsd").exists()

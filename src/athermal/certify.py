@@ -169,7 +169,8 @@ def certify(
     Raises
     ------
     InputError
-        The packing is not jammed (no contacts between non-rattlers, or fewer than isostatic),
+        The packing lies between walls, is not jammed (no contacts between non-rattlers, or
+        fewer than isostatic),
         not relaxed (float64 force balance above :data:`RELAXED` of its mean contact force), or
         its contact network changed during the refinement (names the pair).
     ConvergenceError
@@ -177,6 +178,11 @@ def certify(
     """
     if not target > 0.0:
         raise InputError(f"target: must be > 0, got {target}")
+    if packing.cell.walls:
+        raise InputError(
+            "certify: packings between walls are not certified yet (the double-double sums "
+            "have no wall terms)"
+        )
     half_steps(model.alpha)
     dim = packing.dim
     hi = np.array(packing.positions, dtype=np.float64, order="C")

@@ -20,3 +20,7 @@ def one_line(exc: BaseException) -> str:
 
 JAX_MISSING = 'backend jax: JAX is not installed; install the extra: pip install "athermal[jax]"'
 """The one line for the JAX engine without JAX (:mod:`athermal.jaxengine`, ``--backend jax``)."""
+WALLS_NOT_ON_JAX = (
+    "backend jax: the JAX engine has no walls yet; relax packings between walls on numba"
+)
+"""The one line for a packing between walls sent to the JAX engine."""

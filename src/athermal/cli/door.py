@@ -19,7 +19,7 @@ from ..bench import check_alphas
 from ..cell import wall_axes
 from ..ensemble import check_batch
 from ..enthalpy import ENTHALPY_METHODS
-from ..errors import JAX_MISSING, InputError
+from ..errors import JAX_MISSING, WALLS_NOT_ON_JAX, InputError
 from ..extended import half_steps
 from ..io import SEED_BOUND
 from ..packing import check_width
@@ -180,6 +180,8 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError(f"--{exc}") from None
     if args.command == "jam" and args.certify and args.pressure is not None:
         raise InputError("--certify: certifies the jammed packing; drop --pressure or --certify")
+    if args.command == "jam" and args.certify and args.walls:
+        raise InputError("--certify: packings between walls are not certified yet; drop --walls")
     if args.command == "bench":
         _bench(args)
     if args.command == "modes":
@@ -205,6 +207,8 @@ def _jax(args: argparse.Namespace) -> None:
         raise InputError(JAX_MISSING)
     if args.command == "relax" and args.pressure is not None:
         raise InputError("--backend jax: --pressure runs on the numba engine; drop one of them")
+    if getattr(args, "walls", ""):
+        raise InputError(WALLS_NOT_ON_JAX)
     if args.command != "bench":
         Minimizer(args.method, precon_from(args), backend="jax")  # type: ignore[arg-type]
 

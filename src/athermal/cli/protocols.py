@@ -20,7 +20,7 @@ import numpy as np
 from ..certify import CertifiedPacking, bisect_jamming_point, certify
 from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
 from ..contact import ContactModel, find_contacts
-from ..errors import ConvergenceError, InputError
+from ..errors import WALLS_NOT_ON_JAX, ConvergenceError, InputError
 from ..experiments import JamSpec, jam_packing
 from ..io import Frame, count_frames, read_gsd, write_gsd
 from ..observables import Observables, measure
@@ -344,6 +344,8 @@ def _start(args: argparse.Namespace) -> tuple[Packing, ContactModel, Frame, int]
     frame = read_gsd(args.input, frame=index)
     model = model_from(args, frame.model)
     find_contacts(frame.packing, model)  # refuses coincident particles before any work
+    if getattr(args, "backend", "numba") == "jax" and frame.packing.cell.walls:
+        raise InputError(WALLS_NOT_ON_JAX)
     return frame.packing, model, frame, index
 
 

@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import InputError
+from ..errors import WALLS_NOT_ON_JAX, InputError
 from ..minimize import MinimizeResult, Status
 from ..minimize.cg import C2 as CG_C2
 from ..minimize.fire import ALPHA_START, default_timesteps
@@ -91,6 +91,8 @@ class Engine:
         A: float = 0.0,
     ) -> None:
         check_supported("lbfgs", precon)
+        if objective.cell.walls:
+            raise InputError(WALLS_NOT_ON_JAX)
         self.objective = objective
         self.alpha = float(objective.model.alpha)
         inner = objective.packing(objective.x0, internal=True)
