@@ -90,7 +90,8 @@ def check_command_line(out: str, folder: Path) -> None:
 
 def check_beyond(out: str, folder: Path) -> None:
     """The block beyond the paper wrote a packing at p = 1e-4, its modes, the force figure, a
-    polydisperse packing, its shear-stabilized state and the certified jammed packing."""
+    polydisperse packing, its shear-stabilized state, the certified jammed packing and a packing
+    between walls, held at a force per unit length."""
     for name in (
         "p1e-4.gsd",
         "p1e-4-modes.npz",
@@ -99,9 +100,12 @@ def check_beyond(out: str, folder: Path) -> None:
         "poly.gsd",
         "stabilized.gsd",
         "certified.gsd",
+        "walls.gsd",
+        "held.gsd",
     ):
         assert (folder / name).exists(), name
     assert "relative_force_balance" in out
+    assert "target_pressure" in out  # the walls held at 1e-3
 
 
 @pytest.mark.slow
