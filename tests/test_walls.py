@@ -287,3 +287,47 @@ def test_the_jax_engine_refuses_walls(tmp_path, capsys):
         code, _, err = run(capsys, *argv)
         assert code == 2 and "no walls" in err and len(err.strip().splitlines()) == 1, argv
         assert not (tmp_path / "bad.gsd").exists()
+
+
+def test_the_wall_stiffness_travels_through_the_command_line(tmp_path, capsys):
+    p = walled(2, (1,), n=64, phi=0.85)
+    model = ContactModel(2.0, wall_stiffness=5.0)
+    write_gsd(tmp_path / "w.gsd", p, model=model)
+    code, text, _ = run(capsys, "measure", str(tmp_path / "w.gsd"), "--json")
+    assert code == 0
+    assert json.loads(text)["energy"] == pytest.approx(measure(p, model).energy, rel=1e-12)
+    assert measure(p, model).energy != pytest.approx(measure(p, ContactModel(2.0)).energy)
+
+
+def test_what_walls_cannot_take_is_refused():
+    from athermal.criticality import weak_forces_and_gaps
+    from athermal.ensemble import EnsembleSpec
+    from athermal.experiments import JamSpec, ShearSpec
+
+    p = walled(2, (1,), n=32, phi=0.85)
+    model = ContactModel()
+    with pytest.raises(InputError, match="simple shear"):
+        EnsembleSpec("shear", jam=JamSpec(n=64, walls="y"), shear=ShearSpec(mode="simple"))
+    with pytest.raises(InputError, match="iteration"):
+        EnsembleSpec("iterations", jam=JamSpec(n=64, walls="y"))
+    with pytest.raises(InputError, match="walls"):
+        weak_forces_and_gaps(p, model)
+    with pytest.raises(InputError, match="tilt"):
+        relaxed_strain_curvature(p, model, simple_shear(1.0) - np.eye(2))
+    with pytest.raises(InputError, match="tuple of axes"):
+        Cell(np.eye(2), "y")  # type: ignore[arg-type]
+
+
+def test_moduli_finite_strain_is_refused_between_walls(tmp_path, capsys):
+    write_gsd(tmp_path / "w.gsd", walled(2, (1,), n=32, phi=0.85), model=ContactModel())
+    code, _, err = run(capsys, "moduli", str(tmp_path / "w.gsd"), "--finite-strain", "1e-5")
+    assert code == 2 and "--finite-strain" in err and len(err.strip().splitlines()) == 1
+
+
+def test_fire_time_step_bound_counts_stiff_walls():
+    p = walled(2, (1,), n=40, phi=0.9)
+    model = ContactModel(2.0, wall_stiffness=1000.0)
+    obj = Objective(p, model, sort=False)
+    largest = np.linalg.eigvalsh(obj.hessian(obj.x0).matrix().toarray())[-1]
+    assert largest > 500.0  # the walls dominate
+    assert obj.curvature_bound(obj.x0) >= largest

@@ -68,6 +68,10 @@ class Cell:
             raise InputError(
                 f"cell: singular or inverted, diagonal {np.diag(h).tolist()} must be > 0"
             )
+        if not isinstance(self.walls, tuple | list) or not all(
+            isinstance(a, int | np.integer) and not isinstance(a, bool) for a in self.walls
+        ):
+            raise InputError(f"walls: expected a tuple of axes (e.g. (1,)), got {self.walls!r}")
         walls = tuple(sorted({int(a) for a in self.walls}))
         if walls and (walls[0] < 0 or walls[-1] >= d):
             raise InputError(f"walls: axes must lie in 0..{d - 1}, got {list(self.walls)}")
@@ -87,6 +91,12 @@ class Cell:
         """Orthogonal cell with the given side lengths ``(d,)``."""
         sides = float_array(lengths, "lengths", (None,))
         return cls(np.diag(sides))
+
+    @classmethod
+    def unit(cls, dim: int, walls: str = "") -> Cell:
+        """The unit square (cube) in ``dim`` dimensions with walls normal to the axes named in
+        ``walls`` (:func:`wall_axes`)."""
+        return cls(np.eye(dim), wall_axes(walls, dim))
 
     @classmethod
     def from_hoomd(cls, box: ArrayLike, dim: int) -> Cell:
@@ -239,3 +249,11 @@ def pure_shear(gamma: float, dim: int = 2) -> NDArray[np.float64]:
     d_mat[0, 0] = 1.0 + gamma
     d_mat[1, 1] = 1.0 / (1.0 + gamma)
     return d_mat
+
+
+def pure_shear_derivatives(dim: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``D'(0)``, ``D''(0)`` ``(d, d)`` of pure shear ``D = diag(1 + g, 1 / (1 + g))`` (``z``
+    kept in 3D): ``diag(1, -1)`` and ``diag(0, 2)``."""
+    d1, d2 = np.zeros((dim, dim)), np.zeros((dim, dim))
+    d1[0, 0], d1[1, 1], d2[1, 1] = 1.0, -1.0, 2.0
+    return d1, d2

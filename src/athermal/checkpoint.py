@@ -127,6 +127,10 @@ class Trajectory:
                 f"{self.path} exists: continue it with --resume, or replace it with --overwrite"
             )
 
+    def close(self) -> None:
+        """Release the file's one-writer lock (the trajectory takes no more steps)."""
+        self._lock.close()
+
     def append(self, step: Step) -> None:
         """Append ``step`` as one frame (its packing, numbers and the run identity); the first
         step of an ``overwrite`` run replaces the old file."""

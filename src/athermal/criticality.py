@@ -110,7 +110,10 @@ def weak_forces_and_gaps(
     position_lo: NDArray[np.float64] | None = None,
 ) -> WeakForcesAndGaps:
     """The forces and gaps of ``packing`` (positions ``packing.positions + position_lo``), in
-    double-double (module docstring)."""
+    double-double (module docstring). Packings between walls are refused
+    (:class:`~athermal.errors.InputError`): the double-double sums have no wall terms."""
+    if packing.cell.walls:
+        raise InputError("criticality: packings between walls are not supported yet")
     pairs = NearPairs(packing, model, GAP_REACH)
     lo = np.zeros_like(packing.positions) if position_lo is None else np.asarray(position_lo)
     sums = pairs.sums(np.array(packing.positions), np.array(lo))

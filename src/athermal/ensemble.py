@@ -48,8 +48,8 @@ from .experiments import (
 from .forces import EDGES, ForceStatistics, exponential_tail, force_statistics, histogram_density
 from .io import claim
 from .packing import POLYDISPERSITY
-from .protocols import isostatic_z
-from .protocols.compress import pooled_fit
+from .protocols.compress import excess_z, pooled_fit
+from .protocols.shear import check_mode
 from .tables import Row
 
 Protocol = Literal["jam", "compress", "shear", "iterations"]
@@ -77,6 +77,14 @@ class EnsembleSpec:
 
     def __post_init__(self) -> None:
         choice(self.protocol, "protocol", PROTOCOLS)
+        cell = self.jam.cell
+        if self.protocol == "shear":
+            check_mode(self.shear.mode, self.shear.strain, cell)
+        if self.protocol == "iterations" and {0, 1} & set(cell.walls):
+            raise InputError(
+                "protocol: the iteration experiment shears x along y, which walls normal to x "
+                "or y do not allow"
+            )
 
     def identity(self) -> float:
         """Digest of the spec: a directory holds the realizations of one spec only."""
@@ -245,7 +253,10 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         resume=True,
     )
     done = [jamming_step(f) for f in trajectory.frames]
-    jammed = jam_packing(spec.jam, seed, resume=done, on_step=trajectory.append)
+    try:
+        jammed = jam_packing(spec.jam, seed, resume=done, on_step=trajectory.append)
+    finally:  # a retry of this realization, in this process, takes the lock again
+        trajectory.close()
     obs, check = jammed.observables, jammed.check
     sections: dict[str, Any] = {}
     if spec.protocol in ("compress", "shear"):
@@ -269,7 +280,7 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         energy=obs.energy,
         pressure=obs.pressure,
         z=obs.z,
-        z_iso=isostatic_z(obs.n - obs.n_rattlers, spec.jam.dim, jammed.packing.cell.periodic_axes),
+        z_iso=obs.z - excess_z(obs, jammed.packing.cell.periodic_axes),
         n_rattlers=obs.n_rattlers,
         excess_contacts=check.excess_contacts,
         unjams_when_decompressed=check.unjams,

@@ -1,5 +1,6 @@
 """Minimization at fixed pressure: the enthalpy ``H = U + P V`` over the particle positions and
-the cell (its volume, or its volume and shape), with the package's minimizers.
+the cell (its volume, its volume and shape, or the gaps between its walls), with the package's
+minimizers.
 
 Variables. The cell is ``h = F h0`` with ``F`` upper triangular (the cell stays HOOMD's upper
 triangular form) and the positions ``x_i = F u_i``; the minimizers see ``(u, c)`` with
@@ -9,10 +10,11 @@ particle coordinate (``V B / l^2 ~ k`` for Hooke contacts, ``B`` the bulk modulu
 
 Gradients. With ``g_i = dU/dx_i`` and the stress ``sigma``, ``dH/du_i = F^T g_i`` and
 ``dH/dF = V (P I - sigma) F^-T`` (``dU/dF = -V sigma F^-T``, ``dV/dF = V F^-T``): at a minimum
-the forces balance and ``sigma = P I`` (volume alone: ``p = P``), to the force tolerance over
-``l``. With the shape free the shear stresses vanish, the packing is stable to every shear of
-its cell, and its shear modulus is ``>= 0`` (shear-stabilized packings, Dagois-Bohy et al., PRL
-109, 095703 (2012)).
+the forces balance and ``sigma = P I`` (shape free; volume alone: ``p = P``), to the force
+tolerance over ``l``; with the walls free, ``sigma_aa = P`` along each walled axis, the force per
+unit area on its walls. With the shape free the shear stresses vanish, the packing is stable to
+every shear of its cell, and its shear modulus is ``>= 0`` (shear-stabilized packings,
+Dagois-Bohy et al., PRL 109, 095703 (2012)).
 
 Each evaluation finds the contacts afresh (the cell changes at every step), many times the cost
 of an evaluation in a fixed cell; a Verlet list that follows the cell is future work.
@@ -218,8 +220,9 @@ class EnthalpyPreconditioner:
 class EnthalpyResult:
     """A packing at an enthalpy minimum at pressure ``target``.
 
-    ``packing`` (positions and the relaxed cell), its ``pressure`` and ``stress`` ``(d, d)``,
-    the cell deformation ``deformation`` ``F`` ``(d, d)`` from the start's cell, and the
+    ``packing`` (positions and the relaxed cell), its ``pressure`` (``trace(sigma) / d``: with
+    the walls free the target is ``sigma_aa`` of the walled axes, not this) and ``stress``
+    ``(d, d)``, the cell deformation ``deformation`` ``F`` ``(d, d)`` from the start's cell, and the
     minimizer's ``result`` (iterations, evaluations, convergence).
     """
 

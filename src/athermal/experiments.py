@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._validate import choice
-from .cell import Cell, wall_axes
+from .cell import Cell
 from .contact import ContactModel
 from .errors import InputError
 from .objective import Objective
@@ -108,11 +108,11 @@ class JamSpec:
     walls: str = ""
 
     def __post_init__(self) -> None:
-        wall_axes(self.walls, self.dim)
         if int(self.n) != self.n or self.n < 2:
             raise InputError(f"n: need an integer >= 2 particles, got {self.n!r}")
         if self.dim not in (2, 3):
             raise InputError(f"dim: must be 2 or 3, got {self.dim!r}")
+        self.cell  # noqa: B018  # validates the walls
         if self.sizes != "bidisperse":
             check_width(self.sizes, self.polydispersity)
         choice(self.protocol, "protocol", JAM_PROTOCOLS)
@@ -135,8 +135,13 @@ class JamSpec:
             size_ratio=self.size_ratio,
             sizes=self.sizes,
             polydispersity=self.polydispersity,
-            cell=Cell(np.eye(self.dim), wall_axes(self.walls, self.dim)),
+            cell=self.cell,
         )
+
+    @property
+    def cell(self) -> Cell:
+        """The unit cell with the walls of :attr:`walls`."""
+        return Cell.unit(self.dim, self.walls)
 
 
 def jam_packing(
@@ -210,8 +215,8 @@ def compress(
 
 @dataclass(frozen=True)
 class ShearSpec:
-    """Quasi-static shear (``mode`` simple or pure) to ``strain`` in increments ``step``, from
-    the compressed state nearest ``delta_phi`` above jamming."""
+    """Quasi-static shear (``mode`` simple, pure or uniaxial) to ``strain`` in increments
+    ``step``, from the compressed state nearest ``delta_phi`` above jamming."""
 
     mode: ShearMode = "pure"
     strain: float = 0.02

@@ -15,8 +15,11 @@ displacements ``u``. For a contact with branch vector ``r = x_i - x_j`` (length 
   quadratic expansion ``E''_aff gamma^2 / 2 + gamma Xi.u + u.H u / 2`` over ``u``.
 
 Rattlers (:func:`~athermal.observables.rattlers`) and every contact that touches one are left out
-of all three terms; the ``d`` translations, zero modes of ``H``, are removed by pinning one
-particle (``Xi`` sums to zero, so the minimum is unchanged). Moduli follow from ``E''_rel``:
+of all three terms; the translations along the periodic axes (``d`` of them in a periodic cell),
+zero modes of ``H``, are removed by pinning one particle along them (``Xi`` sums to zero there,
+so the minimum is unchanged). Between walls (:mod:`athermal.walls`) a wall contact adds its
+terms with the wall's distance ``n.D r`` (no tangential term, no partner), and a deformation
+must keep the walls untilted. Moduli follow from ``E''_rel``:
 simple shear ``D1 = e0 e1^T`` gives ``G = E''_rel / V = -d sigma_01 / d gamma``; isotropic
 compression at fixed radii ``D = (1 + e) I`` gives ``p(e) = -(1+e)^(1-d) dE/de / (d V0)`` and so
 ``B = -V dp/dV = E''_rel / (d^2 V) + (d - 1) p / d``.
@@ -30,7 +33,7 @@ Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x le
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import numpy as np
@@ -39,8 +42,9 @@ import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
 from ._validate import float_array
-from .cell import simple_shear
+from .cell import AXES, pure_shear_derivatives, simple_shear
 from .contact import ContactModel, Contacts, find_contacts, hessian
+from .errors import InputError
 from .linalg import cholesky
 from .observables import pressure, rattlers, stress
 from .packing import Packing
@@ -169,8 +173,8 @@ def relaxed_strain_curvature(
     (0.0, 0.0)
     """
     dim = packing.dim
-    d1_arr = float_array(d1, "d1", (dim, dim))
-    d2_arr = None if d2 is None else float_array(d2, "d2", (dim, dim))
+    d1_arr = _untilting(packing, float_array(d1, "d1", (dim, dim)), "d1")
+    d2_arr = None if d2 is None else _untilting(packing, float_array(d2, "d2", (dim, dim)), "d2")
     contacts, rattler = nonrattler_contacts(packing, model)
     affine, xi = strain_terms(contacts, packing.n, d1_arr, d2_arr)
     correction, residual, _ = _nonaffine_correction(
@@ -192,7 +196,7 @@ def nonaffine_displacement(
     ``RuntimeWarning`` reports a solve whose relative residual exceeds ``RESIDUAL_WARN``.
     """
     dim = packing.dim
-    d1_arr = float_array(d1, "d1", (dim, dim))
+    d1_arr = _untilting(packing, float_array(d1, "d1", (dim, dim)), "d1")
     contacts, rattler = nonrattler_contacts(packing, model)
     _, xi = strain_terms(contacts, packing.n, d1_arr)
     y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None], packing.cell.walls)
@@ -251,14 +255,6 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
         residual=residual,
         solver=solver,
     )
-
-
-def pure_shear_derivatives(dim: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``D'(0)``, ``D''(0)`` ``(d, d)`` of pure shear ``D = diag(1 + g, 1 / (1 + g))`` (``z``
-    kept in 3D): ``diag(1, -1)`` and ``diag(0, 2)``."""
-    d1, d2 = np.zeros((dim, dim)), np.zeros((dim, dim))
-    d1[0, 0], d1[1, 1], d2[1, 1] = 1.0, -1.0, 2.0
-    return d1, d2
 
 
 @dataclass(frozen=True)
@@ -340,10 +336,14 @@ def _warn_if_poor(residual: float, what: str) -> None:
 def nonrattler_contacts(
     packing: Packing, model: ContactModel
 ) -> tuple[Contacts, NDArray[np.bool_]]:
-    """The contacts between non-rattlers, and the rattler mask ``(N,)``."""
+    """The contacts between non-rattlers and their wall contacts, and the rattler mask
+    ``(N,)``."""
     contacts = find_contacts(packing, model)
     rattler = rattlers(contacts, packing.n, packing.dim)
-    return contacts.subset(~(rattler[contacts.i] | rattler[contacts.j])), rattler
+    live = contacts.subset(~(rattler[contacts.i] | rattler[contacts.j]))
+    if live.walls is not None:
+        live = replace(live, walls=live.walls.subset(~rattler[live.walls.particle]))
+    return live, rattler
 
 
 def stiffness_matrix(
@@ -403,6 +403,15 @@ def pinned_solve(
     h = hessian(contacts, n)[dofs][:, dofs].tocsr()
     y[dofs], residual, solver = _solve(h, b)
     return y, residual, solver
+
+
+def _untilting(packing: Packing, d: NDArray[np.float64], name: str) -> NDArray[np.float64]:
+    """``d`` ``(d, d)``, refused (:class:`InputError`) when it would tilt the packing's walls
+    (an entry off the diagonal in a walled axis's row or column)."""
+    for a in packing.cell.walls:
+        if np.any(np.delete(d[a], a) != 0.0) or np.any(np.delete(d[:, a], a) != 0.0):
+            raise InputError(f"{name}: the deformation would tilt the walls normal to {AXES[a]}")
+    return d
 
 
 def _unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:

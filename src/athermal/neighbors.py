@@ -1,4 +1,5 @@
-"""Verlet pair lists in any periodic cell: an O(N) cell-list build and a brute-force twin.
+"""Verlet pair lists in any periodic cell (none across a cell's walls): an O(N) cell-list build
+and a brute-force twin.
 
 A :class:`NeighborList` holds every pair ``(i, j)`` closer than ``r_i + r_j + skin`` once, as
 flat arrays in spatial (bin) order with ``j >= i`` (``j == i`` only for a particle's own image

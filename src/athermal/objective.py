@@ -253,21 +253,25 @@ class Objective:
         ``c = k delta^(alpha-2)`` has norm ``(alpha - 1) c``, and row ``i`` of ``H`` holds
         ``H_ii = sum_j K_ij`` and ``H_ij = -K_ij``, so
         ``lambda_max <= lambda_G = 2 max_i sum_j (alpha - 1) k_ij delta_ij^(alpha - 2)``
-        (``2 k z_max`` for Hooke contacts). Units ``k`` x length^(alpha-2), i.e. 1 / time^2 for
-        unit masses (FIRE's default time step). Without contacts it falls back to a particle
-        with 6 (2D) or 12 (3D) contacts of overlap ``delta`` = the mean radius.
+        (``2 k z_max`` for Hooke contacts); a wall contact adds its ``(alpha - 1) k_w
+        delta^(alpha-2)`` once, to its particle's row. Units ``k`` x length^(alpha-2), i.e.
+        1 / time^2 for unit masses (FIRE's default time step). Without contacts it falls back to
+        a particle with 6 (2D) or 12 (3D) contacts of overlap ``delta`` = the mean radius.
         """
         model = self.model
         contacts = find_contacts(self.packing(x, internal=True), model, self.neighbor_list(x))
         alpha = float(model.alpha)
-        if contacts.i.size == 0:
+        walls = self.wall_contacts(np.asarray(x).reshape(self.n, self.dim))
+        if contacts.i.size == 0 and walls.particle.size == 0:
             z_ref = 6.0 if self.dim == 2 else 12.0
             r_mean = float(np.mean(self.radii))
-            return 2.0 * z_ref * (alpha - 1.0) * float(np.max(model.kmat)) * r_mean ** (alpha - 2.0)
+            k_max = max(float(np.max(model.kmat)), float(np.max(model.kwall)))
+            return 2.0 * z_ref * (alpha - 1.0) * k_max * r_mean ** (alpha - 2.0)
         stiff = (alpha - 1.0) * contacts.stiffness * contacts.overlap ** (alpha - 2.0)
         per_particle = np.bincount(contacts.i, stiff, self.n)
         per_particle += np.bincount(contacts.j, stiff, self.n)
-        return 2.0 * float(per_particle.max())
+        particle, _, wall_stiff = walls.hessian_terms()
+        return float(np.max(2.0 * per_particle + np.bincount(particle, wall_stiff, self.n)))
 
     def mean_contact_force(self, x: NDArray[np.float64]) -> float:
         """Mean ``k delta^(alpha-1)`` over overlapping pairs at ``x`` (0 with no contacts)."""

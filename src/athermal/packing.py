@@ -232,7 +232,8 @@ def random_packing(
     polydispersity : standard deviation / mean of the radii of a continuous distribution.
     radii : relative radii ``(N,)`` of a polydisperse packing; only their ratios matter
         (overrides ``sizes``).
-    cell : periodic cell; default the unit square (cube).
+    cell : the cell, periodic or with walls (centres drawn between them); default the unit
+        square (cube).
 
     Returns
     -------

@@ -209,7 +209,8 @@ def packing_figure(
     force_scale: float | None = None,
     ax: Axes | None = None,
 ) -> Figure:
-    """The disks of a 2D ``packing`` drawn to scale in its unit cell, periodic images included,
+    """The disks of a 2D ``packing`` drawn to scale in its unit cell, periodic images included
+    (none across walls, which are drawn as thick lines with the lines of their contact forces),
     shaded by radius (the smallest light, the largest dark). With ``model``: every contact force
     ``f`` as a line between the centres of width
     ``w = max_force_width(N, size) x min(1, f / force_scale)`` points (lines with

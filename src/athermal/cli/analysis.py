@@ -14,6 +14,7 @@ import numpy as np
 from ..certify import LOG_PREFIX, certify
 from ..contact import ContactModel
 from ..criticality import GAMMA, THETA_E, critical_exponents, weak_forces_and_gaps
+from ..errors import InputError
 from ..io import count_frames, read_gsd, write_gsd
 from ..modes import plateau_edge, save_modes, vibrational_modes
 from ..moduli import linear_response
@@ -82,6 +83,11 @@ def moduli(args: argparse.Namespace) -> None:
         frame = read_gsd(args.input, frame=k)  # refuses a frame the file has not
         model = model_from(args, frame.model)
         packing = frame.packing
+        if args.finite_strain is not None and {0, 1} & set(packing.cell.walls):
+            raise InputError(
+                "--finite-strain: its simple shear would tilt the walls of this packing; "
+                "between walls normal to x or y the shear modulus is the biaxial one (drop it)"
+            )
         _warn_unless_relaxed(packing, model, k % count)
         lr = linear_response(packing, model)
         logged = frame.log.get("delta_phi")

@@ -9,7 +9,7 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..cell import Cell, wall_axes
+from ..cell import Cell
 from ..certify import Certificate
 from ..contact import ContactModel
 from ..observables import Observables
@@ -37,11 +37,13 @@ class NotConverged(RuntimeError):
 
 
 def model_from(args: argparse.Namespace, fallback: ContactModel | None) -> ContactModel:
-    """The contact model of ``--alpha`` / ``--stiffness``, else ``fallback``'s, else the default."""
+    """The contact model of ``--alpha`` / ``--stiffness``, else ``fallback``'s, else the default
+    (the wall stiffness always ``fallback``'s)."""
     base = fallback if fallback is not None else ContactModel()
     return ContactModel(
         alpha=base.alpha if args.alpha is None else args.alpha,
         stiffness=base.stiffness if args.stiffness is None else args.stiffness,
+        wall_stiffness=base.wall_stiffness,
     )
 
 
@@ -78,7 +80,7 @@ def sizes_from(args: argparse.Namespace) -> dict[str, Any]:
 
 def cell_from(args: argparse.Namespace) -> Cell:
     """The unit cell with the walls of ``--walls``."""
-    return Cell(np.eye(args.dim), wall_axes(args.walls, args.dim))
+    return Cell.unit(args.dim, args.walls)
 
 
 def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:

@@ -304,7 +304,8 @@ def build() -> argparse.ArgumentParser:
         "--lowest K (shift-invert), participation ratios, D(omega) and its plateau frequency "
         "omega*. Writes an NPZ file (eigenvalues, frequencies, participation, the lowest "
         "--vectors eigenvectors (V, N, d), D(omega)) and a D(omega) figure. Checks: d zero "
-        "modes (translations) and no negative eigenvalue at a stable minimum.",
+        "modes (translations; between walls one per periodic axis) and no negative eigenvalue "
+        "at a stable minimum.",
     )
     mod.add_argument("input", help="GSD file (a relaxed packing)")
     mod.add_argument("-o", "--output", required=True, help="NPZ file to write (.npz)")

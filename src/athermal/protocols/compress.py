@@ -90,6 +90,17 @@ def log_spaced(start: float = 1e-7, stop: float = 1e-1, per_decade: int = 4) -> 
     return np.logspace(np.log10(start), np.log10(stop), count)
 
 
+def excess_z(obs: Observables, periodic: int) -> float:
+    """``2 (C' - N_iso) / N'``: the contacts beyond isostatic per non-rattler, doubled, with
+    ``N_iso = d N' - t + 1`` (``t = periodic`` axes); ``z - z_iso`` in a periodic cell, and
+    with walls too (each wall contact counts one in ``z``, as in ``C'``); ``-2 d`` when every
+    particle is a rattler."""
+    n_live = obs.n - obs.n_rattlers
+    if not n_live:
+        return -2.0 * obs.dim
+    return 2.0 * (obs.contacts_nonrattler - isostatic_contacts(n_live, obs.dim, periodic)) / n_live
+
+
 def isostatic_z(n_live: int, dim: int, periodic: int | None = None) -> float:
     """Isostatic coordination of ``n_live`` non-rattlers: ``2 N_iso / N'`` with
     ``N_iso = d N' - t + 1`` contacts (:func:`~athermal.observables.isostatic_contacts`, ``t =
@@ -105,8 +116,7 @@ class CompressionStep:
     ``G`` (between walls normal to x or y the pure-shear one,
     :func:`~athermal.moduli.linear_response`), both by linear response (negative for a minimum
     unstable to shear: the event ``unstable to shear``, and no modulus in the fits);
-    ``z_excess = 2 (C' - N_iso) / N'`` over the non-rattlers, ``z - z_iso`` in a periodic cell
-    (``-2 d`` when every particle is a rattler); ``events`` what happened
+    ``z_excess`` :func:`excess_z`; ``events`` what happened
     (names from :data:`EVENTS`), ``saddles`` how many saddles were left on the way and
     ``substeps`` how many relaxations the step took (more than 1 after a pressure drop,
     :data:`MAX_SPLITS`).
@@ -249,7 +259,6 @@ def compression_steps(
         current = result.packing
         obs = measure(current, model)
         moduli = linear_response(current, model)
-        n_live = obs.n - obs.n_rattlers
         events: list[Event] = []
         if is_unjammed(obs, result.gtol, rtol):
             events.append("unjammed")
@@ -259,8 +268,6 @@ def compression_steps(
             events.append("saddle left")
         if moduli.shear < 0.0:
             events.append("unstable to shear")
-        dim = jammed.dim
-        iso = isostatic_contacts(n_live, dim, jammed.cell.periodic_axes)
         yield CompressionStep(
             index=index,
             delta_phi=dphi,
@@ -270,7 +277,7 @@ def compression_steps(
             shear_stress=obs.shear_stress,
             contacts=obs.contacts,
             z=obs.z,
-            z_excess=2.0 * (obs.contacts_nonrattler - iso) / n_live if n_live else -2.0 * dim,
+            z_excess=excess_z(obs, jammed.cell.periodic_axes),
             n_rattlers=obs.n_rattlers,
             bulk_modulus=moduli.bulk + (model.alpha - jammed.dim) * obs.pressure / jammed.dim,
             shear_modulus=moduli.shear,

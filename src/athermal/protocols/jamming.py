@@ -208,7 +208,9 @@ class JammingCheck:
         ``epsilon``).
     decompressed_energy : ``E / N`` after decompressing and relaxing, in ``k <r>^alpha``.
     unjams : that energy is at most the jamming threshold (the packing unjams).
-    excess_contacts : ``N_c - N_iso`` among the non-rattlers, ``N_iso = d (N' - 1) + 1``.
+    excess_contacts : ``N_c - N_iso`` among the non-rattlers, ``N_iso = d N' - t + 1``
+        (:func:`~athermal.observables.isostatic_contacts`, ``t`` the periodic axes: ``d``
+        unless the cell has walls, whose contacts count in ``N_c``).
     allowed_excess : the most ``excess_contacts`` accepted (:func:`isostatic_allowance`).
     overlap_dphi : ``d phi <delta / (r_i + r_j)>``, the mean overlap as a distance in packing
         fraction (a packing jammed by ``Delta phi`` has about ``Delta phi`` or less).
