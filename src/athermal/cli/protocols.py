@@ -104,6 +104,8 @@ def _fingerprint(packing: Packing) -> str:
     digest = hashlib.sha256()
     for arr in (packing.positions, packing.radii, packing.cell.h):
         digest.update(np.ascontiguousarray(arr).tobytes())
+    if packing.cell.walls:  # (a periodic start's digest as before)
+        digest.update(bytes(packing.cell.walls))
     return digest.hexdigest()
 
 
