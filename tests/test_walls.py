@@ -331,3 +331,18 @@ def test_fire_time_step_bound_counts_stiff_walls():
     largest = np.linalg.eigvalsh(obj.hessian(obj.x0).matrix().toarray())[-1]
     assert largest > 500.0  # the walls dominate
     assert obj.curvature_bound(obj.x0) >= largest
+
+
+def test_files_carry_the_walls_force_on_each_particle(tmp_path):
+    import gsd.hoomd
+
+    p = walled(2, (1,), n=64, phi=0.85)
+    model = ContactModel()
+    write_gsd(tmp_path / "w.gsd", p, model=model)
+    with gsd.hoomd.open(str(tmp_path / "w.gsd")) as traj:
+        stored = traj.file.read_chunk(frame=0, name="log/particles/wall_force")
+    walls = find_contacts(p, model).walls
+    expected = np.zeros(p.n)
+    np.add.at(expected, walls.particle, walls.force_magnitude)
+    np.testing.assert_array_equal(stored, expected)
+    assert (stored > 0).sum() == np.unique(walls.particle).size > 0

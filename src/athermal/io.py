@@ -21,8 +21,10 @@ written, as HOOMD bonds (``bonds/N``, ``types = ["contact"]``, ``typeid``, ``gro
 particle pairs ``(i, j)``), with ``log/bonds/overlap`` and, when a contact model is given,
 ``log/bonds/force`` (normal force ``k delta^(alpha-1)``) per bond, and ``log/particles/rattler``
 (1 for a rattler: fewer than ``d + 1`` contacts, removed iteratively), which OVITO imports as
-bond and particle properties. A simulation code that reads bonds as bonded interactions
-(HOOMD-blue's neighbour lists exclude bonded pairs by default) must drop them first.
+bond and particle properties; between walls, with a model, ``log/particles/wall_force`` is the
+force each particle's wall contacts exert on it (0 for a particle touching no wall). A
+simulation code that reads bonds as bonded interactions (HOOMD-blue's neighbour lists exclude
+bonded pairs by default) must drop them first.
 
 Every failure raises :class:`~athermal.errors.FileFormatError` (bad arguments:
 :class:`~athermal.errors.InputError`) with a one-line message that names the file.
@@ -342,6 +344,11 @@ def _hoomd_frame(
     if model is not None:
         log["bonds/force"] = contacts.force_magnitude
     log["particles/rattler"] = rattlers(contacts, packing.n, packing.dim).astype(np.uint8)
+    if contacts.walls is not None and model is not None:
+        on_walls = contacts.walls
+        log["particles/wall_force"] = np.bincount(
+            on_walls.particle, on_walls.force_magnitude, packing.n
+        ).astype(np.float64)
 
     typeid, types = packing.types()
     frame = gsd.hoomd.Frame()
