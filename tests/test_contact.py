@@ -1,3 +1,5 @@
+from itertools import pairwise
+
 import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
@@ -259,3 +261,44 @@ def test_block_assembly_against_a_dense_loop(dim):
     assert got.has_sorted_indices and abs(got - got.T).max() == 0.0
     # every particle's diagonal block is stored (a factorization adds its shift there)
     assert np.all(np.diff(got.indptr) >= dim)
+
+
+@pytest.mark.parametrize("dim, walls", [(2, ()), (2, (1,)), (3, ())])
+def test_the_slab_kernel_matches_one_thread_whatever_the_threads(dim, walls):
+    """The threads' kernel (slabs of one parity at once) gives the one-thread kernel's energy and
+    gradient to round-off, the same bits on 1 and 2 threads, and its slabs of one parity share
+    no particle."""
+    import numba
+
+    from athermal.contact import energy_gradient_contacts
+
+    cell = Cell(np.eye(dim), walls)
+    p = random_packing(4096 if dim == 2 else 8000, 0.86 if dim == 2 else 0.66, cell=cell, seed=2)
+    model = ContactModel(2.0)
+    nl = build_neighbor_list(p.positions, p.radii, p.cell)
+    slabs = nl.slabs
+    assert slabs.size - 1 >= 4 and (slabs.size - 1) % 2 == 0 and slabs[-1] == nl.n_pairs
+    touched = [set(nl.first[a:b]) | set(nl.second[a:b]) for a, b in pairwise(slabs)]
+    for s in range(len(touched)):
+        for t in range(s + 2, len(touched), 2):
+            assert not touched[s] & touched[t], (s, t)
+    x, typeid, shifts = np.ascontiguousarray(p.positions), model.typeid(p), nl.shifts(p.cell)
+    walls_args = model.walls(p.cell)
+    one = np.empty_like(x)
+    e_one, c_one = energy_gradient_contacts(x, p.radii, typeid, shifts, nl, model, one, walls_args)
+    results = []
+    before = numba.get_num_threads()
+    try:
+        for threads in (1, min(2, numba.config.NUMBA_NUM_THREADS)):
+            numba.set_num_threads(threads)
+            g = np.empty_like(x)
+            e, c = energy_gradient_contacts(
+                x, p.radii, typeid, shifts, nl, model, g, walls_args, slabs
+            )
+            results.append((e, g))
+            assert c == c_one
+    finally:
+        numba.set_num_threads(before)
+    assert results[0][0] == pytest.approx(e_one, rel=1e-13)
+    np.testing.assert_allclose(results[0][1], one, atol=1e-14 * np.abs(one).max())
+    assert results[0][0] == results[1][0] and np.array_equal(results[0][1], results[1][1])

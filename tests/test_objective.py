@@ -1,3 +1,5 @@
+import os
+
 import numpy as np
 import pytest
 
@@ -37,3 +39,27 @@ def test_contact_count_of_the_last_evaluation_matches_a_separate_pass():
         reach = packing.radii[i + 1 :] + packing.radii[i]
         brute += int(np.sum(np.einsum("ij,ij->i", sep, sep) < reach**2))
     assert evaluated.count_contacts(evaluated.x0) == fresh.count_contacts(fresh.x0) == brute
+
+
+def test_the_objective_takes_the_threads_kernel_for_large_lists(monkeypatch):
+    """Above ``PARALLEL_PAIRS`` the objective evaluates on the threads (the same energy to
+    round-off), in Python and in the compiled searches, and a relaxation converges."""
+    import numba
+
+    import athermal.contact as contact
+    from athermal.relaxation import Minimizer, relax
+
+    if min(numba.get_num_threads(), len(os.sched_getaffinity(0))) < 2:
+        pytest.skip("one thread or core")
+    p = random_packing(4096, 0.86, seed=3)
+    model = ContactModel(2.0)
+    serial = Objective(p, model)
+    e_serial, g_serial = serial(serial.x0)
+    monkeypatch.setattr(contact, "PARALLEL_PAIRS", 0)
+    threaded = Objective(p, model)
+    e, g = threaded(threaded.x0)
+    assert threaded._slabs.size > 4
+    assert e == pytest.approx(e_serial, rel=1e-13)
+    np.testing.assert_allclose(g, g_serial, atol=1e-14 * np.abs(g_serial).max())
+    result = relax(p, model, Minimizer("lbfgs", "exp"), gtol=1e-12)
+    assert result.converged

@@ -16,3 +16,12 @@ _jit_fast = nb.njit(
     boundscheck=False,
     fastmath={"nsz", "contract", "afn", "reassoc"},
 )
+# The fast options on the threads (``prange``), for the kernels of large packings.
+_jit_parallel = nb.njit(
+    cache=True,
+    nogil=True,
+    parallel=True,
+    error_model="numpy",
+    boundscheck=False,
+    fastmath={"nsz", "contract", "afn", "reassoc"},
+)

@@ -8,13 +8,17 @@ length^alpha; forces in ``k`` x length^(alpha-1).
 
 from __future__ import annotations
 
+import os
+import threading
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 import scipy.sparse as sp
+from numba import prange
 from numpy.typing import NDArray
 
-from ._jit import _jit, _jit_fast
+from ._jit import _jit, _jit_fast, _jit_parallel
 from .cell import Cell
 from .errors import InputError
 from .neighbors import NeighborList
@@ -91,6 +95,26 @@ class ContactModel:
         return typeid
 
 
+PARALLEL_PAIRS = 100_000
+"""Listed pairs from which the energy and gradient run on the threads (:func:`parallel_slabs`;
+measured in ``docs/decisions.md``, "The kernels on many cores")."""
+
+
+def parallel_slabs(nlist: NeighborList) -> NDArray[np.int64]:
+    """``nlist``'s slabs when its energy and gradient should run on the threads (at least
+    :data:`PARALLEL_PAIRS` pairs, slabs listed, more than one numba thread and allowed core,
+    and the main thread: numba's default threading layer takes one caller at a time), else
+    empty: the ``slabs`` argument of :func:`evaluate`."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    if (
+        nlist.n_pairs < PARALLEL_PAIRS
+        or min(numba.get_num_threads(), cores or 1) < 2
+        or threading.current_thread() is not threading.main_thread()
+    ):
+        return np.zeros(0, dtype=np.int64)
+    return nlist.slabs
+
+
 def energy_gradient(
     positions: NDArray[np.float64],
     radii: NDArray[np.float64],
@@ -100,7 +124,8 @@ def energy_gradient(
     model: ContactModel,
     grad: NDArray[np.float64],
 ) -> float:
-    """Total energy; its gradient ``dE/dx`` ``(N, d)`` is written into ``grad`` (hot path).
+    """Total energy; its gradient ``dE/dx`` ``(N, d)`` is written into ``grad`` (hot path, one
+    thread).
 
     ``shifts`` is ``nlist.shifts(cell)``; all arrays C-contiguous float64 (no checks here).
     """
@@ -116,9 +141,11 @@ def energy_gradient_contacts(
     model: ContactModel,
     grad: NDArray[np.float64],
     walls: Walls | None = None,
+    slabs: NDArray[np.int64] | None = None,
 ) -> tuple[float, int]:
     """:func:`energy_gradient` and the number of overlapping pairs and wall contacts, from the
-    same pass (``walls``: :meth:`ContactModel.walls`; none: a periodic cell)."""
+    same pass (``walls``: :meth:`ContactModel.walls`, none: a periodic cell; ``slabs``:
+    :func:`parallel_slabs`, none: one thread)."""
     if walls is None:
         walls = (np.empty(0, dtype=np.int64), np.empty(0), model.kwall)
     energy, contacts = evaluate(
@@ -133,6 +160,7 @@ def energy_gradient_contacts(
         model.kmat,
         model.alpha,
         *walls,
+        np.zeros(0, np.int64) if slabs is None else slabs,
     )
     return float(energy), int(contacts)
 
@@ -414,12 +442,22 @@ def _pair_force(delta, k, alpha):  # type: ignore[no-untyped-def]
 def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
     """Energy ``sum k delta^alpha / alpha`` over pairs and the number of overlapping pairs
     (``|x_i - x_j + shift|^2 < (r_i + r_j)^2``); gradient written into ``grad (N, 2)``."""
+    grad[:] = 0.0
+    twice, contacts = _pairs_2d(
+        x, radii, first, second, code, shift, typeid, kmat, alpha, grad, 0, first.size
+    )
+    return twice / alpha, contacts
+
+
+@_jit_fast
+def _pairs_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi):  # type: ignore[no-untyped-def]
+    """Pairs ``lo ... hi - 1`` of :func:`energy_gradient_2d`: their gradient added into
+    ``grad``; ``alpha`` x their energy, and their overlapping pairs."""
     energy = 0.0
     contacts = 0
-    grad[:] = 0.0
     uniform = kmat.size == 1
     k = kmat[0, 0]
-    for p in range(first.size):
+    for p in range(lo, hi):
         i = first[p]
         j = second[p]
         c = code[p]
@@ -441,18 +479,27 @@ def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha
         grad[i, 1] -= fy
         grad[j, 0] += fx
         grad[j, 1] += fy
-    return energy / alpha, contacts
+    return energy, contacts
 
 
 @_jit_fast
 def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
     """3D twin of :func:`energy_gradient_2d` (``grad (N, 3)``)."""
+    grad[:] = 0.0
+    twice, contacts = _pairs_3d(
+        x, radii, first, second, code, shift, typeid, kmat, alpha, grad, 0, first.size
+    )
+    return twice / alpha, contacts
+
+
+@_jit_fast
+def _pairs_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi):  # type: ignore[no-untyped-def]
+    """3D twin of :func:`_pairs_2d`."""
     energy = 0.0
     contacts = 0
-    grad[:] = 0.0
     uniform = kmat.size == 1
     k = kmat[0, 0]
-    for p in range(first.size):
+    for p in range(lo, hi):
         i = first[p]
         j = second[p]
         c = code[p]
@@ -478,7 +525,40 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
         grad[j, 0] += fx
         grad[j, 1] += fy
         grad[j, 2] += fz
-    return energy / alpha, contacts
+    return energy, contacts
+
+
+@_jit_parallel
+def energy_gradient_slabs(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs):  # type: ignore[no-untyped-def]
+    """:func:`energy_gradient_2d` (or 3d) on the threads: the pairs of the even slabs of the
+    list (:attr:`~athermal.neighbors.NeighborList.slabs`) at once, then those of the odd ones
+    (slabs of one parity share no particle, so no two threads add into one row of ``grad``).
+    Every row of ``grad`` gets its terms in one order whatever the number of threads, and the
+    slabs' energies are summed in slab order: the result does not depend on the threads."""
+    count = slabs.size - 1
+    energies = np.zeros(count)
+    overlapping = np.zeros(count, dtype=np.int64)
+    grad[:] = 0.0
+    two = x.shape[1] == 2
+    for parity in range(2):
+        for half in prange(count // 2):
+            s = 2 * half + parity
+            if two:
+                e, c = _pairs_2d(
+                    x, radii, first, second, code, shift, typeid, kmat, alpha, grad,
+                    slabs[s], slabs[s + 1],
+                )  # fmt: skip
+            else:
+                e, c = _pairs_3d(
+                    x, radii, first, second, code, shift, typeid, kmat, alpha, grad,
+                    slabs[s], slabs[s + 1],
+                )  # fmt: skip
+            energies[s] = e
+            overlapping[s] = c
+    energy = 0.0
+    for s in range(count):
+        energy += energies[s]
+    return energy / alpha, overlapping.sum()
 
 
 @_jit
@@ -680,15 +760,31 @@ def block_csr(first, second, blocks, n):  # type: ignore[no-untyped-def]
 
 @_jit
 def evaluate(  # type: ignore[no-untyped-def]
-    points, gradient, radii, first, second, images, shift, typeid, kmat, alpha, walls, half, kwall
+    points,
+    gradient,
+    radii,
+    first,
+    second,
+    images,
+    shift,
+    typeid,
+    kmat,
+    alpha,
+    walls,
+    half,
+    kwall,
+    slabs,
 ):
     """The contact energy and overlapping pairs at ``points`` ``(N, d)``, its gradient written
     into ``gradient`` ``(N, d)``, by the kernel of the dimension (arguments as
-    :func:`energy_gradient_2d`), then the walls' (:func:`wall_energy_gradient`): the one
-    evaluation every caller uses, so that the energy at a point is the same bits from Python
-    and from compiled loops."""
+    :func:`energy_gradient_2d`), on the threads when ``slabs`` holds the list's slabs
+    (:func:`energy_gradient_slabs`; empty: on one thread), then the walls'
+    (:func:`wall_energy_gradient`): the one evaluation every caller uses, so that the energy at
+    a point is the same bits from Python and from compiled loops."""
     args = (radii, first, second, images, shift, typeid, kmat, alpha, gradient)
-    if points.shape[1] == 2:
+    if slabs.size:
+        energy, contacts = energy_gradient_slabs(points, *args, slabs)
+    elif points.shape[1] == 2:
         energy, contacts = energy_gradient_2d(points, *args)
     else:
         energy, contacts = energy_gradient_3d(points, *args)

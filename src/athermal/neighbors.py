@@ -11,7 +11,7 @@ It stays complete while no particle has moved more than ``skin / 2`` since the b
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from itertools import product
 
 import numpy as np
@@ -22,6 +22,10 @@ from ._jit import _jit
 from .cell import Cell
 from .errors import InputError
 
+SLABS = 32
+"""Slabs of a neighbour list at most (:attr:`NeighborList.slabs`): 16 of each parity for 16
+threads, each long enough that few of its rows border another (``docs/decisions.md``, "The
+kernels on many cores")."""
 DEFAULT_SKIN_FACTOR = 0.2
 _MAX_IMAGE_CODES = np.iinfo(np.int16).max
 
@@ -43,6 +47,11 @@ class NeighborList:
     images : ``(C, d)`` float64, integer lattice vectors ``n``; shift = ``h n``.
     skin : Verlet skin (length units).
     reference : ``(N, d)`` positions at the build.
+    slabs : ``(S + 1,)`` int64 offsets into the pairs of ``S`` slabs (S even, >= 4), or empty:
+        slab ``s`` holds the pairs whose ``first`` was binned in ``s``'s rows of bins along the
+        last binned axis, at least two rows each; its pairs touch particles of those rows and
+        of the rows next to them, so slabs of one parity share no particle and their pairs can
+        be summed at once (:func:`~athermal.contact.energy_gradient_slabs`).
     """
 
     first: NDArray[np.int32]
@@ -51,6 +60,7 @@ class NeighborList:
     images: NDArray[np.float64]
     skin: float
     reference: NDArray[np.float64]
+    slabs: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
     @property
     def n_pairs(self) -> int:
@@ -108,8 +118,11 @@ def _half_stencil_search(
     cell: Cell,
     skin: float,
     nbins: NDArray[np.int64],
-) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int16], NDArray[np.float64]]:
-    """Pairs by :func:`collect_pairs` (2D embedded in 3D with ``z = 0`` and one bin)."""
+) -> tuple[
+    NDArray[np.int32], NDArray[np.int32], NDArray[np.int16], NDArray[np.float64], NDArray[np.int64]
+]:
+    """Pairs by :func:`collect_pairs` (2D embedded in 3D with ``z = 0`` and one bin), and their
+    slabs (:attr:`NeighborList.slabs`)."""
     d, n = cell.dim, r.size
     x3 = np.zeros((n, 3))
     x3[:, :d] = x
@@ -129,6 +142,8 @@ def _half_stencil_search(
     first = np.empty(capacity, dtype=np.int32)
     second = np.empty(capacity, dtype=np.int32)
     code = np.empty(capacity, dtype=np.int16)
+    rows = int(nb3[d - 1])
+    row_start = np.zeros(rows + 1, dtype=np.int64)
     count, done = 0, 0
     total = int(np.prod(nb3))
     while True:
@@ -147,13 +162,26 @@ def _half_stencil_search(
             first,
             second,
             code,
+            row_start,
             done,
             count,
         )
         if done == total:
             break
         first, second, code = (np.concatenate([a, np.empty_like(a)]) for a in (first, second, code))
-    return first[:count], second[:count], code[:count], _image_table(m, d)
+    row_start[rows] = count
+    return first[:count], second[:count], code[:count], _image_table(m, d), _slabs(row_start)
+
+
+def _slabs(row_start: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Pair offsets of an even number (4 ... :data:`SLABS`) of slabs of >= 2 rows each, from
+    the rows' pair offsets ``row_start`` ``(R + 1,)``; empty when there are fewer than 8 rows."""
+    rows = row_start.size - 1
+    count = min(SLABS, 2 * (rows // 4))
+    if count < 4:
+        return np.zeros(0, dtype=np.int64)
+    edges = (np.arange(count + 1) * rows) // count  # >= 2 rows each
+    return np.ascontiguousarray(row_start[edges])
 
 
 def _image_table(m: int, dim: int) -> NDArray[np.float64]:
@@ -197,15 +225,18 @@ def build_neighbor_list(
     cutoff = 2.0 * float(r.max()) + skin
     nbins, reach = _bin_layout(cell, cutoff, r.size)
     if np.all(nbins >= 3) and np.all(reach == 1):
-        first, second, code, table = _half_stencil_search(x, r, cell, skin, nbins)
+        first, second, code, table, slabs = _half_stencil_search(x, r, cell, skin, nbins)
     else:  # cells narrower than three cut-offs: search every image
         h, hinv = np.ascontiguousarray(cell.h), np.ascontiguousarray(cell.inverse)
         first, second, image = cell_list_pairs(x, r, h, hinv, skin, nbins, reach)
         code, table = _encode_images(image, cell.dim)
+        slabs = np.zeros(0, dtype=np.int64)
     if cell.walls:  # no pair across a wall
         inside = ~np.any(table[:, list(cell.walls)] != 0.0, axis=1)[code]
         first, second, code = first[inside], second[inside], code[inside]
-    return NeighborList(first, second, code, table, skin, x.copy())
+        kept = np.concatenate([[0], np.cumsum(inside)])
+        slabs = np.ascontiguousarray(kept[slabs])
+    return NeighborList(first, second, code, table, skin, x.copy(), slabs)
 
 
 def brute_force_pairs(
@@ -428,6 +459,7 @@ def collect_pairs(  # type: ignore[no-untyped-def]
     first,
     second,
     code,
+    row_start,
     bin_from,
     count,
 ):
@@ -439,11 +471,15 @@ def collect_pairs(  # type: ignore[no-untyped-def]
     ``x_first - x_second + h n``. Returns ``(count, bin)``: ``bin`` is the number of bins when all
     are done, else the first bin that did not fit (the buffers are then to be grown and the call
     resumed from it). The buffers are never reallocated here: numba would then reference-count
-    them in the inner loop (measured 2x slower).
+    them in the inner loop (measured 2x slower). ``row_start[r]`` gets the first pair of row
+    ``r`` of bins along the last binned axis (z, or y in 2D).
     """
     nb0, nb1, nb2 = nbins[0], nbins[1], nbins[2]
+    row_size = nb0 * nb1 if nb2 > 1 else nb0
     capacity = first.size
     for b in range(bin_from, nb0 * nb1 * nb2):
+        if b % row_size == 0:
+            row_start[b // row_size] = count
         c0 = b % nb0
         c1 = (b // nb0) % nb1
         c2 = b // (nb0 * nb1)

@@ -25,6 +25,7 @@ from .contact import (
     evaluate,
     find_contacts,
     hessian_terms,
+    parallel_slabs,
 )
 from .errors import InputError
 from .minimize import CompiledSearch, Hooks, compiled_function
@@ -65,6 +66,7 @@ class Objective:
         self._walls = model.walls(self.cell)
         self._nlist: NeighborList | None = None
         self._shifts = np.zeros((1, self.dim))
+        self._slabs = np.zeros(0, dtype=np.int64)
         self._last_x = np.full(self.n_dof, np.nan)  # NaN: nothing evaluated yet
         self._last: tuple[float, NDArray[np.float64]] = (0.0, np.zeros(0))
         self._last_contacts = 0
@@ -100,6 +102,7 @@ class Objective:
         if self._nlist is None or not self._nlist.is_current(positions):
             self._nlist = build_neighbor_list(positions, self.radii, self.cell, self.skin)
             self._shifts = self._nlist.shifts(self.cell)
+            self._slabs = parallel_slabs(self._nlist)
             self.n_rebuilds += 1
         return self._nlist
 
@@ -125,6 +128,7 @@ class Objective:
             self.model,
             grad.reshape(self.n, self.dim),
             self._walls,
+            self._slabs,
         )
         self.n_evaluations += 1
         self._last_x[:] = x
@@ -158,10 +162,17 @@ class Objective:
 
     def search_arguments(self, x: NDArray[np.float64]) -> tuple[Any, ...]:
         """The last argument of :func:`energy_search`: the radii, the current Verlet list (built
-        at ``x`` ``(N d,)`` if there is none), the walls, and the positions the list was built
-        at and its reach."""
+        at ``x`` ``(N d,)`` if there is none), the walls, the slabs of the threads' kernel
+        (:func:`~athermal.contact.parallel_slabs`), and the positions the list was built at and
+        its reach."""
         nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
-        return (*self._pair_arguments(nlist), *self._walls, nlist.reference, nlist.reach_sq)
+        return (
+            *self._pair_arguments(nlist),
+            *self._walls,
+            self._slabs,
+            nlist.reference,
+            nlist.reach_sq,
+        )
 
     def _pair_arguments(self, nlist: NeighborList) -> tuple[Any, ...]:
         """What the compiled pair loops take after the positions: radii, ``nlist``'s pairs and
@@ -297,7 +308,7 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
     ``direction`` from ``x`` ``(N d,)``: each trial point is written into ``trial``, its
     gradient into ``grad``, by the energy kernel over the Verlet list in ``arguments``
     (:meth:`Objective.search_arguments`: the radii, ``first``, ``second``, ``images`` and the
-    rest as :func:`~athermal.contact.energy_gradient_2d` takes them, the walls as
+    rest as :func:`~athermal.contact.energy_gradient_2d` takes them, the walls and slabs as
     :func:`~athermal.contact.evaluate` takes them, then the positions
     ``reference`` ``(N, d)`` the list was built at and its reach ``reach_sq``), until the
     search ends or a trial point is farther than ``sqrt(reach_sq)`` from ``reference``.
@@ -307,7 +318,7 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
 
     Energies and gradients are :func:`evaluate`'s, as in :meth:`Objective.__call__`."""
     radii, first, second, images, shift, typeid, kmat, alpha, walls, half, kwall = arguments[:11]
-    reference, reach_sq = arguments[11:]
+    slabs, reference, reach_sq = arguments[11:]
     n, dim = reference.shape
     points = trial.reshape(n, dim)
     gradient = grad.reshape(n, dim)
@@ -335,6 +346,7 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
             walls,
             half,
             kwall,
+            slabs,
         )
         evaluations += 1
         last = a
