@@ -179,6 +179,8 @@ def main() -> None:
         "Figure: `docs/figures/walls_profile.png`.",
         "",
     ]
+    for r in rows:  # each packing's slab areas are summed into the profile
+        del r["profile"]
     data = {"summary": summary, "rows": rows, "profile": {"h": h.tolist(), "phi": phi.tolist()}}
     save(ROOT / "benchmarks" / "results", "walls", {**data, "pinned": pinned}, "\n".join(lines))
 
