@@ -346,3 +346,17 @@ def test_files_carry_the_walls_force_on_each_particle(tmp_path):
     np.add.at(expected, walls.particle, walls.force_magnitude)
     np.testing.assert_array_equal(stored, expected)
     assert (stored > 0).sum() == np.unique(walls.particle).size > 0
+
+
+def test_jamming_between_walls_in_3d():
+    """Spheres between walls normal to z: isostatic with t = 2 periodic axes, each wall's force
+    per unit area equal to sigma_zz."""
+    model = ContactModel()
+    start = random_packing(128, 0.5, cell=Cell(np.eye(3), (2,)), seed=1)
+    result = jam(start, model)
+    assert result.check.passed and 0 <= result.check.excess_contacts
+    assert 0.55 < result.phi_c < 0.64  # below the periodic ~0.64: the boundary layer
+    obs = result.observables
+    assert set(obs.wall_pressure) == {"z-", "z+"}
+    for value in obs.wall_pressure.values():
+        assert value == pytest.approx(obs.stress[2, 2], rel=1e-5)
