@@ -72,13 +72,20 @@ def test_methods_reach_the_known_minimum(method, fun, limit):
 
 
 def test_lbfgs_with_identity_preconditioner_equals_plain_lbfgs_when_b0_is_identity():
-    """On a function with unit Hessian the paper's scaling s.y / y.y is exactly 1."""
+    """On a function with unit Hessian the paper's scaling s.y / y.y is exactly 1, so the two
+    runs take the same steps: equal to round-off, not bit for bit (the identity's solve returns
+    a copy, and BLAS sums a dot product in an order that depends on where the arrays lie in
+    memory: one CI run differed by 1 ulp in 3 of 12 coordinates)."""
     start = np.linspace(-2.0, 3.0, 12)
     plain = lbfgs(two_component(unit_quadratic, start), start, gtol=1e-12)
     pre = lbfgs(two_component(unit_quadratic, start), start, gtol=1e-12, precon=Identity())
     assert plain.iterations == pre.iterations
-    np.testing.assert_array_equal(plain.x, pre.x)
-    np.testing.assert_array_equal(plain.history_energy, pre.history_energy)
+    eps = np.finfo(np.float64).eps
+    np.testing.assert_allclose(plain.x, pre.x, rtol=0.0, atol=8 * eps)
+    scale = abs(plain.history_energy[0])
+    np.testing.assert_allclose(
+        plain.history_energy, pre.history_energy, rtol=64 * eps, atol=64 * eps * scale
+    )
 
 
 def overlapped(seed=1, n=128, phi=0.88):
