@@ -29,6 +29,15 @@ AXES = "xyz"
 """The axes' names, ``--walls`` letters: ``x`` is axis 0."""
 
 
+def tilted_wall(m: NDArray[np.float64], walls: tuple[int, ...]) -> int | None:
+    """The first walled axis ``a`` whose row or column of ``m`` ``(d, d)`` has an entry off the
+    diagonal (a cell or a deformation that tilts the walls normal to ``a``), else None."""
+    for a in walls:
+        if np.any(np.delete(m[a], a) != 0.0) or np.any(np.delete(m[:, a], a) != 0.0):
+            return a
+    return None
+
+
 def wall_axes(names: str, dim: int) -> tuple[int, ...]:
     """The axes ``(a, ...)`` of ``names`` (``"y"``, ``"xy"``; ``""`` for none) in ``dim``
     dimensions, sorted."""
@@ -75,13 +84,12 @@ class Cell:
         walls = tuple(sorted({int(a) for a in self.walls}))
         if walls and (walls[0] < 0 or walls[-1] >= d):
             raise InputError(f"walls: axes must lie in 0..{d - 1}, got {list(self.walls)}")
-        for a in walls:
-            off = np.concatenate([np.delete(h[a], a), np.delete(h[:, a], a)])
-            if np.any(off != 0.0):
-                raise InputError(
-                    f"cell: walls normal to {AXES[a]} need an untilted {AXES[a]} axis (no shear "
-                    f"across or along them; frictionless flat walls cannot carry one)"
-                )
+        a = tilted_wall(h, walls)
+        if a is not None:
+            raise InputError(
+                f"cell: walls normal to {AXES[a]} need an untilted {AXES[a]} axis (no shear "
+                f"across or along them; frictionless flat walls cannot carry one)"
+            )
         h.setflags(write=False)
         object.__setattr__(self, "h", h)
         object.__setattr__(self, "walls", walls)

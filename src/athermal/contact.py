@@ -95,6 +95,11 @@ class ContactModel:
         return typeid
 
 
+ONE_THREAD = np.zeros(0, dtype=np.int64)
+"""The ``slabs`` argument of :func:`evaluate` that keeps it on one thread (writable, as the
+slabs of a list are: numba compiles read-only arrays as another type)."""
+NO_WALLS = (np.zeros(0, dtype=np.int64), np.zeros(0))
+"""The walled axes and half lengths (:data:`Walls`) of a periodic cell."""
 PARALLEL_PAIRS = 100_000
 """Listed pairs from which the energy and gradient run on the threads (:func:`parallel_slabs`;
 measured in ``docs/decisions.md``, "The kernels on many cores")."""
@@ -111,7 +116,7 @@ def parallel_slabs(nlist: NeighborList) -> NDArray[np.int64]:
         or min(numba.get_num_threads(), cores or 1) < 2
         or threading.current_thread() is not threading.main_thread()
     ):
-        return np.zeros(0, dtype=np.int64)
+        return ONE_THREAD
     return nlist.slabs
 
 
@@ -147,7 +152,7 @@ def energy_gradient_contacts(
     same pass (``walls``: :meth:`ContactModel.walls`, none: a periodic cell; ``slabs``:
     :func:`parallel_slabs`, none: one thread)."""
     if walls is None:
-        walls = (np.empty(0, dtype=np.int64), np.empty(0), model.kwall)
+        walls = (*NO_WALLS, model.kwall)
     energy, contacts = evaluate(
         positions,
         grad,
@@ -160,7 +165,7 @@ def energy_gradient_contacts(
         model.kmat,
         model.alpha,
         *walls,
-        np.zeros(0, np.int64) if slabs is None else slabs,
+        ONE_THREAD if slabs is None else slabs,
     )
     return float(energy), int(contacts)
 

@@ -42,7 +42,7 @@ import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
 from ._validate import float_array
-from .cell import AXES, pure_shear_derivatives, simple_shear
+from .cell import AXES, pure_shear_derivatives, simple_shear, tilted_wall
 from .contact import ContactModel, Contacts, find_contacts, hessian
 from .errors import InputError
 from .linalg import cholesky
@@ -408,9 +408,9 @@ def pinned_solve(
 def _untilting(packing: Packing, d: NDArray[np.float64], name: str) -> NDArray[np.float64]:
     """``d`` ``(d, d)``, refused (:class:`InputError`) when it would tilt the packing's walls
     (an entry off the diagonal in a walled axis's row or column)."""
-    for a in packing.cell.walls:
-        if np.any(np.delete(d[a], a) != 0.0) or np.any(np.delete(d[:, a], a) != 0.0):
-            raise InputError(f"{name}: the deformation would tilt the walls normal to {AXES[a]}")
+    a = tilted_wall(d, packing.cell.walls)
+    if a is not None:
+        raise InputError(f"{name}: the deformation would tilt the walls normal to {AXES[a]}")
     return d
 
 

@@ -18,6 +18,7 @@ from . import _blocks
 from ._blocks import PLACE, max_row_sq  # by name: numba folds PLACE in as a literal
 from ._jit import _jit
 from .contact import (
+    ONE_THREAD,
     ContactModel,
     HessianOperator,
     count_overlaps,
@@ -66,7 +67,7 @@ class Objective:
         self._walls = model.walls(self.cell)
         self._nlist: NeighborList | None = None
         self._shifts = np.zeros((1, self.dim))
-        self._slabs = np.zeros(0, dtype=np.int64)
+        self._slabs = ONE_THREAD
         self._last_x = np.full(self.n_dof, np.nan)  # NaN: nothing evaluated yet
         self._last: tuple[float, NDArray[np.float64]] = (0.0, np.zeros(0))
         self._last_contacts = 0
@@ -317,8 +318,8 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
     evaluated here, or, when none was, the point out of reach).
 
     Energies and gradients are :func:`evaluate`'s, as in :meth:`Objective.__call__`."""
-    radii, first, second, images, shift, typeid, kmat, alpha, walls, half, kwall = arguments[:11]
-    slabs, reference, reach_sq = arguments[11:]
+    evaluated = arguments[:12]  # what evaluate takes after the points and their gradient
+    reference, reach_sq = arguments[12], arguments[13]
     n, dim = reference.shape
     points = trial.reshape(n, dim)
     gradient = grad.reshape(n, dim)
@@ -332,22 +333,7 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
             if evaluations:
                 _place_trial(x, direction, last, reference, trial)
             return code, evaluations, energy, contacts, True
-        energy, contacts = evaluate(
-            points,
-            gradient,
-            radii,
-            first,
-            second,
-            images,
-            shift,
-            typeid,
-            kmat,
-            alpha,
-            walls,
-            half,
-            kwall,
-            slabs,
-        )
+        energy, contacts = evaluate(points, gradient, *evaluated)
         evaluations += 1
         last = a
         code = feed(state, energy, np.dot(grad, direction))

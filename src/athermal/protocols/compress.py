@@ -101,11 +101,10 @@ def excess_z(obs: Observables, periodic: int) -> float:
     return 2.0 * (obs.contacts_nonrattler - isostatic_contacts(n_live, obs.dim, periodic)) / n_live
 
 
-def isostatic_z(n_live: int, dim: int, periodic: int | None = None) -> float:
-    """Isostatic coordination of ``n_live`` non-rattlers: ``2 N_iso / N'`` with
-    ``N_iso = d N' - t + 1`` contacts (:func:`~athermal.observables.isostatic_contacts`, ``t =
-    periodic`` axes, default ``d``); tends to ``2 d``."""
-    return 2.0 * isostatic_contacts(n_live, dim, periodic) / n_live if n_live >= 1 else 0.0
+def isostatic_z(n_live: int, dim: int) -> float:
+    """Isostatic coordination of ``n_live`` non-rattlers in a periodic cell:
+    ``2 N_c / N'`` with ``N_c = d (N' - 1) + 1`` contacts (tends to ``2 d``)."""
+    return 2.0 * isostatic_contacts(n_live, dim) / n_live if n_live >= 1 else 0.0
 
 
 @dataclass(frozen=True, eq=False)
