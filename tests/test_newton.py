@@ -319,3 +319,24 @@ def test_the_factor_follows_the_contacts_that_form():
     large.build(operator(built, particles=100_000))
     assert follows(large, operator(np.arange(60), particles=100_000), np.arange(60), 100_000)
     assert follows(large, operator(np.arange(61), particles=100_000), built, 100_000)
+
+
+def test_an_uphill_direction_from_round_off_falls_back_to_a_fresh_descent(monkeypatch):
+    """Round-off in a nearly singular ``M`` (rattlers' zero modes at a small shift) can leave
+    CG's answer uphill (seen: a 3D packing between walls relaxed to gtol 1e-14); Newton then
+    takes ``-M^-1 g`` on a fresh factor, or ``-g``, instead of failing its line search."""
+    solved = newton_module.newton_direction
+
+    def uphill(*args):
+        direction, inner, negative = solved(*args)
+        return -direction, inner, negative
+
+    monkeypatch.setattr(newton_module, "newton_direction", uphill)
+    result = minimize_objective(
+        Objective(overlapped(seed=2, n=64), ContactModel()), "newton", gtol=1e-11
+    )
+    assert result.converged
+    # the 3D case where it was seen
+    p = random_packing(96, 0.7, dim=3, seed=2, cell=Cell.unit(3, "z"))
+    monkeypatch.setattr(newton_module, "newton_direction", solved)
+    assert minimize_objective(Objective(p, ContactModel()), "newton", gtol=1e-14).converged

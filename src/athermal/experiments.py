@@ -215,7 +215,7 @@ def compress(
 
 @dataclass(frozen=True)
 class ShearSpec:
-    """Quasi-static shear (``mode`` simple, pure or uniaxial) to ``strain`` in increments
+    """Quasi-static shear (``mode`` simple, pure, uniaxial or plane) to ``strain`` in increments
     ``step``, from the compressed state nearest ``delta_phi`` above jamming."""
 
     mode: ShearMode = "pure"

@@ -10,7 +10,8 @@ preconditioners (:mod:`athermal.precon`) and the moduli (:mod:`athermal.moduli`)
 * :class:`IncompleteCholeskyFactor`: the zero-fill incomplete Cholesky factor ``L L^T ~ A``
   (compiled): no fill, so a fraction of the exact factor's build time and memory.
 
-Each maps right-hand sides ``(n, k)`` to solutions ``(n, k)``.
+Each maps right-hand sides ``(n, k)`` to solutions ``(n, k)``. :func:`pin_rows` decouples the
+rows of coordinates held fixed, so that a solve never moves them.
 """
 
 from __future__ import annotations
@@ -249,6 +250,20 @@ def cholesky(matrix: sp.spmatrix) -> Factor | None:
     except RuntimeError:  # "Factor is exactly singular"
         return None
     return factor if factor.positive_pivots() else None
+
+
+def pin_rows(matrix: sp.spmatrix, rows: NDArray[np.intp]) -> sp.csr_matrix:
+    """``matrix`` (symmetric ``(n, n)``) with ``rows`` and their columns decoupled: zero off the
+    diagonal, the mean diagonal of the other rows on it (1 when there is none). A solve with a
+    right-hand side that is zero on ``rows`` then gives zero there, and the other rows see the
+    principal submatrix of the rest: ``rows`` held fixed."""
+    pinned = np.zeros(matrix.shape[0], dtype=bool)
+    pinned[rows] = True
+    diagonal = matrix.diagonal()
+    free = diagonal[~pinned]
+    scale = float(free.mean()) if free.size and free.mean() > 0.0 else 1.0
+    keep = sp.diags((~pinned).astype(np.float64))
+    return (keep @ matrix @ keep + sp.diags(np.where(pinned, scale, 0.0))).tocsr()
 
 
 @contextlib.contextmanager

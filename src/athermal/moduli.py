@@ -278,9 +278,12 @@ class Stability:
     tolerance: float
 
 
-def stability(packing: Packing, model: ContactModel) -> Stability:
+def stability(
+    packing: Packing, model: ContactModel, frozen: NDArray[np.bool_] | None = None
+) -> Stability:
     """Test that ``packing`` (force balanced) is a local minimum: its pinned Hessian is positive
-    semidefinite.
+    semidefinite. With ``frozen`` (a mask ``(N,)`` of particles held fixed, rough walls), the
+    Hessian of the other particles is tested, the frozen ones pinned instead of a particle.
 
     One Cholesky factorization of ``H + s I`` (``s``: :data:`STABILITY_TOL`) decides; when it
     fails, the lowest eigenpair is computed (dense up to :data:`DENSE_EIGEN_DOFS` degrees of
@@ -298,10 +301,15 @@ def stability(packing: Packing, model: ContactModel) -> Stability:
     (False, -0.16)
     """
     dim = packing.dim
-    h, dofs, _ = stiffness_matrix(packing, model)
+    h, dofs, _ = stiffness_matrix(packing, model, frozen)
+    if frozen is None:
+        keep = _unpinned(dofs.size, dim, packing.cell.walls)
+    else:  # the frozen particles pin the rest: no translation is left
+        keep = np.flatnonzero(~frozen[dofs // dim])
+        h, dofs = h[keep][:, keep].tocsr(), dofs[keep]
+        keep = np.arange(dofs.size)
     if dofs.size <= dim:
         return Stability(True, None, None, 0.0)
-    keep = _unpinned(dofs.size, dim, packing.cell.walls)
     pinned = h[keep][:, keep]
     shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
     test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
@@ -334,12 +342,12 @@ def _warn_if_poor(residual: float, what: str) -> None:
 
 
 def nonrattler_contacts(
-    packing: Packing, model: ContactModel
+    packing: Packing, model: ContactModel, fixed: NDArray[np.bool_] | None = None
 ) -> tuple[Contacts, NDArray[np.bool_]]:
     """The contacts between non-rattlers and their wall contacts, and the rattler mask
-    ``(N,)``."""
+    ``(N,)`` (the particles of ``fixed`` are never rattlers)."""
     contacts = find_contacts(packing, model)
-    rattler = rattlers(contacts, packing.n, packing.dim)
+    rattler = rattlers(contacts, packing.n, packing.dim, fixed)
     live = contacts.subset(~(rattler[contacts.i] | rattler[contacts.j]))
     if live.walls is not None:
         live = replace(live, walls=live.walls.subset(~rattler[live.walls.particle]))
@@ -347,12 +355,12 @@ def nonrattler_contacts(
 
 
 def stiffness_matrix(
-    packing: Packing, model: ContactModel
+    packing: Packing, model: ContactModel, fixed: NDArray[np.bool_] | None = None
 ) -> tuple[sp.csr_matrix, NDArray[np.intp], NDArray[np.bool_]]:
     """The Hessian ``(N' d, N' d)`` of the non-rattlers (their contacts only, translations
     free), the flat indices ``(N' d,)`` of its rows among the ``N d`` coordinates, and the
-    rattler mask ``(N,)``."""
-    contacts, rattler = nonrattler_contacts(packing, model)
+    rattler mask ``(N,)`` (the particles of ``fixed`` are never rattlers)."""
+    contacts, rattler = nonrattler_contacts(packing, model, fixed)
     h, dofs = nonrattler_hessian(contacts, rattler, packing.dim)
     return h, dofs, rattler
 

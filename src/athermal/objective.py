@@ -4,7 +4,8 @@
 evaluation, counts evaluations and keeps its Verlet list fresh (rebuilt when a particle has moved
 more than half the skin). Particles are held internally along a space-filling curve (the
 kernels run 2-3.5x faster at N >= 65536); :meth:`Objective.packing` gives them back in the
-caller's order.
+caller's order. Frozen particles (rough walls, :func:`athermal.protocols.shear.wall_layers`) are
+held where they are: their gradient rows are zero, so no minimizer moves them.
 """
 
 from __future__ import annotations
@@ -29,8 +30,10 @@ from .contact import (
     parallel_slabs,
 )
 from .errors import InputError
+from .linalg import pin_rows
 from .minimize import CompiledSearch, Hooks, compiled_function
 from .minimize._wolfe import GO_ON, STATE_SIZE, TRIAL, feed
+from .minimize.newton import SparseHessian
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
 from .walls import WallContacts, find_wall_contacts
@@ -49,12 +52,30 @@ class Objective:
     model : contact law.
     skin : Verlet skin (length units); default :func:`~athermal.neighbors.default_skin`.
     sort : hold particles along a space-filling curve internally (recommended).
+    frozen : mask ``(N,)`` (caller's order) of particles held fixed: their gradient rows are
+        zero, the preconditioners and the Hessian decouple them (:func:`~athermal.linalg.
+        pin_rows`), and the compiled line search is not offered (it would return their rows).
     """
 
     def __init__(
-        self, packing: Packing, model: ContactModel, *, skin: float | None = None, sort: bool = True
+        self,
+        packing: Packing,
+        model: ContactModel,
+        *,
+        skin: float | None = None,
+        sort: bool = True,
+        frozen: NDArray[np.bool_] | None = None,
     ) -> None:
         self.order = packing.spatial_order() if sort else np.arange(packing.n)
+        self.frozen = None if frozen is None else _frozen_mask(frozen, packing.n)
+        """The frozen mask ``(N,)`` in the caller's order, or None."""
+        held = np.zeros(0, np.intp)
+        if self.frozen is not None:
+            held = np.flatnonzero(self.frozen[self.order])
+        self.frozen_particles = held
+        """The frozen particles ``(F,)`` (internal order)."""
+        self.frozen_rows = (held[:, None] * packing.dim + np.arange(packing.dim)).ravel()
+        """Their flat coordinates ``(F d,)`` (internal order)."""
         inner = packing.permuted(self.order)
         self.model = model
         self.cell = inner.cell
@@ -131,17 +152,21 @@ class Objective:
             self._walls,
             self._slabs,
         )
+        grad[self.frozen_rows] = 0.0
         self.n_evaluations += 1
         self._last_x[:] = x
         self._last = (energy, grad)
         return self._last
 
-    def compiled_search(self) -> CompiledSearch:
+    def compiled_search(self) -> CompiledSearch | None:
         """The energy's line search in compiled code, for the minimizers
         (:class:`~athermal.minimize.CompiledSearch`): :func:`energy_search` over the current
         Verlet list, until the search ends or a trial point moves a particle more than
         ``skin / 2`` from the list's build (the minimizer then evaluates that point by
-        ``self(...)``, which rebuilds the list); :meth:`took` takes its evaluations back."""
+        ``self(...)``, which rebuilds the list); :meth:`took` takes its evaluations back.
+        None with frozen particles: compiled loops would carry their gradient rows on."""
+        if self.frozen_rows.size:
+            return None
         if self._compiled is None:
             x = self.x0
             self._compiled = CompiledSearch(
@@ -206,9 +231,11 @@ class Objective:
         self._last = (float(energy), grad)
         self._last_contacts = int(contacts)
 
-    def hessian(self, x: NDArray[np.float64]) -> HessianOperator:
+    def hessian(self, x: NDArray[np.float64]) -> HessianOperator | SparseHessian:
         """The Hessian of the energy at ``x`` (internal order) over the overlapping pairs of
-        the Verlet list, as an operator (products, and the sparse matrix)."""
+        the Verlet list, as an operator (products, and the sparse matrix); with frozen
+        particles, the sparse matrix with their rows decoupled (:func:`~athermal.linalg.
+        pin_rows`)."""
         positions = np.ascontiguousarray(x, dtype=np.float64)
         nlist = self.neighbor_list(positions)
         size = nlist.first.size
@@ -219,7 +246,10 @@ class Objective:
         arguments = (positions_2d, *self._pair_arguments(nlist), pairs, sep, coef)
         m = hessian_terms(*arguments)
         walls = self.wall_contacts(positions_2d)
-        return HessianOperator(self.n, pairs[:m], sep[:m], coef[:m], walls.hessian_terms())
+        h = HessianOperator(self.n, pairs[:m], sep[:m], coef[:m], walls.hessian_terms())
+        if self.frozen_rows.size:
+            return SparseHessian(pin_rows(h.matrix(), self.frozen_rows), self.dim)
+        return h
 
     def wall_contacts(self, positions: NDArray[np.float64]) -> WallContacts:
         """The wall contacts at ``positions`` ``(N, d)`` (internal order)."""
@@ -301,6 +331,18 @@ class Objective:
             radii[self.order] = self.radii
             return Packing(positions, radii, self.cell)
         return Packing(positions, self.radii, self.cell)
+
+
+def _frozen_mask(frozen: NDArray[np.bool_], n: int) -> NDArray[np.bool_]:
+    """``frozen`` checked: a boolean mask ``(n,)`` that leaves a particle free."""
+    mask = np.asarray(frozen)
+    if mask.shape != (n,) or mask.dtype != np.bool_:
+        raise InputError(
+            f"frozen: expected a boolean mask of shape ({n},), got {mask.dtype} {mask.shape}"
+        )
+    if mask.all():
+        raise InputError("frozen: every particle is frozen; nothing is left to relax")
+    return mask.copy()
 
 
 @_jit

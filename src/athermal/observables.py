@@ -61,10 +61,13 @@ def deviatoric_part(tensor: NDArray[np.float64]) -> float:
     return float((eig[-1] - eig[0]) / 2.0)
 
 
-def rattlers(contacts: Contacts, n: int, dim: int) -> NDArray[np.bool_]:
+def rattlers(
+    contacts: Contacts, n: int, dim: int, fixed: NDArray[np.bool_] | None = None
+) -> NDArray[np.bool_]:
     """Mask ``(N,)`` of rattlers: particles with fewer than ``d + 1`` contacts, removed
     iteratively (removing one can turn a neighbour into a rattler). A contact with a wall
-    counts as one contact of its particle: the wall is fixed, so it never becomes a rattler."""
+    counts as one contact of its particle: the wall is fixed, so it never becomes a rattler;
+    so are the particles of the mask ``fixed`` ``(N,)`` (frozen ones), never rattlers."""
     keep = contacts.i != contacts.j
     i, j = contacts.i[keep], contacts.j[keep]
     on_walls = np.bincount(_wall_particles(contacts), minlength=n)
@@ -73,6 +76,8 @@ def rattlers(contacts: Contacts, n: int, dim: int) -> NDArray[np.bool_]:
         live = ~(rattler[i] | rattler[j])
         counts = np.bincount(i[live], minlength=n) + np.bincount(j[live], minlength=n)
         new = (counts + on_walls < dim + 1) & ~rattler
+        if fixed is not None:
+            new &= ~fixed
         if not new.any():
             return rattler
         rattler |= new

@@ -36,6 +36,7 @@ from .linalg import (
     IncompleteCholeskyFactor,
     SolverName,
     factorize,
+    pin_rows,
     resolve_solver,
 )
 from .minimize import Preconditioner
@@ -133,6 +134,8 @@ class _PairPreconditioner(ABC):
     name: str
     m_matrix: bool
     """Whether the factored matrix is an M-matrix (``solver="auto"`` may take IC(0) then)."""
+    per_particle: bool
+    """Whether the factored matrix has a row per particle (else one per coordinate)."""
 
     def __init__(
         self,
@@ -256,6 +259,10 @@ class _PairPreconditioner(ABC):
     def _rebuild(self, positions: NDArray[np.float64]) -> None:
         start = time.perf_counter()
         self.matrix = self._assemble(positions)
+        obj = self.objective
+        if obj.frozen_rows.size:  # the frozen particles held: P^-1 g is zero on their rows
+            rows = obj.frozen_particles if self.per_particle else obj.frozen_rows
+            self.matrix = pin_rows(self.matrix, rows)
         mid = time.perf_counter()
         self._factor = factorize(self.matrix, self.solver, self.amg_cycles, self._near_null())
         end = time.perf_counter()
@@ -328,6 +335,7 @@ class ExpPreconditioner(_PairPreconditioner):
 
     name = "exp"
     m_matrix = True
+    per_particle = True
 
     def _assemble(self, positions: NDArray[np.float64]) -> sp.csr_matrix:
         return self._exp_part(positions)
@@ -390,6 +398,7 @@ class ContactPreconditioner(_PairPreconditioner):
 
     name = "contact"
     m_matrix = False
+    per_particle = False
 
     def __init__(
         self,

@@ -23,7 +23,7 @@ from . import minimize as library
 from ._validate import choice
 from .cell import Cell
 from .contact import ContactModel, Contacts, find_contacts
-from .errors import JAX_MISSING, ConvergenceError, InputError
+from .errors import FROZEN_NOT_ON_JAX, JAX_MISSING, ConvergenceError, InputError
 from .linalg import SOLVERS, SolverName
 from .minimize import NEWTON_TAKES_NO_PRECON, MinimizeResult, Preconditioner, Status
 from .moduli import stability
@@ -364,7 +364,7 @@ class Relaxer:
         """
         result = self.relax(x, gtol=gtol, etol=etol, what=what)
         for escapes in range(MAX_ESCAPES + 1):
-            check = stability(result.packing, self.objective.model)
+            check = stability(result.packing, self.objective.model, self.objective.frozen)
             if check.stable:
                 return result, escapes
             if escapes == MAX_ESCAPES:
@@ -502,6 +502,8 @@ def engine_for(objective: Objective, how: Minimizer) -> Any:
     preconditioner of ``how``; imported here, when asked for, since JAX is an extra."""
     from . import jaxengine
 
+    if objective.frozen is not None:
+        raise InputError(FROZEN_NOT_ON_JAX)
     _, precon = resolve_method(how.method, how.precon)
     return jaxengine.Engine(objective, cast(Literal["none", "exp"], precon), A=how.A)
 

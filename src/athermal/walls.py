@@ -151,3 +151,13 @@ def wall_pressures(walls: WallContacts, cell: Cell) -> dict[str, float]:
             on = (walls.axis == a) & (walls.side == sign)
             out[AXES[a] + side] = float(walls.force_magnitude[on].sum() / area)
     return out
+
+
+def wall_layers(
+    positions: NDArray[np.float64], cell: Cell, axis: int, layer: float
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """The particles whose centres ``(N, d)`` lie within ``layer`` of the lower and of the upper
+    wall normal to ``axis``: masks ``(N,)`` each, the rough walls of plane shear (particles
+    glued to a wall and moved with it)."""
+    half = 0.5 * cell.h[axis, axis]
+    return positions[:, axis] < layer - half, positions[:, axis] > half - layer

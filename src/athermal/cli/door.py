@@ -93,6 +93,7 @@ def _options(args: argparse.Namespace) -> None:
         "vectors": (lambda v: v >= 0, "an integer >= 0"),
         "finite_strain": (lambda v: 0 < v <= 1e-2, "in (0, 1e-2]"),
         "target": (lambda v: 0 < v < 1, "in (0, 1)"),
+        "wall_layer": (lambda v: v > 0, "> 0"),
     }
     for name, (ok, rule) in rules.items():
         _number(name, getattr(args, name, None), ok, rule)
@@ -191,6 +192,8 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError("--figure: D(omega) needs the full spectrum; drop --lowest")
         if args.lowest is not None and args.vectors > args.lowest:
             raise InputError(f"--vectors {args.vectors} exceeds --lowest {args.lowest}")
+    if args.command == "shear" and args.wall_layer is not None and args.mode != "plane":
+        raise InputError("--wall-layer: only plane shear (--mode plane) glues particles to walls")
     if args.command in ("shear", "ensemble"):
         if args.step > args.strain:
             raise InputError(f"--step {args.step:g} exceeds --strain {args.strain:g}")

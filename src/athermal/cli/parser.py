@@ -227,8 +227,9 @@ def _shear_options(parser: Options) -> None:
         "--mode",
         default="pure",
         choices=SHEAR_MODES,
-        help="simple or pure shear, or uniaxial compression of the last axis (between walls "
-        "normal to it: a wall moving in)",
+        help="simple or pure shear, uniaxial compression of the last axis (between walls "
+        "normal to it: a wall moving in), or plane shear (walls normal to y or z: the particles "
+        "near each wall glued to it, the upper one moved along x)",
     )
     parser.add_argument("--strain", type=float, default=0.02, help="final strain")
     parser.add_argument("--step", type=float, default=1e-4, help="strain increment")
@@ -532,13 +533,20 @@ def build() -> argparse.ArgumentParser:
         description="Deform a packing by small affine shear increments, relaxing after each; "
         "writes every state to a GSD trajectory and a CSV table (stress and fabric, their "
         "isotropic and deviatoric parts, the driven stress tau, plastic events). "
-        "tau = -sigma_xy in simple shear, (sigma_yy - sigma_xx) / 2 in pure shear "
-        "(docs/quantities.md).",
+        "tau = -sigma_xy in simple shear, (sigma_yy - sigma_xx) / 2 in pure shear, the "
+        "shear force per unit area on the walls in plane shear (docs/quantities.md).",
     )
     she.add_argument("input", help="GSD file with the start packing (or a compression trajectory)")
     she.add_argument("-o", "--output", required=True, help="GSD trajectory to write")
     _frame(she, "shear")
     _shear_options(she)
+    she.add_argument(
+        "--wall-layer",
+        type=float,
+        default=None,
+        help="plane shear: glue to each wall the particles whose centres lie within this "
+        "distance of it (default: the largest diameter)",
+    )
     _quasi_static(she)
 
     ens = sub.add_parser(

@@ -37,7 +37,7 @@ from ..protocols import (
 )
 from ..protocols.compress import FIT_LAWS
 from ..protocols.pressure import pressure_search, warn_if_near_jamming
-from ..protocols.shear import check_mode
+from ..protocols.shear import check_mode, rough_walls
 from ..tables import Row, write_table
 from .common import (
     NotConverged,
@@ -430,6 +430,7 @@ def shear(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     packing, model, frame, index = _start(args)
     check_mode(args.mode, args.strain, packing.cell)
+    rough_walls(packing, args.mode, args.wall_layer)
     trajectory = _trajectory(
         args,
         args.output,
@@ -441,6 +442,7 @@ def shear(args: argparse.Namespace) -> None:
         strain=args.strain,
         step=args.step,
         rtol=args.rtol,
+        **({"wall_layer": args.wall_layer} if args.mode == "plane" else {}),
     )
     done = [shear_step(f, model) for f in trajectory.frames]
     record = _Recorder(
@@ -462,6 +464,7 @@ def shear(args: argparse.Namespace) -> None:
             minimizer=minimizer_from(args),
             rtol=args.rtol,
             resume=done,
+            wall_layer=args.wall_layer,
         )
     )
     start_log = {k: float(v) for k, v in frame.log.items() if k in ("phi", "phi_c", "delta_phi")}

@@ -351,6 +351,16 @@ def newton_direction(
     return p, maxiter, None
 
 
+def _fresh_descent(
+    hessian: Hessian, grad: NDArray[np.float64], factor: LaggedFactor
+) -> NDArray[np.float64]:
+    """``-M^-1 grad`` on a factor built afresh at ``hessian``, or ``-grad`` when round-off in a
+    nearly singular ``M`` (rattlers' zero modes, a small shift) leaves even that uphill."""
+    factor.build(hessian)
+    direction = -factor.solve(grad)
+    return direction if float(direction @ grad) < 0.0 else -grad
+
+
 def follow_negative_curvature(
     problem: SecondOrderProblem,
     x: NDArray[np.float64],
@@ -401,10 +411,11 @@ def newton(
         direction, inner, negative = newton_direction(hessian, grad, factor, eta, INNER_MAX)
         tracker.linear_iterations += inner
         refactor = inner > REFACTOR_INNER
+        if not float(direction @ grad) < 0.0:  # round-off of a near-singular M: start afresh
+            direction, refactor = _fresh_descent(hessian, grad, factor), True
         ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok and not refactor:  # retry along -M^-1 g on a fresh factor
-            factor.build(hessian)
-            direction = -factor.solve(grad)
+            direction = _fresh_descent(hessian, grad, factor)
             ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok:
             return tracker.finish(

@@ -1,5 +1,5 @@
-"""Quasi-static shear: simple or pure shear, or uniaxial compression, in small affine steps,
-each relaxed (seed 4.3).
+"""Quasi-static shear: simple or pure shear, uniaxial compression or plane shear between rough
+walls, in small steps, each relaxed (seed 4.3).
 
 Each step maps positions and cell by the increment of the deformation (simple shear
 ``x += gamma y``, the paper's area-preserving pure shear ``D = diag(1 + gamma, 1/(1 + gamma))``,
@@ -13,7 +13,12 @@ the compressed axis, positive when loaded) and whether ``tau`` dropped: a plasti
 With walls (:attr:`Cell.walls <athermal.cell.Cell.walls>`) pure shear is the biaxial test (walls
 normal to y move in as the periodic x stretches) and uniaxial compression moves the walls normal
 to the last axis; simple shear tilts the cell, which frictionless flat walls cannot carry, and
-is refused (:func:`check_mode`).
+is refused (:func:`check_mode`). Plane shear needs walls normal to one axis ``g`` other than
+x: the particles within ``wall_layer`` of each wall are glued to it (rough walls,
+:func:`~athermal.walls.wall_layers`; frozen in the relaxations, :class:`~athermal.objective.
+Objective`), and each step moves the upper wall and its layer along x by ``Delta gamma L_g``,
+the free particles affinely (``x += Delta gamma (x_g + L_g / 2)``); the cell does not change.
+``tau`` is then the shear force per unit area on the walls (:func:`plane_tractions`).
 
 The cell changes at every step, so each relaxation starts from a fresh objective and
 preconditioner: a step depends on its start configuration alone.
@@ -31,19 +36,21 @@ from numpy.typing import NDArray
 
 from .._records import Value, as_row
 from .._validate import choice, positive_scalar
-from ..cell import Cell, pure_shear, simple_shear
-from ..contact import ContactModel
+from ..cell import AXES, Cell, pure_shear, simple_shear
+from ..contact import ContactModel, find_contacts, gradient
 from ..errors import InputError
 from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import Packing
 from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
+from ..walls import wall_layers
 
-ShearMode = Literal["simple", "pure", "uniaxial"]
-SHEAR_MODES: tuple[str, ...] = ("simple", "pure", "uniaxial")
+ShearMode = Literal["simple", "pure", "uniaxial", "plane"]
+SHEAR_MODES: tuple[str, ...] = ("simple", "pure", "uniaxial", "plane")
 """The modes: simple shear (``x += gamma y``), pure shear (volume-preserving
-``D = diag(1 + gamma, 1 / (1 + gamma))``) and uniaxial compression of the last axis
-(``D = diag(1, ..., 1 - gamma)``); ``docs/quantities.md`` gives each one's ``tau``."""
+``D = diag(1 + gamma, 1 / (1 + gamma))``), uniaxial compression of the last axis
+(``D = diag(1, ..., 1 - gamma)``) and plane shear (the upper rough wall moved along x by
+``gamma L_g``); ``docs/quantities.md`` gives each one's ``tau``."""
 DROP_TOL = 1e-6
 """A plastic event is a drop of ``tau`` by more than ``DROP_TOL`` x the pressure."""
 ROW_OBSERVABLES: tuple[str, ...] = (
@@ -61,7 +68,9 @@ ROW_OBSERVABLES: tuple[str, ...] = (
 
 
 def deformation(mode: ShearMode, gamma: float, dim: int) -> NDArray[np.float64]:
-    """The total deformation ``D(gamma)`` ``(d, d)`` of ``mode`` at strain ``gamma``."""
+    """The total deformation ``D(gamma)`` ``(d, d)`` of ``mode`` at strain ``gamma`` (plane
+    shear deforms no cell: :func:`plane_shift`)."""
+    _not_plane(mode)
     if mode == "simple":
         return simple_shear(gamma, dim)
     if mode == "pure":
@@ -73,7 +82,9 @@ def deformation(mode: ShearMode, gamma: float, dim: int) -> NDArray[np.float64]:
 
 def driven_stress(mode: ShearMode, sigma: NDArray[np.float64]) -> float:
     """``tau``: ``-sigma_01`` (simple), ``(sigma_11 - sigma_00) / 2`` (pure shear) or
-    ``sigma_ee`` of the last axis (uniaxial compression)."""
+    ``sigma_ee`` of the last axis (uniaxial compression); plane shear's is the walls'
+    (:func:`plane_tractions`)."""
+    _not_plane(mode)
     if mode == "simple":
         return float(-sigma[0, 1])
     if mode == "pure":
@@ -81,10 +92,22 @@ def driven_stress(mode: ShearMode, sigma: NDArray[np.float64]) -> float:
     return float(sigma[-1, -1])
 
 
+def _not_plane(mode: ShearMode) -> None:
+    if mode == "plane":
+        raise InputError("mode: plane shear moves rough walls, not the cell (plane_shift)")
+
+
 def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
     """Refuse (:class:`InputError`) a ``mode`` the cell's walls cannot take (simple shear
-    tilts x along y) and a uniaxial ``strain`` that leaves no cell (>= 1)."""
+    tilts x along y; plane shear needs walls normal to one axis other than x) and a uniaxial
+    ``strain`` that leaves no cell (>= 1)."""
     choice(mode, "mode", SHEAR_MODES)
+    if mode == "plane" and (len(cell.walls) != 1 or cell.walls[0] == 0):
+        named = ", ".join(AXES[a] for a in cell.walls) or "none"
+        raise InputError(
+            "mode: plane shear moves a wall along x, so it needs walls normal to one axis other "
+            f"than x (y, or z in 3D) and x periodic; this cell's walls: {named}"
+        )
     if mode == "simple" and {0, 1} & set(cell.walls):
         raise InputError(
             "mode: simple shear (x += gamma y) would tilt a cell with walls normal to "
@@ -93,6 +116,34 @@ def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
         )
     if mode == "uniaxial" and not strain < 1.0:
         raise InputError(f"strain: uniaxial compression needs a strain < 1, got {strain:g}")
+
+
+def plane_tractions(
+    packing: Packing, model: ContactModel, lower: NDArray[np.bool_], upper: NDArray[np.bool_]
+) -> tuple[float, float]:
+    """The shear force per unit area along x that the rest of the packing exerts on the rough
+    walls ``lower`` and ``upper`` (masks ``(N,)`` of their particles), each positive when it
+    resists the upper wall's motion along +x: ``(F_x(lower), -F_x(upper)) / A`` with ``A`` the
+    walls' area (length in 2D). They are equal at mechanical equilibrium of the free particles
+    (flat walls push along their normal only)."""
+    grad = gradient(find_contacts(packing, model), packing.n)  # -force on each particle
+    axis = packing.cell.walls[0]
+    area = packing.cell.volume / packing.cell.h[axis, axis]
+    return -float(grad[lower, 0].sum()) / area, float(grad[upper, 0].sum()) / area
+
+
+def plane_shift(
+    packing: Packing, upper: NDArray[np.bool_], frozen: NDArray[np.bool_], dgamma: float
+) -> Packing:
+    """``packing`` with its upper rough wall ``upper`` moved along x by ``dgamma L_g`` and the
+    free particles (not ``frozen``) by ``dgamma (x_g + L_g / 2)``, the lower wall fixed."""
+    axis = packing.cell.walls[0]
+    width = packing.cell.h[axis, axis]
+    positions = packing.positions.copy()
+    free = ~frozen
+    positions[free, 0] += dgamma * (positions[free, axis] + 0.5 * width)
+    positions[upper, 0] += dgamma * width
+    return Packing(positions, packing.radii, packing.cell)
 
 
 @dataclass(frozen=True, eq=False)
@@ -135,6 +186,7 @@ def shear_steps(
     minimizer: Minimizer | None = None,
     rtol: float = RTOL,
     resume: Sequence[ShearStep] = (),
+    wall_layer: float | None = None,
 ) -> Iterator[ShearStep]:
     """Shear ``start`` quasi-statically to ``strain`` in increments ``step``, yielding steps.
 
@@ -142,7 +194,7 @@ def shear_steps(
     ----------
     start : a packing, relaxed first (step 0); usually jammed or compressed above jamming.
     model : contact law.
-    mode : ``"pure"`` (the paper's shear test), ``"simple"`` or ``"uniaxial"``
+    mode : ``"pure"`` (the paper's shear test), ``"simple"``, ``"uniaxial"`` or ``"plane"``
         (:func:`check_mode`).
     strain, step : final strain and increment (dimensionless, > 0); the last increment is
         shortened to end exactly at ``strain``.
@@ -152,6 +204,8 @@ def shear_steps(
         be a local minimum; a saddle is left along its negative mode (``saddles``).
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one, bit for bit as an uninterrupted run.
+    wall_layer : plane shear: the particles of ``start`` whose centres lie within this distance
+        of a wall are glued to it (length units; default the largest diameter).
     """
     strain = positive_scalar(strain, "strain")
     check_mode(mode, strain, start.cell)
@@ -161,6 +215,7 @@ def shear_steps(
     n_steps = int(np.ceil(strain / step - 1e-9))
     strains = np.minimum(np.arange(n_steps + 1) * step, strain)
     config = minimizer or Minimizer()
+    lower, upper, frozen = rough_walls(start, mode, wall_layer)
     packing, tau_prev, gamma_prev, first = start, np.nan, 0.0, 0
     if resume:
         if [s.index for s in resume] != list(range(len(resume))) or len(resume) > strains.size:
@@ -170,11 +225,13 @@ def shear_steps(
     for index in range(first, strains.size):
         gamma = float(strains[index])
         t0 = time.perf_counter()
-        if index:
+        if index and frozen is not None:
+            packing = plane_shift(packing, upper, frozen, gamma - gamma_prev)
+        elif index:
             total_new = deformation(mode, gamma, start.dim)
             total_old = deformation(mode, gamma_prev, start.dim)
             packing = packing.deform(total_new @ np.linalg.inv(total_old))
-        objective = Objective(packing, model)
+        objective = Objective(packing, model, frozen=frozen)
         result, saddles = Relaxer(objective, config).relax_to_minimum(
             objective.x0,
             gtol=force_tolerance(packing, model, rtol),
@@ -182,7 +239,10 @@ def shear_steps(
         )
         packing = result.packing
         obs = measure(packing, model)
-        tau = driven_stress(mode, obs.stress)
+        if frozen is not None:
+            tau = float(np.mean(plane_tractions(packing, model, lower, upper)))
+        else:
+            tau = driven_stress(mode, obs.stress)
         drop = tau_prev - tau if index else 0.0
         yield ShearStep(
             index=index,
@@ -198,3 +258,27 @@ def shear_steps(
             packing=packing,
         )
         tau_prev, gamma_prev = tau, gamma
+
+
+def rough_walls(
+    start: Packing, mode: ShearMode, layer: float | None
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_] | None]:
+    """Plane shear's rough walls in ``start``: the lower and upper layers (:func:`~athermal.
+    walls.wall_layers`, ``layer`` default the largest diameter) and their union, the frozen
+    mask; refused when a layer is empty or they leave no particle free. Other modes: empty
+    layers and no frozen mask."""
+    if mode != "plane":
+        none = np.zeros(start.n, dtype=bool)
+        return none, none, None
+    width = (
+        2.0 * float(start.radii.max()) if layer is None else positive_scalar(layer, "wall_layer")
+    )
+    lower, upper = wall_layers(start.positions, start.cell, start.cell.walls[0], width)
+    frozen = lower | upper
+    if not lower.any() or not upper.any() or (lower & upper).any() or frozen.all():
+        raise InputError(
+            f"wall_layer: a layer of {width:.6g} glues {int(lower.sum())} particles to the lower "
+            f"wall and {int(upper.sum())} to the upper one, of {start.n}; each wall needs some, "
+            "the layers may not meet, and some particles must stay free"
+        )
+    return lower, upper, frozen
