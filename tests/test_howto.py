@@ -61,3 +61,4 @@ def test_packings_between_walls(tmp_path):
     paste(commands, tmp_path)
     out = paste(read, tmp_path)
     assert "walls y" in out and "sigma_yy = 0.001000000" in out
+    assert "plane shear: tau" in out and "at strain 0.02" in out

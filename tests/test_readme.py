@@ -91,7 +91,7 @@ def check_command_line(out: str, folder: Path) -> None:
 def check_beyond(out: str, folder: Path) -> None:
     """The block beyond the paper wrote a packing at p = 1e-4, its modes, the force figure, a
     polydisperse packing, its shear-stabilized state, the certified jammed packing and a packing
-    between walls, held at a force per unit length."""
+    between walls, held at a force per unit length, then sheared between rough walls."""
     for name in (
         "p1e-4.gsd",
         "p1e-4-modes.npz",
@@ -102,6 +102,8 @@ def check_beyond(out: str, folder: Path) -> None:
         "certified.gsd",
         "walls.gsd",
         "held.gsd",
+        "plane.gsd",
+        "plane.csv",
     ):
         assert (folder / name).exists(), name
     assert "relative_force_balance" in out

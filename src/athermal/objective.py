@@ -4,7 +4,7 @@
 evaluation, counts evaluations and keeps its Verlet list fresh (rebuilt when a particle has moved
 more than half the skin). Particles are held internally along a space-filling curve (the
 kernels run 2-3.5x faster at N >= 65536); :meth:`Objective.packing` gives them back in the
-caller's order. Frozen particles (rough walls, :func:`athermal.protocols.shear.wall_layers`) are
+caller's order. Frozen particles (rough walls, :func:`athermal.protocols.shear.rough_walls`) are
 held where they are: their gradient rows are zero, so no minimizer moves them.
 """
 

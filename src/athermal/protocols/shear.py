@@ -120,16 +120,28 @@ def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
 
 def plane_tractions(
     packing: Packing, model: ContactModel, lower: NDArray[np.bool_], upper: NDArray[np.bool_]
-) -> tuple[float, float]:
-    """The shear force per unit area along x that the rest of the packing exerts on the rough
-    walls ``lower`` and ``upper`` (masks ``(N,)`` of their particles), each positive when it
-    resists the upper wall's motion along +x: ``(F_x(lower), -F_x(upper)) / A`` with ``A`` the
-    walls' area (length in 2D). They are equal at mechanical equilibrium of the free particles
-    (flat walls push along their normal only)."""
-    grad = gradient(find_contacts(packing, model), packing.n)  # -force on each particle
+) -> NDArray[np.float64]:
+    """The force per unit area ``(2, d)`` that the rest of the packing exerts on the lower and
+    on the upper wall of plane shear, each wall being its flat face and its glued layer
+    (masks ``lower``, ``upper`` ``(N,)``): on the upper one ``-(sum of the gradient over its
+    layer) - (the flat wall's forces on the particles touching it)``, the layer's contacts with
+    its own flat wall taken out and those of free particles with the flat wall put in; the
+    lower likewise. At mechanical equilibrium of the free particles the two are opposite;
+    ``tau`` is ``-t_upper,x`` (= ``t_lower,x``), positive when it resists the upper wall's
+    motion along +x, and ``t_upper,g`` (= ``-t_lower,g``) the normal stress on the walls,
+    positive when the packing pushes them apart."""
+    contacts = find_contacts(packing, model)
+    grad = gradient(contacts, packing.n)
     axis = packing.cell.walls[0]
     area = packing.cell.volume / packing.cell.h[axis, axis]
-    return -float(grad[lower, 0].sum()) / area, float(grad[upper, 0].sum()) / area
+    out = np.zeros((2, packing.dim))
+    walls = contacts.walls
+    for k, (layer, side) in enumerate(((lower, 1.0), (upper, -1.0))):
+        out[k] = -grad[layer].sum(axis=0)
+        if walls is not None:
+            on = (walls.axis == axis) & (walls.side == side)
+            out[k] -= walls.force[on].sum(axis=0)
+    return out / area
 
 
 def plane_shift(
@@ -240,7 +252,8 @@ def shear_steps(
         packing = result.packing
         obs = measure(packing, model)
         if frozen is not None:
-            tau = float(np.mean(plane_tractions(packing, model, lower, upper)))
+            traction = plane_tractions(packing, model, lower, upper)
+            tau = 0.5 * float(traction[0, 0] - traction[1, 0])
         else:
             tau = driven_stress(mode, obs.stress)
         drop = tau_prev - tau if index else 0.0
