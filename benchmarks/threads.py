@@ -1,5 +1,7 @@
-"""The energy+gradient on many cores: the slab kernel on 1 ... T numba threads against the
-one-thread kernel, in the same run (:func:`athermal.contact.energy_gradient_slabs`).
+"""The energy+gradient and the neighbour list on many cores: the slab kernel on 1 ... T numba
+threads against the one-thread kernel, in the same run
+(:func:`athermal.contact.energy_gradient_slabs`), and the neighbour-list build on 1 ... T threads
+(:func:`athermal.neighbors.collect_chunks` from ``PARALLEL_BUILD`` particles).
 
 For each size a bidisperse random packing (``random_packing(N, phi, dim=d, seed=1)``, phi = 0.84
 in 2D, 0.64 in 3D, alpha = 2) and its neighbour list (default skin) are built once; then, in
@@ -9,7 +11,9 @@ as in a minimization). Reported: the median time of each variant, the speed-up o
 one-thread kernel and the parallel efficiency (speed-up / threads), with the range of the
 rounds' speed-ups (a shared machine is noisy). Both kernels must agree first (energy to 1e-12
 relative, gradient to 1e-12 x max |grad|), and the slab kernel must give the same bits on every
-thread count. Run from the repository root, not pinned (it needs the cores)::
+thread count. The build is timed the same way (``--calls`` builds per round) against its own
+one-thread time; its list must be the same on every thread count. Run from the repository
+root, not pinned (it needs the cores)::
 
     python -m benchmarks.threads            # 2D N = 65536, 262144, 1048576; 3D N = 262144
     python -m benchmarks.threads --quick    # 2D N = 65536
@@ -82,6 +86,7 @@ def one(dim: int, n: int, threads: list[int], rounds: int, calls: int) -> dict[s
             times.setdefault(str(t), []).extend(run)
             ratios[t].append(float(np.median(serial) / np.median(run)))
     serial_ms = 1e3 * float(np.median(times["serial"]))
+    build = build_times(p, threads, rounds, calls)
     rows = []
     for t in threads:
         ms = 1e3 * float(np.median(times[str(t)]))
@@ -97,9 +102,45 @@ def one(dim: int, n: int, threads: list[int], rounds: int, calls: int) -> dict[s
                 "speedup": serial_ms / ms,
                 "efficiency": serial_ms / ms / t,
                 "speedup_range": [min(ratios[t]), max(ratios[t])],
+                **build[t],
             }
         )
     return {"rows": rows}
+
+
+def build_times(p: Any, threads: list[int], rounds: int, calls: int) -> dict[int, dict[str, Any]]:
+    """The neighbour-list build of ``p`` on each thread count: median ms, speed-up over one
+    thread and its range over the rounds; refused unless every count lists the same pairs."""
+    lists = []
+    for t in threads:
+        numba.set_num_threads(t)
+        lists.append(build_neighbor_list(p.positions, p.radii, p.cell))
+    for nl in lists[1:]:
+        if not all(
+            np.array_equal(getattr(nl, k), getattr(lists[0], k))
+            for k in ("first", "second", "code", "slabs")
+        ):
+            raise SystemExit(f"N = {p.n}: the threaded build lists other pairs")
+    times: dict[int, list[float]] = {t: [] for t in threads}
+    ratios: dict[int, list[float]] = {t: [] for t in threads}
+    for _ in range(rounds):
+        medians = {}
+        for t in threads:
+            numba.set_num_threads(t)
+            run = timed(lambda: build_neighbor_list(p.positions, p.radii, p.cell), calls)
+            times[t] += run
+            medians[t] = float(np.median(run))
+        for t in threads:
+            ratios[t].append(medians[threads[0]] / medians[t])
+    one_ms = 1e3 * float(np.median(times[threads[0]]))
+    return {
+        t: {
+            "build_ms": 1e3 * float(np.median(times[t])),
+            "build_speedup": one_ms / (1e3 * float(np.median(times[t]))),
+            "build_speedup_range": [min(ratios[t]), max(ratios[t])],
+        }
+        for t in threads
+    }
 
 
 def main() -> None:
@@ -113,7 +154,7 @@ def main() -> None:
     sizes = [(2, 65536)] if args.quick else [(2, 65536), (2, 262144), (2, 1048576), (3, 262144)]
     rows = [r for dim, n in sizes for r in one(dim, n, threads, args.rounds, args.calls)["rows"]]
     lines = [
-        "# The energy+gradient on many cores (benchmarks/threads.py)",
+        "# The energy+gradient and the neighbour list on many cores (benchmarks/threads.py)",
         "",
         "The slab kernel on T numba threads against the one-thread kernel, same packing and list, "
         f"medians over {args.rounds} rounds of {args.calls} calls; the range is the rounds' "
@@ -130,6 +171,21 @@ def main() -> None:
             f"| {r['dim']} | {r['n']} | {r['pairs']} | {r['slabs']} | {r['threads']} | "
             f"{r['serial_ms']:.2f} | {r['slab_ms']:.2f} | {r['speedup']:.2f} | "
             f"{100 * r['efficiency']:.0f}% | {lo:.2f} ... {hi:.2f} |"
+        )
+    lines += [
+        "",
+        "The neighbour-list build (default skin) on T threads against T = 1, medians as above; the "
+        "same list on every T (checked first).",
+        "",
+        "| d | N | pairs | T | build (ms) | speed-up | efficiency | speed-up range |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lo, hi = r["build_speedup_range"]
+        lines.append(
+            f"| {r['dim']} | {r['n']} | {r['pairs']} | {r['threads']} | {r['build_ms']:.1f} | "
+            f"{r['build_speedup']:.2f} | {100 * r['build_speedup'] / r['threads']:.0f}% | "
+            f"{lo:.2f} ... {hi:.2f} |"
         )
     save(ROOT / "benchmarks" / "results", "threads", {"rows": rows}, "\n".join(lines) + "\n")
 

@@ -120,3 +120,32 @@ def test_row_maxima_match_numpy(dim, rows):
         reach = _place_trial(x, direction, a, reference, trial)
         assert np.array_equal(trial, point)
         assert reach == _blocks.max_displacement_sq(point.reshape(rows, dim), reference)
+
+
+@pytest.mark.parametrize("dim, walls", [(2, ()), (3, ()), (2, (1,)), (3, (2,))])
+def test_the_threaded_search_lists_the_same_pairs_in_the_same_order(monkeypatch, dim, walls):
+    """Above ``PARALLEL_BUILD`` the search runs chunk by chunk on the threads; the list, its
+    order and its slabs are those of the one-thread search, also when chunks overflow their
+    part of the buffer and are searched again (forced here by a tiny first capacity)."""
+    import athermal.neighbors as neighbors
+
+    cell = Cell(np.eye(dim), walls)
+    p = random_packing(6000 if dim == 2 else 4000, 0.86 if dim == 2 else 0.64, dim=dim, seed=2,
+                       cell=cell)  # fmt: skip
+    serial = build_neighbor_list(p.positions, p.radii, p.cell)
+    monkeypatch.setattr(neighbors, "PARALLEL_BUILD", 0)
+    monkeypatch.setattr(neighbors, "threads_usable", lambda: True)
+    searched = []
+    chunked = neighbors.collect_chunks
+
+    def spy(*args):
+        searched.append(args[-1].size - 1)
+        return chunked(*args)
+
+    monkeypatch.setattr(neighbors, "collect_chunks", spy)
+    for per_particle in (neighbors.PAIRS_PER_PARTICLE[dim], 0.5):
+        monkeypatch.setitem(neighbors.PAIRS_PER_PARTICLE, dim, per_particle)
+        threaded = build_neighbor_list(p.positions, p.radii, p.cell)
+        for name in ("first", "second", "code", "slabs", "images"):
+            np.testing.assert_array_equal(getattr(threaded, name), getattr(serial, name))
+    assert len(searched) == 2 and min(searched) >= 2  # chunks searched on the threads

@@ -1,6 +1,10 @@
-"""The numba decorators every compiled kernel uses: one place for their options."""
+"""The numba decorators every compiled kernel uses: one place for their options, and for when
+the threaded kernels may run (:func:`threads_usable`)."""
 
 from __future__ import annotations
+
+import os
+import threading
 
 import numba as nb
 
@@ -25,3 +29,14 @@ _jit_parallel = nb.njit(
     boundscheck=False,
     fastmath={"nsz", "contract", "afn", "reassoc"},
 )
+
+
+def threads_usable() -> bool:
+    """Whether a ``prange`` kernel gains from running now: more than one numba thread and one
+    allowed core, called from the main thread (numba's default threading layer takes one caller
+    at a time)."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return (
+        min(nb.get_num_threads(), cores or 1) >= 2
+        and threading.current_thread() is threading.main_thread()
+    )

@@ -8,17 +8,14 @@ length^alpha; forces in ``k`` x length^(alpha-1).
 
 from __future__ import annotations
 
-import os
-import threading
 from dataclasses import dataclass, field
 
-import numba
 import numpy as np
 import scipy.sparse as sp
 from numba import prange
 from numpy.typing import NDArray
 
-from ._jit import _jit, _jit_fast, _jit_parallel
+from ._jit import _jit, _jit_fast, _jit_parallel, threads_usable
 from .cell import Cell
 from .errors import InputError
 from .neighbors import NeighborList
@@ -110,12 +107,7 @@ def parallel_slabs(nlist: NeighborList) -> NDArray[np.int64]:
     :data:`PARALLEL_PAIRS` pairs, slabs listed, more than one numba thread and allowed core,
     and the main thread: numba's default threading layer takes one caller at a time), else
     empty: the ``slabs`` argument of :func:`evaluate`."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
-    if (
-        nlist.n_pairs < PARALLEL_PAIRS
-        or min(numba.get_num_threads(), cores or 1) < 2
-        or threading.current_thread() is not threading.main_thread()
-    ):
+    if nlist.n_pairs < PARALLEL_PAIRS or not threads_usable():
         return ONE_THREAD
     return nlist.slabs
 

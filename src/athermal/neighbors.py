@@ -13,12 +13,15 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from itertools import product
+from typing import Any
 
+import numba
 import numpy as np
+from numba import prange
 from numpy.typing import NDArray
 
 from . import _blocks
-from ._jit import _jit
+from ._jit import _jit, _jit_parallel, threads_usable
 from .cell import Cell
 from .errors import InputError
 
@@ -26,6 +29,15 @@ SLABS = 32
 """Slabs of a neighbour list at most (:attr:`NeighborList.slabs`): 16 of each parity for 16
 threads, each long enough that few of its rows border another (``docs/decisions.md``, "The
 kernels on many cores")."""
+PARALLEL_BUILD = 50_000
+"""Particles from which the cell-list build runs on the threads (:func:`bin_particles_threads`,
+:func:`collect_chunks`;
+measured in ``docs/decisions.md``, "The kernels on many cores")."""
+PAIRS_PER_PARTICLE = {2: 4.0, 3: 7.0}
+"""Pairs per particle a search first makes room for (a bound on the usual count at the default
+skin); a search that needs more grows its buffers and goes on."""
+CHUNKS_PER_THREAD = 4
+"""Chunks of rows of bins per thread in the threaded search (uneven chunks balance out)."""
 DEFAULT_SKIN_FACTOR = 0.2
 _MAX_IMAGE_CODES = np.iinfo(np.int16).max
 
@@ -130,7 +142,13 @@ def _half_stencil_search(
     h3[:d, :d], hinv3[:d, :d] = cell.h, cell.inverse
     nb3 = np.ones(3, dtype=np.int64)
     nb3[:d] = nbins
-    bin_start, member, xs, rs, fs = bin_particles(x3, h3, hinv3, nb3, r)
+    rows = int(nb3[d - 1])
+    chunks = min(CHUNKS_PER_THREAD * numba.get_num_threads(), rows // 2)
+    threaded = n >= PARALLEL_BUILD and chunks >= 2 and threads_usable()
+    if threaded:
+        bin_start, member, xs, rs, fs = bin_particles_threads(x3, h3, hinv3, nb3, r, chunks)
+    else:
+        bin_start, member, xs, rs, fs = bin_particles(x3, h3, hinv3, nb3, r)
     m = int(np.ptp(fs, axis=0).max()) + 1 if n else 1  # bound on |image| components
     side = 2 * m + 1
     if side**d > _MAX_IMAGE_CODES:
@@ -138,39 +156,68 @@ def _half_stencil_search(
     weights = np.zeros(3, dtype=np.int64)
     weights[:d] = side ** np.arange(d)
     offsets = _half_stencil(d)
-    capacity = (4 if d == 2 else 7) * n + 16
+    row_start = np.zeros(rows + 1, dtype=np.int64)
+    search = (bin_start, member, xs, rs, fs, h3, nb3, offsets, skin, weights, m)
+    if threaded:
+        first, second, code = _search_chunks(search, rows, chunks, PAIRS_PER_PARTICLE[d], row_start)
+    else:
+        first, second, code = _search_bins(search, 0, int(np.prod(nb3)), n, d, row_start)
+    row_start[rows] = first.size
+    return first, second, code, _image_table(m, d), _slabs(row_start)
+
+
+def _search_bins(
+    search: tuple[Any, ...], lo: int, hi: int, particles: int, dim: int, row_start: Any
+) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int16]]:
+    """The pairs of bins ``lo ... hi - 1`` (``particles`` in them) by :func:`collect_pairs` on
+    ``search`` (its arguments up to ``m``), buffers grown until they fit; ``row_start`` gets the
+    rows' first pairs, counted from this search's first."""
+    capacity = int(PAIRS_PER_PARTICLE[dim] * particles) + 16
     first = np.empty(capacity, dtype=np.int32)
     second = np.empty(capacity, dtype=np.int32)
     code = np.empty(capacity, dtype=np.int16)
-    rows = int(nb3[d - 1])
-    row_start = np.zeros(rows + 1, dtype=np.int64)
-    count, done = 0, 0
-    total = int(np.prod(nb3))
+    count, done = 0, lo
     while True:
-        count, done = collect_pairs(
-            bin_start,
-            member,
-            xs,
-            rs,
-            fs,
-            h3,
-            nb3,
-            offsets,
-            skin,
-            weights,
-            m,
-            first,
-            second,
-            code,
-            row_start,
-            done,
-            count,
+        count, done = collect_pairs(  # type: ignore[call-arg]
+            *search, first, second, code, row_start, done, count, hi, first.size
         )
-        if done == total:
-            break
+        if done == hi:
+            return first[:count], second[:count], code[:count]
         first, second, code = (np.concatenate([a, np.empty_like(a)]) for a in (first, second, code))
-    row_start[rows] = count
-    return first[:count], second[:count], code[:count], _image_table(m, d), _slabs(row_start)
+
+
+def _search_chunks(
+    search: tuple[Any, ...], rows: int, chunks: int, per_particle: float, row_start: Any
+) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int16]]:
+    """The pairs of :func:`_search_bins` over all bins, the rows cut into ``chunks`` searched on
+    the threads (:func:`collect_chunks`), each into its own part of one buffer; a chunk whose
+    part overflows is searched again on its own. The pairs come out in the order and with the
+    ``row_start`` of the one-thread search."""
+    bin_start, nbins = search[0], search[6]
+    row_size = int(np.prod(nbins)) // rows
+    edges = (np.arange(chunks + 1) * rows) // chunks
+    bins = edges * row_size
+    held = np.diff(bin_start[bins])
+    base = np.concatenate([[0], np.cumsum((1.25 * per_particle * held).astype(np.int64) + 64)])
+    first = np.empty(base[-1], dtype=np.int32)
+    second = np.empty(base[-1], dtype=np.int32)
+    code = np.empty(base[-1], dtype=np.int16)
+    counts, stops = collect_chunks(*search, first, second, code, row_start, bins, base)  # type: ignore[call-arg]
+    parts = []
+    offset = 0
+    for k in range(chunks):
+        rows_k = slice(edges[k], edges[k + 1])
+        if stops[k] == bins[k + 1]:
+            part = tuple(a[base[k] : counts[k]] for a in (first, second, code))
+            row_start[rows_k] += offset - base[k]
+        else:  # overflowed its part: on its own, buffers grown as needed
+            part = _search_bins(
+                search, int(bins[k]), int(bins[k + 1]), int(held[k]), nbins.size, row_start
+            )
+            row_start[rows_k] += offset
+        parts.append(part)
+        offset += part[0].size
+    return tuple(np.concatenate([p[a] for p in parts]) for a in range(3))  # type: ignore[return-value]
 
 
 def _slabs(row_start: NDArray[np.int64]) -> NDArray[np.int64]:
@@ -412,9 +459,36 @@ def bin_particles(x, h, hinv, nbins, radii):  # type: ignore[no-untyped-def]
     ``fs (N, 3)`` int64 the particle was wrapped from (``x = h (s + fs)``).
     """
     n = x.shape[0]
-    nb0, nb1, nb2 = nbins[0], nbins[1], nbins[2]
     bin_of = np.empty(n, dtype=np.int64)
-    for i in range(n):
+    _bins_of(x, hinv, nbins, bin_of, 0, n)
+    bin_start, member = _counting_sort(bin_of, nbins[0] * nbins[1] * nbins[2])
+    xs, fs, rs = np.empty((n, 3)), np.empty((n, 3), dtype=np.int64), np.empty(n)
+    _fill_slots(x, h, hinv, radii, member, xs, fs, rs, 0, n)
+    return bin_start, member, xs, rs, fs
+
+
+@_jit_parallel
+def bin_particles_threads(x, h, hinv, nbins, radii, chunks):  # type: ignore[no-untyped-def]
+    """:func:`bin_particles` with its two passes over the particles on the threads, in
+    ``chunks`` ranges each (the counting sort between them stays on one thread); the same
+    result."""
+    n = x.shape[0]
+    bin_of = np.empty(n, dtype=np.int64)
+    for k in prange(chunks):
+        _bins_of(x, hinv, nbins, bin_of, k * n // chunks, (k + 1) * n // chunks)
+    bin_start, member = _counting_sort(bin_of, nbins[0] * nbins[1] * nbins[2])
+    xs, fs, rs = np.empty((n, 3)), np.empty((n, 3), dtype=np.int64), np.empty(n)
+    for k in prange(chunks):
+        lo, hi = k * n // chunks, (k + 1) * n // chunks
+        _fill_slots(x, h, hinv, radii, member, xs, fs, rs, lo, hi)
+    return bin_start, member, xs, rs, fs
+
+
+@_jit
+def _bins_of(x, hinv, nbins, bin_of, lo, hi):  # type: ignore[no-untyped-def]
+    """The bin of particles ``lo ... hi - 1`` into ``bin_of``."""
+    nb0, nb1, nb2 = nbins[0], nbins[1], nbins[2]
+    for i in range(lo, hi):
         s2 = hinv[2, 2] * x[i, 2]
         s1 = hinv[1, 1] * x[i, 1] + hinv[1, 2] * x[i, 2]
         s0 = hinv[0, 0] * x[i, 0] + hinv[0, 1] * x[i, 1] + hinv[0, 2] * x[i, 2]
@@ -422,11 +496,12 @@ def bin_particles(x, h, hinv, nbins, radii):  # type: ignore[no-untyped-def]
         k1 = min(np.int64((s1 - np.floor(s1)) * nb1), nb1 - 1)
         k2 = min(np.int64((s2 - np.floor(s2)) * nb2), nb2 - 1)
         bin_of[i] = (k2 * nb1 + k1) * nb0 + k0
-    bin_start, member = _counting_sort(bin_of, nb0 * nb1 * nb2)
-    xs = np.empty((n, 3))
-    fs = np.empty((n, 3), dtype=np.int64)
-    rs = np.empty(n)
-    for m in range(n):
+
+
+@_jit
+def _fill_slots(x, h, hinv, radii, member, xs, fs, rs, lo, hi):  # type: ignore[no-untyped-def]
+    """Slots ``lo ... hi - 1`` of :func:`bin_particles`' ``xs``, ``fs`` and ``rs``."""
+    for m in range(lo, hi):
         i = member[m]
         s2 = hinv[2, 2] * x[i, 2]
         s1 = hinv[1, 1] * x[i, 1] + hinv[1, 2] * x[i, 2]
@@ -440,7 +515,6 @@ def bin_particles(x, h, hinv, nbins, radii):  # type: ignore[no-untyped-def]
         xs[m, 1] = h[1, 1] * s1 + h[1, 2] * s2
         xs[m, 2] = h[2, 2] * s2
         rs[m] = radii[i]
-    return bin_start, member, xs, rs, fs
 
 
 @_jit
@@ -462,22 +536,24 @@ def collect_pairs(  # type: ignore[no-untyped-def]
     row_start,
     bin_from,
     count,
+    bin_to,
+    capacity,
 ):
-    """Half-stencil pair search over bins ``bin_from, ...`` for cells >= 3 bins wide per axis.
+    """Half-stencil pair search over bins ``bin_from ... bin_to - 1`` for cells >= 3 bins wide
+    per axis.
 
     ``offsets (S, 3)`` holds the zero offset first, then one of each pair ``+-o``, so each pair is
-    checked once. Pairs go into the caller's buffers from index ``count`` with ``first <= second``
-    and ``code = sum_a (n_a + m) weights[a]`` for the image ``n`` of the separation
-    ``x_first - x_second + h n``. Returns ``(count, bin)``: ``bin`` is the number of bins when all
-    are done, else the first bin that did not fit (the buffers are then to be grown and the call
-    resumed from it). The buffers are never reallocated here: numba would then reference-count
-    them in the inner loop (measured 2x slower). ``row_start[r]`` gets the first pair of row
-    ``r`` of bins along the last binned axis (z, or y in 2D).
+    checked once. Pairs go into the caller's buffers from index ``count`` up to ``capacity``
+    with ``first <= second`` and ``code = sum_a (n_a + m) weights[a]`` for the image ``n`` of the
+    separation ``x_first - x_second + h n``. Returns ``(count, bin)``: ``bin`` is ``bin_to``
+    when all are done, else the first bin that did not fit (the buffers are then to be grown
+    and the call resumed from it). The buffers are never reallocated here: numba would then
+    reference-count them in the inner loop (measured 2x slower). ``row_start[r]`` gets the
+    first pair of row ``r`` of bins along the last binned axis (z, or y in 2D).
     """
     nb0, nb1, nb2 = nbins[0], nbins[1], nbins[2]
     row_size = nb0 * nb1 if nb2 > 1 else nb0
-    capacity = first.size
-    for b in range(bin_from, nb0 * nb1 * nb2):
+    for b in range(bin_from, bin_to):
         if b % row_size == 0:
             row_start[b // row_size] = count
         c0 = b % nb0
@@ -519,4 +595,38 @@ def collect_pairs(  # type: ignore[no-untyped-def]
                     n0 = (n0 + m) * weights[0] + (n1 + m) * weights[1] + (n2 + m) * weights[2]
                     code[count] = n0
                     count += 1
-    return count, nb0 * nb1 * nb2
+    return count, bin_to
+
+
+@_jit_parallel
+def collect_chunks(  # type: ignore[no-untyped-def]
+    bin_start,
+    member,
+    xs,
+    rs,
+    fs,
+    h,
+    nbins,
+    offsets,
+    skin,
+    weights,
+    m,
+    first,
+    second,
+    code,
+    row_start,
+    bins,
+    base,
+):
+    """:func:`collect_pairs` on the threads: chunk ``k`` (bins ``bins[k] ... bins[k+1] - 1``,
+    whole rows) into the buffers' part ``base[k] ... base[k+1] - 1``. Returns each chunk's end
+    ``(K,)`` in the buffers and where it stopped ``(K,)`` (``bins[k+1]`` when it fitted)."""
+    chunks = bins.size - 1
+    counts = np.zeros(chunks, dtype=np.int64)
+    stops = np.zeros(chunks, dtype=np.int64)
+    for k in prange(chunks):
+        counts[k], stops[k] = collect_pairs(
+            bin_start, member, xs, rs, fs, h, nbins, offsets, skin, weights, m,
+            first, second, code, row_start, bins[k], base[k], bins[k + 1], base[k + 1],
+        )  # fmt: skip
+    return counts, stops
