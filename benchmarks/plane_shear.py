@@ -53,7 +53,8 @@ def one(
         jammed.packing.at_phi(jammed.phi_c + delta_phi), spec.model, Minimizer("newton"), gtol=1e-13
     ).packing
     wall_layer = layer * 2.0 * float(start.radii.max())
-    lower, upper, frozen = rough_walls(start, "plane", wall_layer)
+    lower, upper = rough_walls(start, wall_layer)
+    frozen = lower | upper
     rows: dict[str, list[float]] = {"strain": [], "tau": [], "normal": [], "pressure": []}
     worst, plastic, seconds = 0.0, 0, []
     for s in shear_steps(

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ._records import as_numbers, from_numbers
 from .contact import ContactModel
@@ -76,9 +77,12 @@ def compression_step(frame: Frame) -> CompressionStep:
     return _step(CompressionStep, frame)
 
 
-def shear_step(frame: Frame, model: ContactModel) -> ShearStep:
-    """The shear step stored in ``frame`` (its observables measured again, identically)."""
-    return _step(ShearStep, frame, observables=measure(frame.packing, model))
+def shear_step(
+    frame: Frame, model: ContactModel, fixed: NDArray[np.bool_] | None = None
+) -> ShearStep:
+    """The shear step stored in ``frame`` (its observables measured again, identically: with
+    plane shear's glued particles ``fixed``, never rattlers)."""
+    return _step(ShearStep, frame, observables=measure(frame.packing, model, fixed))
 
 
 class Trajectory:

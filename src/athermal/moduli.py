@@ -308,7 +308,7 @@ def stability(
         keep = np.flatnonzero(~frozen[dofs // dim])
         h, dofs = h[keep][:, keep].tocsr(), dofs[keep]
         keep = np.arange(dofs.size)
-    if dofs.size <= dim:
+    if dofs.size <= (dim if frozen is None else 0):  # nothing left to move
         return Stability(True, None, None, 0.0)
     pinned = h[keep][:, keep]
     shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))

@@ -159,7 +159,7 @@ def _half_stencil_search(
     row_start = np.zeros(rows + 1, dtype=np.int64)
     search = (bin_start, member, xs, rs, fs, h3, nb3, offsets, skin, weights, m)
     if threaded:
-        first, second, code = _search_chunks(search, rows, chunks, PAIRS_PER_PARTICLE[d], row_start)
+        first, second, code = _search_chunks(search, rows, chunks, d, row_start)
     else:
         first, second, code = _search_bins(search, 0, int(np.prod(nb3)), n, d, row_start)
     row_start[rows] = first.size
@@ -187,7 +187,7 @@ def _search_bins(
 
 
 def _search_chunks(
-    search: tuple[Any, ...], rows: int, chunks: int, per_particle: float, row_start: Any
+    search: tuple[Any, ...], rows: int, chunks: int, dim: int, row_start: Any
 ) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int16]]:
     """The pairs of :func:`_search_bins` over all bins, the rows cut into ``chunks`` searched on
     the threads (:func:`collect_chunks`), each into its own part of one buffer; a chunk whose
@@ -198,7 +198,8 @@ def _search_chunks(
     edges = (np.arange(chunks + 1) * rows) // chunks
     bins = edges * row_size
     held = np.diff(bin_start[bins])
-    base = np.concatenate([[0], np.cumsum((1.25 * per_particle * held).astype(np.int64) + 64)])
+    room = 1.25 * PAIRS_PER_PARTICLE[dim] * held
+    base = np.concatenate([[0], np.cumsum(room.astype(np.int64) + 64)])
     first = np.empty(base[-1], dtype=np.int32)
     second = np.empty(base[-1], dtype=np.int32)
     code = np.empty(base[-1], dtype=np.int16)
@@ -211,9 +212,8 @@ def _search_chunks(
             part = tuple(a[base[k] : counts[k]] for a in (first, second, code))
             row_start[rows_k] += offset - base[k]
         else:  # overflowed its part: on its own, buffers grown as needed
-            part = _search_bins(
-                search, int(bins[k]), int(bins[k + 1]), int(held[k]), nbins.size, row_start
-            )
+            lo, hi = int(bins[k]), int(bins[k + 1])
+            part = _search_bins(search, lo, hi, int(held[k]), dim, row_start)
             row_start[rows_k] += offset
         parts.append(part)
         offset += part[0].size

@@ -31,9 +31,8 @@ from .contact import (
 )
 from .errors import InputError
 from .linalg import pin_rows
-from .minimize import CompiledSearch, Hooks, compiled_function
+from .minimize import CompiledSearch, Hooks, SparseHessian, compiled_function
 from .minimize._wolfe import GO_ON, STATE_SIZE, TRIAL, feed
-from .minimize.newton import SparseHessian
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
 from .walls import WallContacts, find_wall_contacts

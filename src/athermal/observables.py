@@ -151,12 +151,15 @@ class Observables:
         return out
 
 
-def measure(packing: Packing, model: ContactModel) -> Observables:
-    """All observables of ``packing`` under the contact ``model``."""
+def measure(
+    packing: Packing, model: ContactModel, fixed: NDArray[np.bool_] | None = None
+) -> Observables:
+    """All observables of ``packing`` under the contact ``model``; the particles of the mask
+    ``fixed`` (plane shear's glued ones) are never rattlers."""
     contacts = find_contacts(packing, model)
     sigma = stress(contacts, packing.cell)
     fab = fabric(contacts, packing.radii, packing.cell)
-    rattler = rattlers(contacts, packing.n, packing.dim)
+    rattler = rattlers(contacts, packing.n, packing.dim, fixed)
     z, c_live = coordination(contacts, rattler)
     grad = gradient(contacts, packing.n)
     forces = contacts.force_magnitude

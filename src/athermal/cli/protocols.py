@@ -426,11 +426,15 @@ def compress(args: argparse.Namespace) -> None:
 
 
 def shear(args: argparse.Namespace) -> None:
-    """``athermal shear``: quasi-static simple or pure shear, or uniaxial compression."""
+    """``athermal shear``: quasi-static simple or pure shear, uniaxial compression or plane
+    shear."""
     t0 = time.perf_counter()
     packing, model, frame, index = _start(args)
     check_mode(args.mode, args.strain, packing.cell)
-    rough_walls(packing, args.mode, args.wall_layer)
+    frozen = None
+    if args.mode == "plane":  # refused here, before the trajectory is claimed
+        lower, upper = rough_walls(packing, args.wall_layer)
+        frozen = lower | upper
     trajectory = _trajectory(
         args,
         args.output,
@@ -444,7 +448,7 @@ def shear(args: argparse.Namespace) -> None:
         rtol=args.rtol,
         **({"wall_layer": args.wall_layer} if args.mode == "plane" else {}),
     )
-    done = [shear_step(f, model) for f in trajectory.frames]
+    done = [shear_step(f, model, frozen) for f in trajectory.frames]
     record = _Recorder(
         args,
         trajectory,

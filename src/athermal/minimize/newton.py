@@ -325,7 +325,8 @@ def newton_direction(
     """An approximate solution ``p`` of ``H p = -grad`` by CG preconditioned with ``factor``,
     and the iterations it took. Stops at ``|r| <= eta |grad|``, after ``maxiter`` iterations,
     or at non-positive curvature ``d.H d <= 0``: then the iterate so far, or ``-M^-1 grad`` when
-    that is the first direction. Every ``p`` returned has ``p.grad < 0`` (for ``grad != 0``).
+    that is the first direction. Every ``p`` returned has ``p.grad < 0`` (for ``grad != 0``) in
+    exact arithmetic; round-off through a nearly singular factor can break it (the caller checks).
     The third value is the CG direction of non-positive curvature found after the first
     iteration (None otherwise)."""
     r = -grad
@@ -411,8 +412,8 @@ def newton(
         direction, inner, negative = newton_direction(hessian, grad, factor, eta, INNER_MAX)
         tracker.linear_iterations += inner
         refactor = inner > REFACTOR_INNER
-        if not float(direction @ grad) < 0.0:  # round-off of a near-singular M: start afresh
-            direction, refactor = _fresh_descent(hessian, grad, factor), True
+        if not float(direction @ grad) < 0.0:  # round-off of a near-singular M: CG's answers
+            direction, refactor, negative = _fresh_descent(hessian, grad, factor), True, None
         ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok and not refactor:  # retry along -M^-1 g on a fresh factor
             direction = _fresh_descent(hessian, grad, factor)

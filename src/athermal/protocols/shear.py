@@ -97,17 +97,22 @@ def _not_plane(mode: ShearMode) -> None:
         raise InputError("mode: plane shear moves rough walls, not the cell (plane_shift)")
 
 
-def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
-    """Refuse (:class:`InputError`) a ``mode`` the cell's walls cannot take (simple shear
-    tilts x along y; plane shear needs walls normal to one axis other than x) and a uniaxial
-    ``strain`` that leaves no cell (>= 1)."""
-    choice(mode, "mode", SHEAR_MODES)
-    if mode == "plane" and (len(cell.walls) != 1 or cell.walls[0] == 0):
+def _check_plane(cell: Cell) -> None:
+    if len(cell.walls) != 1 or cell.walls[0] == 0:
         named = ", ".join(AXES[a] for a in cell.walls) or "none"
         raise InputError(
             "mode: plane shear moves a wall along x, so it needs walls normal to one axis other "
             f"than x (y, or z in 3D) and x periodic; this cell's walls: {named}"
         )
+
+
+def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
+    """Refuse (:class:`InputError`) a ``mode`` the cell's walls cannot take (simple shear
+    tilts x along y; plane shear needs walls normal to one axis other than x) and a uniaxial
+    ``strain`` that leaves no cell (>= 1)."""
+    choice(mode, "mode", SHEAR_MODES)
+    if mode == "plane":
+        _check_plane(cell)
     if mode == "simple" and {0, 1} & set(cell.walls):
         raise InputError(
             "mode: simple shear (x += gamma y) would tilt a cell with walls normal to "
@@ -217,7 +222,8 @@ def shear_steps(
     resume : the steps already done by an interrupted run with the same arguments; the run
         continues after the last one, bit for bit as an uninterrupted run.
     wall_layer : plane shear: the particles of ``start`` whose centres lie within this distance
-        of a wall are glued to it (length units; default the largest diameter).
+        of a wall are glued to it (length units; default the largest diameter); refused with
+        another mode.
     """
     strain = positive_scalar(strain, "strain")
     check_mode(mode, strain, start.cell)
@@ -227,7 +233,12 @@ def shear_steps(
     n_steps = int(np.ceil(strain / step - 1e-9))
     strains = np.minimum(np.arange(n_steps + 1) * step, strain)
     config = minimizer or Minimizer()
-    lower, upper, frozen = rough_walls(start, mode, wall_layer)
+    frozen, lower, upper = None, np.zeros(0, bool), np.zeros(0, bool)
+    if mode == "plane":
+        lower, upper = rough_walls(start, wall_layer)
+        frozen = lower | upper
+    elif wall_layer is not None:
+        raise InputError("wall_layer: only plane shear glues particles to walls")
     packing, tau_prev, gamma_prev, first = start, np.nan, 0.0, 0
     if resume:
         if [s.index for s in resume] != list(range(len(resume))) or len(resume) > strains.size:
@@ -250,7 +261,7 @@ def shear_steps(
             what=f"shear step {index} (strain {gamma:g})",
         )
         packing = result.packing
-        obs = measure(packing, model)
+        obs = measure(packing, model, frozen)
         if frozen is not None:
             traction = plane_tractions(packing, model, lower, upper)
             tau = 0.5 * float(traction[0, 0] - traction[1, 0])
@@ -274,24 +285,22 @@ def shear_steps(
 
 
 def rough_walls(
-    start: Packing, mode: ShearMode, layer: float | None
-) -> tuple[NDArray[np.bool_], NDArray[np.bool_], NDArray[np.bool_] | None]:
-    """Plane shear's rough walls in ``start``: the lower and upper layers (:func:`~athermal.
-    walls.wall_layers`, ``layer`` default the largest diameter) and their union, the frozen
-    mask; refused when a layer is empty or they leave no particle free. Other modes: empty
-    layers and no frozen mask."""
-    if mode != "plane":
-        none = np.zeros(start.n, dtype=bool)
-        return none, none, None
-    width = (
-        2.0 * float(start.radii.max()) if layer is None else positive_scalar(layer, "wall_layer")
-    )
+    start: Packing, wall_layer: float | None = None
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Plane shear's rough walls in ``start``: the masks ``(N,)`` of its particles within
+    ``wall_layer`` (default the largest diameter) of the lower and of the upper wall
+    (:func:`~athermal.walls.wall_layers`). Refused (:class:`InputError`) when the cell cannot
+    be plane-sheared (:func:`check_mode`), a layer is empty, the layers meet or they leave no
+    particle free."""
+    _check_plane(start.cell)
+    width = 2.0 * float(start.radii.max())
+    if wall_layer is not None:
+        width = positive_scalar(wall_layer, "wall_layer")
     lower, upper = wall_layers(start.positions, start.cell, start.cell.walls[0], width)
-    frozen = lower | upper
-    if not lower.any() or not upper.any() or (lower & upper).any() or frozen.all():
+    if not lower.any() or not upper.any() or (lower & upper).any() or (lower | upper).all():
         raise InputError(
             f"wall_layer: a layer of {width:.6g} glues {int(lower.sum())} particles to the lower "
             f"wall and {int(upper.sum())} to the upper one, of {start.n}; each wall needs some, "
             "the layers may not meet, and some particles must stay free"
         )
-    return lower, upper, frozen
+    return lower, upper
