@@ -31,8 +31,7 @@ threads, each long enough that few of its rows border another (``docs/decisions.
 kernels on many cores")."""
 PARALLEL_BUILD = 50_000
 """Particles from which the cell-list build runs on the threads (:func:`bin_particles_threads`,
-:func:`collect_chunks`;
-measured in ``docs/decisions.md``, "The kernels on many cores")."""
+:func:`collect_chunks`; measured in ``docs/decisions.md``, "The kernels on many cores")."""
 PAIRS_PER_PARTICLE = {2: 4.0, 3: 7.0}
 """Pairs per particle a search first makes room for (a bound on the usual count at the default
 skin); a search that needs more grows its buffers and goes on."""
