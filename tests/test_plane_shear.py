@@ -217,6 +217,15 @@ def test_plane_shear_on_the_command_line(tmp_path, capsys):
     report = json.loads(capsys.readouterr().out)
     assert report["mode"] == "plane" and report["steps"] == 3
     assert count_frames(out) == 3 and read_gsd(out).packing.cell.walls == (1,)
+    # every frame marks the glued particles, never rattlers
+    import gsd.hoomd
+
+    lower, upper = rough_walls(read_gsd(start).packing)
+    with gsd.hoomd.open(str(out)) as traj:
+        for frame in traj:
+            glued = frame.log["particles/glued"].astype(bool)
+            np.testing.assert_array_equal(glued, lower | upper)
+            assert not (frame.log["particles/rattler"].astype(bool) & glued).any()
     # refused at the door, nothing written
     bad = tmp_path / "bad.gsd"
     for extra in (["--wall-layer", "0.7"], ["--wall-layer", "-1"]):

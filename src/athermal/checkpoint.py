@@ -93,7 +93,8 @@ class Trajectory:
     then refuses an existing file unless ``resume`` (continue it: every frame must carry
     ``identity``) or ``overwrite`` (start afresh: the old file is replaced only when the first
     new step is appended, so a run that fails before that loses nothing); :attr:`frames` are the
-    frames found when resuming.
+    frames found when resuming. ``glued`` (plane shear's glued particles) is written with every
+    frame (:func:`~athermal.io.write_gsd`).
     """
 
     def __init__(
@@ -105,11 +106,13 @@ class Trajectory:
         seed: int | None,
         resume: bool = False,
         overwrite: bool = False,
+        glued: NDArray[np.bool_] | None = None,
     ) -> None:
         self.path = Path(path)
         self.identity = identity
         self.model = model
         self.seed = seed
+        self.glued = glued
         self.frames: list[Frame] = []
         self._lock = claim(self.path)
         self._replace = False
@@ -145,5 +148,6 @@ class Trajectory:
             model=self.model,
             seed=self.seed,
             observables={**step_log(step), "run_id": self.identity},
+            glued=self.glued,
         )
         self._replace = False

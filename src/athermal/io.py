@@ -22,7 +22,8 @@ particle pairs ``(i, j)``), with ``log/bonds/overlap`` and, when a contact model
 ``log/bonds/force`` (normal force ``k delta^(alpha-1)``) per bond, and ``log/particles/rattler``
 (1 for a rattler: fewer than ``d + 1`` contacts, removed iteratively), which OVITO imports as
 bond and particle properties; between walls, with a model, ``log/particles/wall_force`` is the
-force each particle's wall contacts exert on it (0 for a particle touching no wall). A
+force each particle's wall contacts exert on it (0 for a particle touching no wall), and a
+plane shear's frames add ``log/particles/glued`` (1 for a particle glued to a wall). A
 simulation code that reads bonds as bonded interactions (HOOMD-blue's neighbour lists exclude
 bonded pairs by default) must drop them first.
 
@@ -99,6 +100,7 @@ def write_gsd(
     seed: int | None = None,
     observables: Mapping[str, ArrayLike] | None = None,
     position_lo: ArrayLike | None = None,
+    glued: NDArray[np.bool_] | None = None,
 ) -> None:
     """Write ``packing`` as a one-frame GSD file, atomically.
 
@@ -116,6 +118,9 @@ def write_gsd(
         ``log/athermal/<name>`` (scalars as shape ``(1,)``).
     position_lo : ``(N, d)`` low parts of double-double positions, stored as
         ``log/athermal/position_lo`` (:attr:`Frame.position_lo`).
+    glued : mask ``(N,)`` of the particles glued to a wall (plane shear's rough walls), stored
+        as ``log/particles/glued`` (1 glued, 0 free); they are never rattlers in
+        ``log/particles/rattler``.
 
     Examples
     --------
@@ -128,7 +133,7 @@ def write_gsd(
     True
     """
     target = Path(path)
-    frame = _hoomd_frame(packing, model, seed, observables, step=0, position_lo=position_lo)
+    frame = _hoomd_frame(packing, model, seed, observables, 0, position_lo, glued)
     _write_atomic(target, frame)
 
 
@@ -139,6 +144,7 @@ def append_gsd(
     model: ContactModel | None = None,
     seed: int | None = None,
     observables: Mapping[str, ArrayLike] | None = None,
+    glued: NDArray[np.bool_] | None = None,
 ) -> int:
     """Append ``packing`` as one frame to a trajectory; returns the number of frames now in it.
 
@@ -148,11 +154,11 @@ def append_gsd(
     """
     target = Path(path)
     if not target.exists():
-        _write_atomic(target, _hoomd_frame(packing, model, seed, observables, step=0))
+        _write_atomic(target, _hoomd_frame(packing, model, seed, observables, 0, glued=glued))
         return 1
     with _open_read(target) as traj:
         count = len(traj)
-    frame = _hoomd_frame(packing, model, seed, observables, step=count)
+    frame = _hoomd_frame(packing, model, seed, observables, count, glued=glued)
     # appended to a copy that replaces the file once complete: an append that fails (a full
     # disk, a kill) leaves the trajectory exactly as it was
     what = "cannot append a frame"
@@ -303,6 +309,7 @@ def _hoomd_frame(
     observables: Mapping[str, ArrayLike] | None,
     step: int,
     position_lo: ArrayLike | None = None,
+    glued: NDArray[np.bool_] | None = None,
 ) -> gsd.hoomd.Frame:
     """HOOMD-schema frame with the exact state in ``log/athermal/`` (arguments validated here)."""
     if not isinstance(packing, Packing):
@@ -343,7 +350,12 @@ def _hoomd_frame(
     log["bonds/overlap"] = contacts.overlap
     if model is not None:
         log["bonds/force"] = contacts.force_magnitude
-    log["particles/rattler"] = rattlers(contacts, packing.n, packing.dim).astype(np.uint8)
+    if glued is not None:
+        glued = np.asarray(glued)
+        if glued.shape != (packing.n,) or glued.dtype != np.bool_:
+            raise InputError(f"glued: expected a boolean mask of shape ({packing.n},)")
+        log["particles/glued"] = glued.astype(np.uint8)
+    log["particles/rattler"] = rattlers(contacts, packing.n, packing.dim, glued).astype(np.uint8)
     if contacts.walls is not None and model is not None:
         on_walls = contacts.walls
         log["particles/wall_force"] = np.bincount(

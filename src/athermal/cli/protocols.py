@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any, Generic, TypeVar
 
 import numpy as np
+from numpy.typing import NDArray
 
 from ..certify import CertifiedPacking, bisect_jamming_point, certify
 from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
@@ -115,10 +116,11 @@ def _trajectory(
     protocol: str,
     model: ContactModel,
     file_seed: int | None,
+    glued: NDArray[np.bool_] | None = None,
     **parameters: Any,
 ) -> Trajectory:
     """The checkpoint of this run: its identity from every parameter, ``--resume`` and
-    ``--overwrite`` as given."""
+    ``--overwrite`` as given; ``glued`` marks plane shear's glued particles in every frame."""
     identity = run_id(
         protocol,
         {
@@ -130,7 +132,13 @@ def _trajectory(
         },
     )
     return Trajectory(
-        path, identity, model=model, seed=file_seed, resume=args.resume, overwrite=args.overwrite
+        path,
+        identity,
+        model=model,
+        seed=file_seed,
+        resume=args.resume,
+        overwrite=args.overwrite,
+        glued=glued,
     )
 
 
@@ -441,6 +449,7 @@ def shear(args: argparse.Namespace) -> None:
         "shear",
         model,
         frame.seed,
+        glued=frozen,
         start=_fingerprint(packing),
         mode=args.mode,
         strain=args.strain,
