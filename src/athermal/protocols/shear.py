@@ -117,7 +117,8 @@ def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
         raise InputError(
             "mode: simple shear (x += gamma y) would tilt a cell with walls normal to "
             f"{'x' if 0 in cell.walls else 'y'}, and flat frictionless walls carry no shear "
-            "stress; use pure shear or uniaxial compression"
+            "stress; use pure shear, uniaxial compression, or plane shear between rough walls "
+            "(mode plane)"
         )
     if mode == "uniaxial" and not strain < 1.0:
         raise InputError(f"strain: uniaxial compression needs a strain < 1, got {strain:g}")
