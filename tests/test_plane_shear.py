@@ -80,12 +80,16 @@ def test_no_minimizer_moves_a_frozen_particle(method, precon, solver):
     assert np.abs(full[frozen]).max() > 1e-6
 
 
-def test_the_relaxers_hand_overs_keep_the_frozen_particles():
+def test_the_relaxers_hand_overs_keep_the_frozen_particles(monkeypatch):
     """Newton's hand-over to P-L-BFGS after its patience and the saddle escapes go through the
     same objective: with one Newton iteration allowed, the rest is P-L-BFGS's."""
+    import athermal.relaxation as relaxation
+
+    monkeypatch.setattr(relaxation, "NEWTON_PATIENCE", 1)
     p, frozen = sheared_start(seed=4)
     objective = Objective(p, MODEL, frozen=frozen)
     result, _ = Relaxer(objective, Minimizer("newton")).relax_to_minimum(objective.x0, gtol=1e-11)
+    assert result.converged and result.method.startswith("newton+lbfgs")
     np.testing.assert_array_equal(result.packing.positions[frozen], p.positions[frozen])
 
 
