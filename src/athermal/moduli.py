@@ -302,15 +302,15 @@ def stability(
     """
     dim = packing.dim
     h, dofs, _ = stiffness_matrix(packing, model, frozen)
-    if frozen is None:
-        keep = _unpinned(dofs.size, dim, packing.cell.walls)
-    else:  # the frozen particles pin the rest: no translation is left
-        keep = np.flatnonzero(~frozen[dofs // dim])
-        h, dofs = h[keep][:, keep].tocsr(), dofs[keep]
-        keep = np.arange(dofs.size)
+    if frozen is not None:  # the frozen particles pin the rest: no translation is left
+        free = np.flatnonzero(~frozen[dofs // dim])
+        h, dofs = h[free][:, free].tocsr(), dofs[free]
     if dofs.size <= (dim if frozen is None else 0):  # nothing left to move
         return Stability(True, None, None, 0.0)
-    pinned = h[keep][:, keep]
+    pinned = h
+    if frozen is None:
+        keep = _unpinned(dofs.size, dim, packing.cell.walls)
+        pinned = h[keep][:, keep]
     shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
     test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
     if _cholesky_solve(test, np.zeros((pinned.shape[0], 1))) is not None:

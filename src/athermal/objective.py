@@ -151,7 +151,8 @@ class Objective:
             self._walls,
             self._slabs,
         )
-        grad[self.frozen_rows] = 0.0
+        if self.frozen_rows.size:
+            grad[self.frozen_rows] = 0.0
         self.n_evaluations += 1
         self._last_x[:] = x
         self._last = (energy, grad)

@@ -192,8 +192,6 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError("--figure: D(omega) needs the full spectrum; drop --lowest")
         if args.lowest is not None and args.vectors > args.lowest:
             raise InputError(f"--vectors {args.vectors} exceeds --lowest {args.lowest}")
-    if args.command == "shear" and args.wall_layer is not None and args.mode != "plane":
-        raise InputError("--wall-layer: only plane shear (--mode plane) glues particles to walls")
     if args.command in ("shear", "ensemble"):
         if args.step > args.strain:
             raise InputError(f"--step {args.step:g} exceeds --strain {args.strain:g}")

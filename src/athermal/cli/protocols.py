@@ -438,7 +438,7 @@ def shear(args: argparse.Namespace) -> None:
     shear."""
     t0 = time.perf_counter()
     packing, model, frame, index = _start(args)
-    check_mode(args.mode, args.strain, packing.cell)
+    check_mode(args.mode, args.strain, packing.cell, args.wall_layer)
     frozen = None
     if args.mode == "plane":  # refused here, before the trajectory is claimed
         lower, upper = rough_walls(packing, args.wall_layer)

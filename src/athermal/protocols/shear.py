@@ -106,13 +106,16 @@ def _check_plane(cell: Cell) -> None:
         )
 
 
-def check_mode(mode: ShearMode, strain: float, cell: Cell) -> None:
+def check_mode(mode: ShearMode, strain: float, cell: Cell, wall_layer: float | None = None) -> None:
     """Refuse (:class:`InputError`) a ``mode`` the cell's walls cannot take (simple shear
-    tilts x along y; plane shear needs walls normal to one axis other than x) and a uniaxial
-    ``strain`` that leaves no cell (>= 1)."""
+    tilts x along y; plane shear needs walls normal to one axis other than x), a uniaxial
+    ``strain`` that leaves no cell (>= 1) and a ``wall_layer`` with a mode other than plane
+    shear."""
     choice(mode, "mode", SHEAR_MODES)
     if mode == "plane":
         _check_plane(cell)
+    elif wall_layer is not None:
+        raise InputError("wall_layer: only plane shear glues particles to walls")
     if mode == "simple" and {0, 1} & set(cell.walls):
         raise InputError(
             "mode: simple shear (x += gamma y) would tilt a cell with walls normal to "
@@ -227,7 +230,7 @@ def shear_steps(
         another mode.
     """
     strain = positive_scalar(strain, "strain")
-    check_mode(mode, strain, start.cell)
+    check_mode(mode, strain, start.cell, wall_layer)
     step = positive_scalar(step, "step")
     if step > strain:
         raise InputError(f"step: the increment {step:g} exceeds the final strain {strain:g}")
@@ -238,8 +241,6 @@ def shear_steps(
     if mode == "plane":
         lower, upper = rough_walls(start, wall_layer)
         frozen = lower | upper
-    elif wall_layer is not None:
-        raise InputError("wall_layer: only plane shear glues particles to walls")
     packing, tau_prev, gamma_prev, first = start, np.nan, 0.0, 0
     if resume:
         if [s.index for s in resume] != list(range(len(resume))) or len(resume) > strains.size:
