@@ -3,6 +3,7 @@ independently (decimal at 60 digits), and what cannot be certified is refused.""
 
 import json
 from decimal import Decimal
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,6 +25,8 @@ from athermal.extended import NearPairs
 from athermal.neighbors import build_neighbor_list
 from athermal.observables import rattlers
 from decimal_reference import decimal_sums
+
+DATA = Path(__file__).parent / "data"
 
 
 @pytest.fixture(scope="module", params=[(2, 2.0, 64), (2, 2.5, 64), (3, 2.0, 48)])
@@ -230,7 +233,7 @@ def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
     _, rattler = contact_network(pairs, hi, sums)
     bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     radii = packing.radii * (point.phi_low / point.phi_high) ** 0.5
-    verdict, _, _ = _trial(pairs, pairs.stiffness.copy(), hi, lo, radii, bonds, rattler)
+    verdict, _, _, _ = _trial(pairs, pairs.stiffness.copy(), hi, lo, radii, bonds, rattler)
     assert verdict is False
 
 
@@ -246,3 +249,30 @@ def test_jam_certify_bisects_below_float64_and_refuses_it_otherwise(tmp_path, ca
     assert result["pressure"] == result["certificate"]["pressure"] < 1e-11
     frame = at.read_gsd(out)
     assert frame.packing.phi == result["phi_high"] and frame.position_lo is not None
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_hyperstatic_packings_that_shed_contacts_are_bracketed(seed):
+    """Two hyperstatic packings (N = 4096, 5 and 7 contacts above isostatic at epsilon 1e-6,
+    jammed once and stored: a jam's trajectory differs between CPUs) shed contacts on their way
+    to phi_c. On the first, rattlers left with too few bonds have no room in the cage that
+    closes in on them: they are readmitted (the march used to stop there). On the second, a
+    contact parts and leaves the network unstable: it is held by a gap that closes along the
+    unstable mode. Both brackets close to 1e-12 inside float64's."""
+    data = np.load(DATA / f"jammed_n4096_seed{seed}.npz")
+    packing = at.Packing(data["positions"], data["radii"], at.Cell(data["h"]))
+    model = at.ContactModel(2.0)
+    point = bisect_jamming_point(packing, model, 1e-12)
+    assert 0.0 < point.phi_high - point.phi_low <= 1e-12
+    assert float(data["phi_low"]) <= point.phi_low < point.phi_high <= float(data["phi_high"])
+    assert point.contacts_shed > 0 and point.rattlers_readmitted > 0
+    if seed == 2:
+        assert point.instabilities > 0
+    cert = point.jammed.certificate
+    assert cert.converged and cert.lowest_eigenvalue > 0.0 and cert.pressure < 1e-11
+    # every rattler clear of its cage at the certified point
+    pairs = NearPairs(point.jammed.packing, model, GAP_REACH)
+    sums = pairs.sums(point.jammed.packing.positions, point.jammed.position_lo)
+    _, rattler = contact_network(pairs, point.jammed.packing.positions, sums)
+    overlap = sums.overlap[0] + sums.overlap[1]
+    assert not np.any((overlap > 0.0) & (rattler[pairs.first] | rattler[pairs.second]))

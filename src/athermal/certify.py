@@ -16,8 +16,10 @@ derived again from the refined positions, and a contact that formed or broke bet
 is refused (:class:`~athermal.errors.InputError`): the certificate would describe another
 network. Rattlers (fewer than ``d + 1`` contacts, removed iteratively) carry no force at a
 certified point: each moves with the mean step of the non-rattlers near it (a Newton step moves
-a cage by up to ~1e-9 along soft modes), and one that still overlaps a neighbour is moved
-straight out of the overlap. A step that does not improve the force balance is undone.
+a cage by up to ~1e-9 along soft modes), and one that still overlaps a neighbour is moved to
+the nearest place in its cage clear of every neighbour (:mod:`athermal.cage`); a rattler with no
+such place bears load, and the packing is not certified. A step that does not improve the force
+balance is undone.
 
 :func:`bisect_jamming_point` brackets a jamming point below float64's resolution (~1e-9), each
 verdict a force balance of the contact network in double-double.
@@ -30,6 +32,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from .cage import free_place, free_places
 from .contact import ContactModel, Contacts
 from .errors import ConvergenceError, InputError
 from .extended import PRECISION, NearPairs, PairSums, displace, half_steps
@@ -61,6 +64,9 @@ MAX_TRIALS = 2000
 """Its trials at most."""
 TRIAL_ITERATIONS = 30
 """Newton steps, and network changes, of one trial at most."""
+BLOCKED_MOVE = 1e-6
+"""How far (cell units) a trial's network, unstable once a bond parted, is moved along its
+unstable mode to close the gap that holds it (:func:`_blocking_pair`)."""
 TRIAL_BALANCE = 1e-14
 """A trial's verdict needs its network's forces balanced to this fraction of their mean."""
 DD_FLOOR = 1e-30
@@ -68,8 +74,6 @@ DD_FLOOR = 1e-30
 width; measured in ``docs/decisions.md``, "Certified jamming points")."""
 LOG_PREFIX = "certificate_"
 """The certificate's fields in a GSD frame's log are ``log/athermal/certificate_<name>``."""
-RATTLER_PUSH = 1.0
-"""A rattler that overlaps a neighbour is moved out by ``1 + RATTLER_PUSH`` times the overlap."""
 RATTLER_PASSES = 20
 """Rounds of moving overlapping rattlers out at most."""
 GAP_REACH = 0.2
@@ -209,7 +213,7 @@ def certify(
         )
     live_pair = ~(rattler[pairs.first] | rattler[pairs.second])
     network = live_pair & (sums.overlap[0] > 0.0)
-    sums = _free_rattlers(pairs, hi, lo, rattler)
+    sums = _freed(pairs, hi, lo, rattler)
     force, iterations = sums.largest_force(), 0
     best = (force, hi.copy(), lo.copy(), sums)
     enough = max(target * mean_force, precision_floor(packing, model))
@@ -218,7 +222,7 @@ def certify(
         step = _newton_step(pairs, hi, sums, network, rattler)
         _carry_rattlers(pairs, step, rattler)
         displace(hi, lo, step)
-        sums, previous = _free_rattlers(pairs, hi, lo, rattler), force
+        sums, previous = _freed(pairs, hi, lo, rattler), force
         iterations += 1
         force = sums.largest_force()
         if force < best[0]:
@@ -296,27 +300,120 @@ def _carry_rattlers(
 
 
 def _free_rattlers(
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    rattler: NDArray[np.bool_],
+    radii: NDArray[np.float64] | None = None,
+) -> tuple[PairSums, NDArray[np.int64]]:
+    """Move every rattler that overlaps a neighbour to a place in its cage clear of every
+    neighbour (a rattler's place in its cage is free): the nearest, the others held
+    (:func:`athermal.cage.free_place`), or, for rattlers with no room alone, one found with
+    their rattler neighbours moved too (:func:`athermal.cage.free_places`); a few rounds, since a
+    rattler may touch another. Rattlers that have no room even so are left where they overlap
+    least: they bear load. Returns the pair sums at the positions reached (the packing's radii
+    or ``radii``) and those squeezed rattlers."""
+    radii = pairs.packing.radii if radii is None else radii
+    reach = radii[pairs.first] + radii[pairs.second]
+    free = rattler.copy()
+    for _ in range(RATTLER_PASSES):
+        sums = pairs.sums(hi, lo, radii)
+        hit = (sums.overlap[0] > 0.0) & (free[pairs.first] | free[pairs.second])
+        if not hit.any():
+            return sums, np.flatnonzero(rattler & ~free)
+        ends = np.concatenate([pairs.first[hit], pairs.second[hit]])
+        stuck = []
+        for i in np.unique(ends[free[ends]]):
+            mine = np.flatnonzero((pairs.first == i) | (pairs.second == i))
+            move = free_place(_offsets(pairs, hi, lo, mine, i), reach[mine])
+            if move is None:
+                stuck.append(i)
+                continue
+            step = np.zeros_like(hi)
+            step[i] = move
+            displace(hi, lo, step)
+        if stuck:
+            free[_place_together(pairs, hi, lo, reach, free, np.array(stuck))] = False
+    raise ConvergenceError(
+        f"certify: rattlers still overlap their neighbours after {RATTLER_PASSES} rounds"
+    )
+
+
+def _freed(
     pairs: NearPairs, hi: NDArray[np.float64], lo: NDArray[np.float64], rattler: NDArray[np.bool_]
 ) -> PairSums:
-    """Move every rattler that overlaps a neighbour straight out, by ``1 + RATTLER_PUSH`` times
-    the overlap (a rattler's place in its cage is free); a few rounds, since a move may touch
-    another neighbour. Returns the pair sums at the positions reached."""
-    for _ in range(RATTLER_PASSES):
-        sums = pairs.sums(hi, lo)
-        overlap = sums.overlap[0]
-        hit = np.flatnonzero((overlap > 0.0) & (rattler[pairs.first] | rattler[pairs.second]))
-        if hit.size == 0:
-            return sums
-        sep = pairs.separations(hi)[hit]
-        push = ((1.0 + RATTLER_PUSH) * overlap[hit] / np.linalg.norm(sep, axis=1))[:, None] * sep
-        step = np.zeros_like(hi)
-        first_moves = rattler[pairs.first[hit]]  # sep points from second to first
-        np.add.at(step, pairs.first[hit][first_moves], push[first_moves])
-        np.add.at(step, pairs.second[hit][~first_moves], -push[~first_moves])
-        displace(hi, lo, step)
-    raise ConvergenceError(
-        f"certify: rattlers still overlap their neighbours after {RATTLER_PASSES} moves"
-    )
+    """:func:`_free_rattlers` where no rattler may bear load."""
+    sums, squeezed = _free_rattlers(pairs, hi, lo, rattler)
+    if squeezed.size:
+        raise ConvergenceError(
+            f"certify: rattler(s) {', '.join(map(str, squeezed))} cannot be placed in their "
+            "cage without overlapping a neighbour: they bear load"
+        )
+    return sums
+
+
+def _offsets(
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    which: NDArray[np.int64],
+    movers: NDArray[np.int64] | int,
+) -> NDArray[np.float64]:
+    """``x_j - x_i`` ``(len(which), d)`` of the pairs ``which`` at ``hi + lo``, ``i`` the end
+    that is among ``movers`` (the first end where both are), rounded once from double-double."""
+    one, two = pairs.first[which], pairs.second[which]
+    shift = pairs.images[which] @ pairs.packing.cell.h.T
+    near, error = _two_sum(hi[one], -hi[two])  # x_first - x_second, rounded once at the end
+    near, more = _two_sum(near, shift)
+    sep = near + ((error + more) + (lo[one] - lo[two]))
+    return np.where(np.isin(one, movers)[:, None], -sep, sep)
+
+
+def _two_sum(
+    a: NDArray[np.float64], b: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``a + b`` and its rounding error, exactly (Knuth's two-sum, elementwise)."""
+    total = a + b
+    part = total - a
+    return total, (a - (total - part)) + (b - part)
+
+
+def _place_together(
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    reach: NDArray[np.float64],
+    free: NDArray[np.bool_],
+    stuck: NDArray[np.int64],
+) -> NDArray[np.int64]:
+    """Move the rattlers ``stuck`` and their rattler neighbours (``free``) together to places
+    clear of every neighbour (:func:`athermal.cage.free_places`), or where they overlap least;
+    returns those that still overlap there."""
+    near = np.isin(pairs.first, stuck) | np.isin(pairs.second, stuck)
+    ends = np.concatenate([pairs.first[near], pairs.second[near]])
+    movers = np.unique(ends[free[ends]])
+    which = np.flatnonzero(np.isin(pairs.first, movers) | np.isin(pairs.second, movers))
+    one, two = pairs.first[which], pairs.second[which]
+    first_moves = np.isin(one, movers)
+    index = np.full(hi.shape[0], -1)
+    index[movers] = np.arange(movers.size)
+    mover, partner = index[np.where(first_moves, one, two)], index[np.where(first_moves, two, one)]
+    offsets = _offsets(pairs, hi, lo, which, movers)
+    found = free_places(mover, partner, offsets, reach[which], movers.size)
+    if found is None:
+        raise ConvergenceError(
+            f"certify: rattler(s) {', '.join(map(str, stuck))} cannot be moved in their cage "
+            "without passing through a neighbour"
+        )
+    moves, clear = found
+    step = np.zeros_like(hi)
+    step[movers] = moves
+    displace(hi, lo, step)
+    if clear:
+        return np.empty(0, dtype=np.int64)
+    sep = offsets + np.where((partner < 0)[:, None], 0.0, moves[partner]) - moves[mover]
+    touching = np.linalg.norm(sep, axis=1) < reach[which]
+    return np.unique(movers[np.concatenate([mover[touching], partner[touching & (partner >= 0)]])])
 
 
 def _same_network(pairs: NearPairs, before: NDArray[np.bool_], after: NDArray[np.bool_]) -> None:
@@ -377,8 +474,10 @@ def _certificate(
 class CertifiedJamming:
     """A jamming point bracketed below float64's resolution (:func:`bisect_jamming_point`): the
     jammed bound at ``phi_high`` with its certificate, the unjammed bound ``phi_low``, the
-    trials, and the contacts the network shed on the way (a hyperstatic network loses the
-    contacts whose forces vanish first) and formed."""
+    trials, the contacts the network shed on the way (a hyperstatic network loses the contacts
+    whose forces vanish first) and formed, the rattlers readmitted (squeezed by their cage), and
+    the instabilities: how often a network that a parted contact left unstable was held by a
+    gap that closed along its unstable mode."""
 
     jammed: CertifiedPacking
     phi_low: float
@@ -386,6 +485,8 @@ class CertifiedJamming:
     trials: int
     contacts_shed: int
     contacts_formed: int
+    rattlers_readmitted: int
+    instabilities: int
 
 
 def bisect_jamming_point(
@@ -399,14 +500,21 @@ def bisect_jamming_point(
     by Newton's method in double-double with the network's contacts as springs of rest length
     ``r_i + r_j`` (pushing when they overlap, pulling when apart); a pair that comes to overlap
     joins the network. The trial is jammed when every contact of the balanced network overlaps
-    (a minimum with positive pressure), unjammed when every one is apart (the network holds only
-    in tension: relaxed, the packing loses its load) or when what is left is floppy; a contact
-    that parts while others hold leaves the network (a hyperstatic network sheds contacts down
-    to isostatic on its way to ``phi_c``) and the trial is balanced again. Rattlers carry no
-    force in the trials. The trials march down from the certified packing, each from the last
-    jammed one and at most a step away (doubled after a balanced trial up to
-    :data:`LARGEST_STEP`, quartered after one that Newton cannot balance: the network's response
-    runs along its soft modes), then bisect the last step. float64 cannot do this below ~1e-9:
+    (a minimum with positive pressure) and every rattler has room in its cage, unjammed when
+    every contact is apart (the network holds only in tension: relaxed, the packing loses its
+    load) or when what is left is floppy. Contacts that part while others hold leave the network
+    (a hyperstatic network sheds contacts on its way to ``phi_c``) and the trial is balanced
+    again; a particle left with fewer than ``d + 1`` contacts becomes a rattler. Rattlers carry
+    no force in the trials; one that has no room in its cage (the network closed in on it) bears
+    load and is readmitted with the contacts it has at the least overlapping place there. A
+    network that a parted contact leaves unstable (its Hessian, pre-stress included, has a
+    negative eigenvalue, and Newton's correction cannot be solved) is moved along that mode, in
+    the sense that opens the parted contact, until a near gap closes; that pair joins the
+    network (``docs/decisions.md``, "Jamming below float64's resolution"). The trials march
+    down from the certified packing, each from the last jammed one and at most a step away
+    (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered after one that Newton
+    cannot balance: the network's response runs along its soft modes), then bisect the last
+    step. float64 cannot do this below ~1e-9:
     overlaps of ~1e-17 and energies of ~1e-28 are round-off there, and a float64 minimum lies
     ~1e-8 away along the soft modes. Harmonic contacts (alpha = 2) only: a spring in tension
     continues the contact's force linearly.
@@ -431,6 +539,7 @@ def bisect_jamming_point(
     hi, lo = start.packing.positions.copy(), start.position_lo.copy()
     phi0, radii0, dim = packing.phi, packing.radii, packing.dim
     high, low, step, trials, radii = phi0, -1.0, FIRST_STEP, 0, radii0
+    readmitted, instabilities = 0, 0
     while low < 0.0 or high - low > epsilon:
         if trials == max_trials:
             raise ConvergenceError(f"certify: no bracket of {epsilon:g} in {max_trials} trials")
@@ -438,7 +547,7 @@ def bisect_jamming_point(
         trial_radii = radii0 * (phi / phi0) ** (1.0 / dim)
         trial_hi, trial_lo = hi.copy(), lo.copy()
         trials += 1
-        verdict, trial_bonds, trial_rattler = _trial(
+        verdict, trial_bonds, trial_rattler, held = _trial(
             pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler
         )
         if verdict is None:
@@ -447,7 +556,10 @@ def bisect_jamming_point(
                     f"certify: the network's force balance at phi = {phi:.15f} does not converge"
                 )
             step /= 4.0
-        elif verdict:
+            continue
+        if verdict:
+            readmitted += int(np.sum(rattler & ~trial_rattler))
+            instabilities += held
             high, hi, lo, radii = phi, trial_hi, trial_lo, trial_radii
             bonds, rattler = trial_bonds, trial_rattler
             step = min(2.0 * step, LARGEST_STEP)
@@ -455,8 +567,7 @@ def bisect_jamming_point(
             low = phi
     pairs.stiffness = stiffness
     final = Packing(hi, radii, packing.cell)
-    _free_rattlers(NearPairs(final, model, GAP_REACH), hi, lo, rattler)
-    jammed = certify(final.with_positions(hi), model, lo)
+    jammed = certify(final, model, lo)
     return CertifiedJamming(
         jammed,
         low,
@@ -464,7 +575,66 @@ def bisect_jamming_point(
         trials,
         int(np.sum(first & ~bonds)),
         int(np.sum(bonds & ~first)),
+        readmitted,
+        instabilities,
     )
+
+
+def _blocking_pair(
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    bonds: NDArray[np.bool_],
+    overlap: NDArray[np.float64],
+    parted: int | None,
+) -> int | None:
+    """A network whose Hessian is not positive definite after a bond parted may be unstable
+    along a mode (a negative eigenvalue: the pre-stress of the bonds left); moved along it, the
+    packing closes a near gap, and the new contact holds the mode. Moves ``hi + lo`` along the
+    lowest mode until a gap closes, and returns the pair: in the sense that opens the bond that
+    parted last (``parted``; it parted in tension), or where none did, the sense that closes a
+    gap first. None when the Hessian has no negative mode, or no gap closes within
+    :data:`BLOCKED_MOVE`."""
+    h, dofs = nonrattler_hessian(contacts, rattler, hi.shape[1])
+    values, vectors = lowest_eigenpairs(h, min(hi.shape[1] + 2, h.shape[0] - 2))
+    if not values[0] < -zero_tolerance(h):
+        return None
+    flat = np.zeros(hi.size)
+    flat[dofs] = vectors[:, 0]
+    mode = flat.reshape(hi.shape)
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    candidate = live & ~bonds & (overlap <= 0.0)
+    senses: tuple[float, ...] = (1.0, -1.0)
+    if parted is not None:
+        candidate[parted] = False
+        senses = (1.0,) if _rates(pairs, hi, mode, np.array([parted]))[0] > 0.0 else (-1.0,)
+    near = np.flatnonzero(candidate)
+    rate = _rates(pairs, hi, mode, near)
+    gap = -overlap[near]
+    best: tuple[float, int, float] | None = None
+    for sense in senses:  # the distance changes at ``sense x rate`` per unit move
+        closing = sense * rate < 0.0
+        if not closing.any():
+            continue
+        t = gap[closing] / -(sense * rate[closing])
+        k = int(np.argmin(t))
+        if best is None or t[k] < best[0]:
+            best = (float(t[k]), int(near[closing][k]), sense)
+    if best is None or best[0] * np.abs(mode).max() > BLOCKED_MOVE:
+        return None
+    displace(hi, lo, best[2] * best[0] * (1.0 + 1e-9) * mode)
+    return best[1]
+
+
+def _rates(
+    pairs: NearPairs, hi: NDArray[np.float64], mode: NDArray[np.float64], which: NDArray[np.intp]
+) -> NDArray[np.float64]:
+    """How fast the distance of each pair ``which`` grows along ``mode`` ``(N, d)``."""
+    sep = pairs.separations(hi)[which]
+    unit = sep / np.linalg.norm(sep, axis=1)[:, None]
+    return np.einsum("kd,kd->k", unit, mode[pairs.first[which]] - mode[pairs.second[which]])
 
 
 def _trial(
@@ -475,16 +645,18 @@ def _trial(
     radii: NDArray[np.float64],
     bonds: NDArray[np.bool_],
     rattler: NDArray[np.bool_],
-) -> tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_]]:
+) -> tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_], int]:
     """Balance the network ``bonds`` at ``radii`` from ``hi + lo`` (updated in place), the
     rattlers' pairs without force: whether it is jammed (None: Newton did not converge in
-    :data:`TRIAL_ITERATIONS`, or its correction could not be solved: never a verdict), its bonds
-    and its rattlers (a particle left with fewer than ``d + 1`` bonds by shed contacts joins
-    them)."""
+    :data:`TRIAL_ITERATIONS`, or its correction could not be solved: never a verdict), its bonds,
+    its rattlers (a particle left with fewer than ``d + 1`` bonds by shed contacts joins them)
+    and how often its network gave way and a closing gap held it (:func:`_blocking_pair`)."""
     n, dim = hi.shape
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     pairs.stiffness = np.where(live, stiffness, 0.0)
     sums = pairs.sums(hi, lo, radii, bonds)
+    parted: int | None = None
+    held = 0
     for _ in range(TRIAL_ITERATIONS):
         overlap = sums.overlap[0] + sums.overlap[1]
         formed = live & ~bonds & (overlap > 0.0)
@@ -495,24 +667,45 @@ def _trial(
         if sums.largest_force() <= TRIAL_BALANCE * scale:
             apart = bonds & (overlap <= 0.0)
             if not apart.any():
-                return True, bonds, rattler
+                pairs.stiffness = stiffness
+                free, squeezed = _free_rattlers(pairs, hi, lo, rattler, radii)
+                if not squeezed.size:
+                    return True, bonds, rattler, held
+                rattler = rattler.copy()  # readmitted: they bear load
+                rattler[squeezed] = False
+                live = ~(rattler[pairs.first] | rattler[pairs.second])
+                bonds = bonds | (live & (free.overlap[0] > 0.0))
+                pairs.stiffness = np.where(live, stiffness, 0.0)
+                sums = pairs.sums(hi, lo, radii, bonds)
+                continue
             if apart.sum() == bonds.sum():
-                return False, bonds, rattler
+                return False, bonds, rattler, held
+            parted = int(np.argmin(np.where(apart, pairs.stiffness * overlap, np.inf)))
             bonds = bonds & ~apart
             rattler = rattler | rattlers(pairs.contacts(hi, overlap, bonds), n, dim)
             live = ~(rattler[pairs.first] | rattler[pairs.second])
             bonds = bonds & live
             if not bonds.any():  # the network came apart: no load is borne
-                return False, bonds, rattler
+                return False, bonds, rattler, held
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
         contacts = pairs.contacts(hi, sums.overlap[0], bonds)
-        y, residual, _ = pinned_solve(contacts, rattler, sums.gradient[0].reshape(n, dim, 1))
+        force = sums.gradient[0].reshape(n, dim, 1)
+        y, residual, _ = pinned_solve(contacts, rattler, force, iterative=False)
+        if residual == np.inf:  # not positive definite: unstable, or singular
+            blocking = _blocking_pair(pairs, hi, lo, contacts, rattler, bonds, overlap, parted)
+            if blocking is not None:
+                held += 1
+                bonds = bonds.copy()
+                bonds[blocking] = True
+                sums = pairs.sums(hi, lo, radii, bonds)
+                continue
+            y, residual, _ = pinned_solve(contacts, rattler, force)  # consistent, singular
         if not np.all(np.isfinite(y)) or residual > 1e-6:
-            return None, bonds, rattler
+            return None, bonds, rattler, held
         step = -y.reshape(n, dim)
         _carry_rattlers(pairs, step, rattler)
         displace(hi, lo, step)
         sums = pairs.sums(hi, lo, radii, bonds)
-    return None, bonds, rattler
+    return None, bonds, rattler, held

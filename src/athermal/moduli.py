@@ -393,13 +393,16 @@ def pinned_solve(
     rattler: NDArray[np.bool_],
     xi: NDArray[np.float64],
     walls: tuple[int, ...] = (),
+    *,
+    iterative: bool = True,
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``y = H^+ Xi`` ``(N d, m)`` for the ``m`` columns of ``xi`` ``(N, d, m)``, zero on the
     rattlers, with the largest relative residual and the solver used.
 
     H is restricted to the non-rattlers with the first of them pinned along the periodic axes
     (those not in ``walls``, the walled axes of the cell), which takes out the translations,
-    and factored once for all columns (:func:`_solve`).
+    and factored once for all columns (:func:`_solve`; without MINRES unless ``iterative``: a
+    residual of infinity then says that H is not positive definite).
     """
     n, dim, m = xi.shape
     y = np.zeros((n * dim, m))
@@ -409,7 +412,7 @@ def pinned_solve(
     dofs = (live[:, None] * dim + np.arange(dim)).ravel()[_unpinned(live.size * dim, dim, walls)]
     b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
     h = hessian(contacts, n)[dofs][:, dofs].tocsr()
-    y[dofs], residual, solver = _solve(h, b)
+    y[dofs], residual, solver = _solve(h, b, iterative)
     return y, residual, solver
 
 
@@ -430,17 +433,20 @@ def _unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:
 
 
 def _solve(
-    h: sp.csr_matrix, b: NDArray[np.float64]
+    h: sp.csr_matrix, b: NDArray[np.float64], iterative: bool = True
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """A solution ``y`` ``(n, m)`` of ``h y = b`` for symmetric ``h`` ``(n, n)``, the largest
     relative residual ``|h y - b| / |b|`` over the columns and the solver that gave it.
 
     CHOLMOD first; when ``h`` is not positive definite, or the residual exceeds
     ``RESIDUAL_TOL``, MINRES (from the direct answer, if any), which also solves consistent
-    singular systems (``b`` in the range of ``h``).
+    singular systems (``b`` in the range of ``h``); not ``iterative``: zeros and an infinite
+    residual where ``h`` is not positive definite.
     """
     norms = np.linalg.norm(b, axis=0)
     y = _cholesky_solve(h, b)
+    if y is None and not iterative:
+        return np.zeros_like(b), np.inf, "cholmod"
     if y is None:
         y = np.zeros_like(b)
     else:

@@ -236,6 +236,8 @@ def jam(args: argparse.Namespace) -> None:
                     "trials": point.trials,
                     "contacts_shed": point.contacts_shed,
                     "contacts_formed": point.contacts_formed,
+                    "rattlers_readmitted": point.rattlers_readmitted,
+                    "instabilities": point.instabilities,
                 }
             else:
                 certified = certify(result.packing, model)

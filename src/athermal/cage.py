@@ -1,0 +1,209 @@
+"""Where a particle fits in its cage: the nearest point that keeps it clear of fixed neighbours.
+
+A rattler's neighbours exclude a ball each (radius the sum of the two radii) from the places its
+centre may take; the free region is what the balls leave. The point of that region nearest to
+the rattler lies on its boundary: the radial projection onto one sphere, the point nearest to the
+rattler on the circle where two spheres meet (two points in 2D), or, in 3D, a point where three
+spheres meet. :func:`free_place` lists those candidates and keeps the nearest one that is clear
+of every neighbour, which is exact for one particle among fixed neighbours; it is refused when
+the straight move there comes closer to a neighbour than the particle already is (the place lies
+beyond a neighbour, outside the cage: the cage leaves no room). Pushing a squeezed
+particle straight out of each overlap cannot do this: held between two neighbours on a line, it
+goes back and forth between them, while its free places lie to the side, where the two spheres
+meet.
+
+Rattlers that touch each other may have room only when moved together (two of them squeezed in
+one cage): :func:`free_places` minimizes their squared overlaps (:func:`athermal.minimize.minimize`)
+until they vanish, from rest and then from random starts (a particle squeezed on a line sits on
+a saddle of that energy).
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .minimize import minimize
+
+CLEARANCE = 1e-14
+"""A placed particle keeps ``CLEARANCE x`` the sum of the radii clear of the neighbours whose
+spheres define its place: ~100 times the round-off of the offsets (~1e-18 of a cell width when
+rounded once from double-double), below the overlaps of a packing ~1e-13 above its jamming
+point, whose cages have no more room than those."""
+TRIES = 8
+"""Starts of :func:`free_places`: from rest, then random."""
+
+
+def free_place(
+    offsets: NDArray[np.float64], reach: NDArray[np.float64]
+) -> NDArray[np.float64] | None:
+    """The displacement ``(d,)`` of a particle (2D or 3D) to its nearest place at least
+    ``reach`` ``(m,)`` from each neighbour at ``offsets`` ``(m, d)`` (relative to the
+    particle; the neighbours held fixed): zero when it is there already, None when the straight
+    move there passes through a neighbour (:func:`reached`: the cage leaves no room)."""
+    offsets = np.asarray(offsets, dtype=np.float64)
+    reach = np.asarray(reach, dtype=np.float64)
+    nearest = nearest_clear(offsets, reach)
+    if nearest is None or not reached(nearest, offsets, reach):
+        return None
+    return nearest
+
+
+def nearest_clear(
+    offsets: NDArray[np.float64], reach: NDArray[np.float64]
+) -> NDArray[np.float64] | None:
+    """The shortest displacement ``(d,)`` that puts the particle at least ``reach`` ``(m,)``
+    from each neighbour at ``offsets`` ``(m, d)``, wherever it lies (None: no candidate is
+    clear)."""
+    dim = offsets.shape[1]
+    if np.all(np.linalg.norm(offsets, axis=1) >= reach):
+        return np.zeros(dim)
+    target = reach * (1.0 + CLEARANCE)
+    candidates = [_radial(offsets, target)]
+    for j, k in combinations(range(offsets.shape[0]), 2):
+        candidates.append(_circle(offsets[j], offsets[k], target[j], target[k], dim))
+    if dim == 3:
+        for j, k, m in combinations(range(offsets.shape[0]), 3):
+            candidates.append(_three(offsets[[j, k, m]], target[[j, k, m]]))
+    points = np.concatenate(candidates).reshape(-1, dim)
+    clear = np.all(
+        np.linalg.norm(points[:, None, :] - offsets[None, :, :], axis=2) >= reach, axis=1
+    )
+    if not clear.any():
+        return None
+    points = points[clear]
+    return points[np.argmin(np.linalg.norm(points, axis=1))]
+
+
+def reached(
+    move: NDArray[np.float64],
+    offsets: NDArray[np.float64],
+    reach: NDArray[np.float64],
+    slack: float = 0.0,
+) -> bool:
+    """Whether the straight ``move`` ``(d,)`` comes no closer to any neighbour at ``offsets``
+    ``(m, d)`` than ``min(its distance now, its reach) - slack``: it passes through none."""
+    length_sq = max(float(move @ move), np.finfo(float).tiny)
+    t = np.clip(offsets @ move / length_sq, 0.0, 1.0)  # (m,): each neighbour's nearest point
+    nearest = np.linalg.norm(t[:, None] * move[None, :] - offsets, axis=1)
+    allowed = np.minimum(np.linalg.norm(offsets, axis=1), reach)
+    return bool(np.all(nearest >= allowed * (1.0 - CLEARANCE) - slack))
+
+
+def _radial(offsets: NDArray[np.float64], target: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Each sphere's point nearest to the origin."""
+    length = np.linalg.norm(offsets, axis=1)
+    keep = length > 0.0
+    return offsets[keep] * (1.0 - target[keep] / length[keep])[:, None]
+
+
+def _circle(
+    a: NDArray[np.float64], b: NDArray[np.float64], ra: float, rb: float, dim: int
+) -> NDArray[np.float64]:
+    """The points nearest to the origin where the spheres ``(a, ra)`` and ``(b, rb)`` meet: the
+    two crossings in 2D, the circle's nearest point in 3D; none when they do not meet."""
+    axis = b - a
+    length = float(np.linalg.norm(axis))
+    if length == 0.0:
+        return np.empty((0, dim))
+    axis = axis / length
+    along = (length * length + (ra - rb) * (ra + rb)) / (2.0 * length)
+    across_sq = (ra - along) * (ra + along)
+    if across_sq < 0.0:
+        return np.empty((0, dim))
+    centre = a + along * axis
+    across = np.sqrt(across_sq)
+    if dim == 2:
+        side = np.array([-axis[1], axis[0]])
+        return np.array([centre + across * side, centre - across * side])
+    toward = -centre - np.dot(-centre, axis) * axis
+    norm = float(np.linalg.norm(toward))
+    if norm == 0.0:  # the origin on the axis: every point of the circle is as near
+        toward = np.cross(axis, [1.0, 0.0, 0.0])
+        if np.linalg.norm(toward) < 0.5:
+            toward = np.cross(axis, [0.0, 1.0, 0.0])
+        norm = float(np.linalg.norm(toward))
+    return (centre + across * toward / norm)[None, :]
+
+
+def _three(centres: NDArray[np.float64], radii: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The (up to two) points where three spheres meet."""
+    a = centres[1:] - centres[0]
+    rhs = 0.5 * (
+        np.sum(centres[1:] ** 2, axis=1)
+        - np.sum(centres[0] ** 2)
+        - (radii[1:] - radii[0]) * (radii[1:] + radii[0])
+    )
+    normal = np.cross(a[0], a[1])
+    nn = float(np.dot(normal, normal))
+    if nn == 0.0:
+        return np.empty((0, 3))
+    base = np.linalg.lstsq(a, rhs, rcond=None)[0]  # on the line where the three planes meet
+    rel = base - centres[0]
+    rel = rel - np.dot(rel, normal) / nn * normal  # the line's point nearest to the first centre
+    s_sq = (radii[0] ** 2 - np.dot(rel, rel)) / nn
+    if s_sq < 0.0:
+        return np.empty((0, 3))
+    s = np.sqrt(s_sq)
+    point = centres[0] + rel
+    return np.array([point + s * normal, point - s * normal])
+
+
+def free_places(
+    first: NDArray[np.int64],
+    second: NDArray[np.int64],
+    offsets: NDArray[np.float64],
+    reach: NDArray[np.float64],
+    movers: int,
+    seed: int = 0,
+) -> tuple[NDArray[np.float64], bool] | None:
+    """Displacements ``(movers, d)`` that put ``movers`` particles, moved together, at least
+    ``reach`` ``(p,)`` apart in each pair, and whether they do: pair ``k`` joins mover
+    ``first[k]`` to ``second[k]`` (a mover, or -1 for a fixed neighbour), ``offsets[k]``
+    ``(p, d)`` the second's position less the first's. Where no start reaches zero overlap, the
+    least overlapping place found (the particles bear load there); None when every move found
+    passes through a fixed neighbour (:func:`reached`, with the largest overlap now as slack:
+    loaded, a particle may come that much closer to a neighbour)."""
+    dim = offsets.shape[1]
+    overlap = reach - np.linalg.norm(offsets, axis=1)
+    if not np.any(overlap > 0.0):
+        return np.zeros((movers, dim)), True
+    scale = float(np.sqrt(reach.mean() * overlap.max()))  # a sideways step out of a squeeze
+    target = reach * (1.0 + CLEARANCE)
+    fixed = second < 0
+    other = np.where(fixed, 0, second)
+
+    def energy(v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
+        u = v.reshape(movers, dim) * scale
+        sep = offsets + np.where(fixed[:, None], 0.0, u[other]) - u[first]
+        length = np.linalg.norm(sep, axis=1)
+        over = np.maximum(target - length, 0.0) / scale
+        push = (2.0 * over / length)[:, None] * sep  # d energy / d u_first, per pair
+        grad = np.zeros((movers, dim))
+        np.add.at(grad, first, push)
+        np.add.at(grad, other[~fixed], -push[~fixed])
+        return float(over @ over), grad.reshape(-1)
+
+    rng = np.random.default_rng(seed)
+    best: tuple[float, NDArray[np.float64]] | None = None
+    for attempt in range(TRIES):
+        start = np.zeros(movers * dim) if attempt == 0 else rng.normal(size=movers * dim)
+        result = minimize(energy, start, gtol=1e-14, etol=0.0, maxiter=2000)
+        moves = result.x.reshape(movers, dim) * scale
+        if not all(
+            reached(
+                moves[i],
+                offsets[fixed & (first == i)],
+                reach[fixed & (first == i)],
+                float(overlap.max()),
+            )
+            for i in range(movers)
+        ):
+            continue
+        if result.fun <= 0.0:
+            return moves, True
+        if best is None or result.fun < best[0]:
+            best = (result.fun, moves)
+    return None if best is None else (best[1], False)
