@@ -40,6 +40,7 @@ MODULES = (
     "athermal.walls",
     "athermal.enthalpy",
     "athermal.certify",
+    "athermal.cage",
     "athermal.criticality",
     "athermal.extended",
     "athermal.plot",

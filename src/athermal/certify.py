@@ -64,9 +64,10 @@ MAX_TRIALS = 2000
 """Its trials at most."""
 TRIAL_ITERATIONS = 30
 """Newton steps, and network changes, of one trial at most."""
-BLOCKED_MOVE = 1e-6
-"""How far (cell units) a trial's network, unstable once a bond parted, is moved along its
-unstable mode to close the gap that holds it (:func:`_blocking_pair`)."""
+BLOCKED_MOVE = 1e-3
+"""How far (in mean diameters, the largest particle's move) a trial's network, unstable once a
+bond parted, is moved along its unstable mode to close the gap that holds it
+(:func:`_blocking_pair`): a small rearrangement, well within the pairs' :data:`GAP_REACH`."""
 TRIAL_BALANCE = 1e-14
 """A trial's verdict needs its network's forces balanced to this fraction of their mean."""
 DD_FLOOR = 1e-30
@@ -593,10 +594,10 @@ def _blocking_pair(
     """A network whose Hessian is not positive definite after a bond parted may be unstable
     along a mode (a negative eigenvalue: the pre-stress of the bonds left); moved along it, the
     packing closes a near gap, and the new contact holds the mode. Moves ``hi + lo`` along the
-    lowest mode until a gap closes, and returns the pair: in the sense that opens the bond that
-    parted last (``parted``; it parted in tension), or where none did, the sense that closes a
-    gap first. None when the Hessian has no negative mode, or no gap closes within
-    :data:`BLOCKED_MOVE`."""
+    lowest mode until a gap closes, and returns the pair: in the sense that opens ``parted``,
+    the most stretched of the bonds that parted last (they parted in tension), or where none
+    did, the sense that closes a gap first. None when the Hessian has no negative mode, or no
+    gap closes within :data:`BLOCKED_MOVE`."""
     h, dofs = nonrattler_hessian(contacts, rattler, hi.shape[1])
     values, vectors = lowest_eigenpairs(h, min(hi.shape[1] + 2, h.shape[0] - 2))
     if not values[0] < -zero_tolerance(h):
@@ -622,7 +623,8 @@ def _blocking_pair(
         k = int(np.argmin(t))
         if best is None or t[k] < best[0]:
             best = (float(t[k]), int(near[closing][k]), sense)
-    if best is None or best[0] * np.abs(mode).max() > BLOCKED_MOVE:
+    diameter = 2.0 * float(pairs.packing.radii.mean())
+    if best is None or best[0] * np.abs(mode).max() > BLOCKED_MOVE * diameter:
         return None
     displace(hi, lo, best[2] * best[0] * (1.0 + 1e-9) * mode)
     return best[1]
