@@ -4,18 +4,18 @@ A rattler's neighbours exclude a ball each (radius the sum of the two radii) fro
 centre may take; the free region is what the balls leave. The point of that region nearest to
 the rattler lies on its boundary: the radial projection onto one sphere, the point nearest to the
 rattler on the circle where two spheres meet (two points in 2D), or, in 3D, a point where three
-spheres meet. :func:`free_place` lists those candidates and keeps the nearest one that is clear
-of every neighbour, which is exact for one particle among fixed neighbours; it is refused when
-the straight move there comes closer to a neighbour than the particle already is (the place lies
-beyond a neighbour, outside the cage: the cage leaves no room). Pushing a squeezed
-particle straight out of each overlap cannot do this: held between two neighbours on a line, it
-goes back and forth between them, while its free places lie to the side, where the two spheres
-meet.
+spheres meet. :func:`nearest_clear` lists those candidates and keeps the nearest one that is
+clear of every neighbour, which is exact for one particle among fixed neighbours;
+:func:`free_place` keeps the nearest one that a straight move reaches without passing through
+a neighbour (:func:`reached`: not closer to an overlapping neighbour than now, nor into another),
+so that a rattler stays in its cage. Pushing a squeezed particle straight out of each overlap
+cannot do this: held between two neighbours on a line, it goes back and forth between them,
+while its free places lie to the side, where the two spheres meet.
 
 Rattlers that touch each other may have room only when moved together (two of them squeezed in
-one cage): :func:`free_places` minimizes their squared overlaps (:func:`athermal.minimize.minimize`)
-until they vanish, from rest and then from random starts (a particle squeezed on a line sits on
-a saddle of that energy).
+one cage): :func:`free_places` minimizes their squared overlaps
+(:func:`athermal.minimize.minimize`) until they vanish, from rest and then from random starts (a
+particle squeezed on a line sits on a saddle of that energy).
 """
 
 from __future__ import annotations
@@ -40,27 +40,32 @@ def free_place(
     offsets: NDArray[np.float64], reach: NDArray[np.float64]
 ) -> NDArray[np.float64] | None:
     """The displacement ``(d,)`` of a particle (2D or 3D) to its nearest place at least
-    ``reach`` ``(m,)`` from each neighbour at ``offsets`` ``(m, d)`` (relative to the
-    particle; the neighbours held fixed): zero when it is there already, None when the straight
-    move there passes through a neighbour (:func:`reached`: the cage leaves no room)."""
-    offsets = np.asarray(offsets, dtype=np.float64)
-    reach = np.asarray(reach, dtype=np.float64)
-    nearest = nearest_clear(offsets, reach)
-    if nearest is None or not reached(nearest, offsets, reach):
-        return None
-    return nearest
+    ``reach`` ``(m,)`` (and :data:`CLEARANCE`) from each neighbour at ``offsets`` ``(m, d)``
+    (relative to the particle; the neighbours held fixed) that a straight move reaches without
+    passing through a neighbour (:func:`reached`): zero when it is there already, None when the
+    cage leaves no such place."""
+    offsets, reach = np.asarray(offsets, np.float64), np.asarray(reach, np.float64)
+    inside = [p for p in _clear_places(offsets, reach) if reached(p, offsets, reach)]
+    return min(inside, key=lambda p: float(p @ p)) if inside else None
 
 
 def nearest_clear(
     offsets: NDArray[np.float64], reach: NDArray[np.float64]
 ) -> NDArray[np.float64] | None:
     """The shortest displacement ``(d,)`` that puts the particle at least ``reach`` ``(m,)``
-    from each neighbour at ``offsets`` ``(m, d)``, wherever it lies (None: no candidate is
-    clear)."""
+    (and :data:`CLEARANCE`) from each neighbour at ``offsets`` ``(m, d)``, wherever it lies,
+    through neighbours or not (None: no candidate is clear)."""
+    points = _clear_places(np.asarray(offsets, np.float64), np.asarray(reach, np.float64))
+    return points[np.argmin(np.linalg.norm(points, axis=1))] if points.size else None
+
+
+def _clear_places(offsets: NDArray[np.float64], reach: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The candidates ``(c, d)`` (module docstring) that are clear of every neighbour; only the
+    origin when it is clear by :data:`CLEARANCE` already."""
     dim = offsets.shape[1]
-    if np.all(np.linalg.norm(offsets, axis=1) >= reach):
-        return np.zeros(dim)
     target = reach * (1.0 + CLEARANCE)
+    if np.all(np.linalg.norm(offsets, axis=1) >= target):
+        return np.zeros((1, dim))
     candidates = [_radial(offsets, target)]
     for j, k in combinations(range(offsets.shape[0]), 2):
         candidates.append(_circle(offsets[j], offsets[k], target[j], target[k], dim))
@@ -71,10 +76,7 @@ def nearest_clear(
     clear = np.all(
         np.linalg.norm(points[:, None, :] - offsets[None, :, :], axis=2) >= reach, axis=1
     )
-    if not clear.any():
-        return None
-    points = points[clear]
-    return points[np.argmin(np.linalg.norm(points, axis=1))]
+    return points[clear]
 
 
 def reached(
@@ -167,11 +169,11 @@ def free_places(
     passes through a fixed neighbour (:func:`reached`, with the largest overlap now as slack:
     loaded, a particle may come that much closer to a neighbour)."""
     dim = offsets.shape[1]
-    overlap = reach - np.linalg.norm(offsets, axis=1)
+    target = reach * (1.0 + CLEARANCE)
+    overlap = target - np.linalg.norm(offsets, axis=1)
     if not np.any(overlap > 0.0):
         return np.zeros((movers, dim)), True
     scale = float(np.sqrt(reach.mean() * overlap.max()))  # a sideways step out of a squeeze
-    target = reach * (1.0 + CLEARANCE)
     fixed = second < 0
     other = np.where(fixed, 0, second)
 

@@ -179,7 +179,9 @@ def certify(
         not relaxed (float64 force balance above :data:`RELAXED` of its mean contact force), or
         its contact network changed during the refinement (names the pair).
     ConvergenceError
-        The Newton correction could not be solved (a Hessian singular beyond the translations).
+        The Newton correction could not be solved (a Hessian singular beyond the translations),
+        or a rattler has no place in its cage clear of its neighbours (it bears load), or
+        cannot be moved there without passing through a neighbour.
     """
     if not target > 0.0:
         raise InputError(f"target: must be > 0, got {target}")
@@ -507,24 +509,28 @@ def bisect_jamming_point(
     (a hyperstatic network sheds contacts on its way to ``phi_c``) and the trial is balanced
     again; a particle left with fewer than ``d + 1`` contacts becomes a rattler. Rattlers carry
     no force in the trials; one that has no room in its cage (the network closed in on it) bears
-    load and is readmitted with the contacts it has at the least overlapping place there. A
-    network that a parted contact leaves unstable (its Hessian, pre-stress included, has a
-    negative eigenvalue, and Newton's correction cannot be solved) is moved along that mode, in
-    the sense that opens the parted contact, until a near gap closes; that pair joins the
-    network (``docs/decisions.md``, "Jamming below float64's resolution"). The trials march
-    down from the certified packing, each from the last jammed one and at most a step away
-    (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered after one that Newton
-    cannot balance: the network's response runs along its soft modes), then bisect the last
-    step. float64 cannot do this below ~1e-9:
-    overlaps of ~1e-17 and energies of ~1e-28 are round-off there, and a float64 minimum lies
-    ~1e-8 away along the soft modes. Harmonic contacts (alpha = 2) only: a spring in tension
-    continues the contact's force linearly.
+    load and is readmitted with the contacts it has at the least overlapping place there. When
+    the network's Hessian (pre-stress included) is not positive definite, and has a negative
+    eigenvalue (a parted contact left it unstable), the network is moved along that mode, in
+    the sense that opens the most stretched contact that parted, until a near gap closes; that
+    pair joins the network (``docs/decisions.md``, "Jamming below float64's resolution"). A
+    singular one is solved by MINRES, and a jammed verdict needs a positive definite Hessian.
+    The trials march down from the certified packing, each from the last jammed one and at
+    most a step away (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered
+    after one that gives no verdict: the network's response runs along its soft modes), then
+    bisect the last step. float64 cannot do this below ~1e-9: overlaps of ~1e-17 and energies
+    of ~1e-28 are round-off there, and a float64 minimum lies ~1e-8 away along the soft modes.
+    Harmonic contacts (alpha = 2) only: a spring in tension continues the contact's force
+    linearly. Rattlers are placed with a clearance of :data:`athermal.cage.CLEARANCE` x the sum
+    of the radii (~1e-16 ... 1e-15 in cell units): measured at epsilon = 1e-12; an epsilon
+    below ~1e-14 resolves overlaps finer than that clearance (not measured).
 
     Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
-    :class:`ConvergenceError` when a step of ``epsilon / 4`` cannot be balanced or
-    ``max_trials`` run out (never a verdict on an unbalanced state); what :func:`certify`
-    raises for the start. The returned certificate states the force balance reached: at a
-    pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean contact force.
+    :class:`ConvergenceError` when a step of ``epsilon / 4`` gives no verdict or
+    ``max_trials`` run out (never a verdict on an unbalanced state, a saddle, or a rattler with
+    no room); what :func:`certify` raises for the start and the jammed bound. The returned
+    certificate states the force balance reached: at a pressure ~1e-13, double-double's ~1e-32
+    is ~1e-18 of the mean contact force.
     """
     if half_steps(model.alpha) != 2:
         raise InputError("alpha: the certified bisection takes harmonic contacts (alpha = 2)")
@@ -581,52 +587,67 @@ def bisect_jamming_point(
     )
 
 
+def _unstable_mode(
+    contacts: Contacts, rattler: NDArray[np.bool_], shape: tuple[int, ...]
+) -> NDArray[np.float64] | None:
+    """The eigenvector ``shape`` ``(N, d)`` of the lowest eigenvalue of the non-rattlers'
+    Hessian (pre-stress included) when that eigenvalue is negative; None otherwise."""
+    h, dofs = nonrattler_hessian(contacts, rattler, shape[1])
+    values, vectors = lowest_eigenpairs(h, min(shape[1] + 2, h.shape[0] - 2))
+    if not values[0] < -zero_tolerance(h):
+        return None
+    flat = np.zeros(shape[0] * shape[1])
+    flat[dofs] = vectors[:, 0]
+    return flat.reshape(shape)
+
+
 def _blocking_pair(
     pairs: NearPairs,
     hi: NDArray[np.float64],
     lo: NDArray[np.float64],
-    contacts: Contacts,
+    mode: NDArray[np.float64],
     rattler: NDArray[np.bool_],
     bonds: NDArray[np.bool_],
     overlap: NDArray[np.float64],
-    parted: int | None,
+    parted: NDArray[np.bool_] | None,
 ) -> int | None:
-    """A network whose Hessian is not positive definite after a bond parted may be unstable
-    along a mode (a negative eigenvalue: the pre-stress of the bonds left); moved along it, the
-    packing closes a near gap, and the new contact holds the mode. Moves ``hi + lo`` along the
-    lowest mode until a gap closes, and returns the pair: in the sense that opens ``parted``,
-    the most stretched of the bonds that parted last (they parted in tension), or where none
-    did, the sense that closes a gap first. None when the Hessian has no negative mode, or no
-    gap closes within :data:`BLOCKED_MOVE`."""
-    h, dofs = nonrattler_hessian(contacts, rattler, hi.shape[1])
-    values, vectors = lowest_eigenpairs(h, min(hi.shape[1] + 2, h.shape[0] - 2))
-    if not values[0] < -zero_tolerance(h):
-        return None
-    flat = np.zeros(hi.size)
-    flat[dofs] = vectors[:, 0]
-    mode = flat.reshape(hi.shape)
+    """A network unstable along ``mode`` (a negative eigenvalue of its Hessian: the pre-stress
+    of the bonds left after some parted) gives way along it until a near gap closes, and the new
+    contact holds the mode. Moves ``hi + lo`` (rattlers carried) along ``mode`` until the first
+    gap closes, exactly, and returns that pair: in the sense that opens the most stretched of
+    the bonds ``parted`` (they parted in tension; none of them is taken), or where none did,
+    the sense that closes a gap first. None when no gap closes within :data:`BLOCKED_MOVE`."""
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     candidate = live & ~bonds & (overlap <= 0.0)
     senses: tuple[float, ...] = (1.0, -1.0)
-    if parted is not None:
-        candidate[parted] = False
-        senses = (1.0,) if _rates(pairs, hi, mode, np.array([parted]))[0] > 0.0 else (-1.0,)
+    if parted is not None and parted.any():
+        candidate &= ~parted
+        worst = int(np.argmin(np.where(parted, pairs.stiffness * overlap, np.inf)))
+        senses = (1.0,) if _rates(pairs, hi, mode, np.array([worst]))[0] > 0.0 else (-1.0,)
     near = np.flatnonzero(candidate)
-    rate = _rates(pairs, hi, mode, near)
+    sep = pairs.separations(hi)[near]
+    length = np.linalg.norm(sep, axis=1)
     gap = -overlap[near]
     best: tuple[float, int, float] | None = None
-    for sense in senses:  # the distance changes at ``sense x rate`` per unit move
-        closing = sense * rate < 0.0
+    for sense in senses:  # |sep + t sense (m_i - m_j)| = r_i + r_j, the smallest t > 0
+        along = sense * (mode[pairs.first[near]] - mode[pairs.second[near]])
+        a = np.einsum("kd,kd->k", along, along)
+        b = 2.0 * np.einsum("kd,kd->k", sep, along)
+        c = gap * (2.0 * length - gap)  # |sep|^2 - (r_i + r_j)^2, from the double-double gap
+        disc = b * b - 4.0 * a * c
+        closing = (b < 0.0) & (disc >= 0.0)
         if not closing.any():
             continue
-        t = gap[closing] / -(sense * rate[closing])
+        t = 2.0 * c[closing] / (-b[closing] + np.sqrt(disc[closing]))
         k = int(np.argmin(t))
         if best is None or t[k] < best[0]:
             best = (float(t[k]), int(near[closing][k]), sense)
     diameter = 2.0 * float(pairs.packing.radii.mean())
     if best is None or best[0] * np.abs(mode).max() > BLOCKED_MOVE * diameter:
         return None
-    displace(hi, lo, best[2] * best[0] * (1.0 + 1e-9) * mode)
+    step = best[2] * best[0] * (1.0 + 1e-9) * mode
+    _carry_rattlers(pairs, step, rattler)
+    displace(hi, lo, step)
     return best[1]
 
 
@@ -657,33 +678,46 @@ def _trial(
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     pairs.stiffness = np.where(live, stiffness, 0.0)
     sums = pairs.sums(hi, lo, radii, bonds)
-    parted: int | None = None
-    held = 0
+    parted: NDArray[np.bool_] | None = None  # the bonds that parted last, until a solve
+    definite, held = False, 0  # definite: the last factor was of the network as it is
     for _ in range(TRIAL_ITERATIONS):
         overlap = sums.overlap[0] + sums.overlap[1]
         formed = live & ~bonds & (overlap > 0.0)
         if formed.any():
-            bonds = bonds | formed
+            bonds, definite = bonds | formed, False
             sums = pairs.sums(hi, lo, radii, bonds)
         scale = float(np.abs(pairs.stiffness * overlap)[bonds].mean())
+        contacts = pairs.contacts(hi, sums.overlap[0], bonds)
+        force = sums.gradient[0].reshape(n, dim, 1)
         if sums.largest_force() <= TRIAL_BALANCE * scale:
             apart = bonds & (overlap <= 0.0)
             if not apart.any():
+                if (
+                    not definite
+                    and pinned_solve(contacts, rattler, force, iterative=False)[1] == np.inf
+                ):
+                    return None, bonds, rattler, held  # balanced on a saddle: no verdict
                 pairs.stiffness = stiffness
-                free, squeezed = _free_rattlers(pairs, hi, lo, rattler, radii)
+                try:
+                    free, squeezed = _free_rattlers(pairs, hi, lo, rattler, radii)
+                except ConvergenceError:
+                    return None, bonds, rattler, held
                 if not squeezed.size:
                     return True, bonds, rattler, held
                 rattler = rattler.copy()  # readmitted: they bear load
                 rattler[squeezed] = False
                 live = ~(rattler[pairs.first] | rattler[pairs.second])
-                bonds = bonds | (live & (free.overlap[0] > 0.0))
+                bonds, definite = bonds | (live & (free.overlap[0] > 0.0)), False
+                ends = np.concatenate([pairs.first[bonds], pairs.second[bonds]])
+                if np.any(np.bincount(ends, minlength=n)[squeezed] < dim + 1):
+                    return None, bonds, rattler, held  # held at fewer contacts: not a minimum
                 pairs.stiffness = np.where(live, stiffness, 0.0)
                 sums = pairs.sums(hi, lo, radii, bonds)
                 continue
             if apart.sum() == bonds.sum():
                 return False, bonds, rattler, held
-            parted = int(np.argmin(np.where(apart, pairs.stiffness * overlap, np.inf)))
-            bonds = bonds & ~apart
+            parted = apart
+            bonds, definite = bonds & ~apart, False
             rattler = rattler | rattlers(pairs.contacts(hi, overlap, bonds), n, dim)
             live = ~(rattler[pairs.first] | rattler[pairs.second])
             bonds = bonds & live
@@ -692,20 +726,22 @@ def _trial(
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
-        contacts = pairs.contacts(hi, sums.overlap[0], bonds)
-        force = sums.gradient[0].reshape(n, dim, 1)
-        y, residual, _ = pinned_solve(contacts, rattler, force, iterative=False)
+        y, residual, solver = pinned_solve(contacts, rattler, force, iterative=False)
         if residual == np.inf:  # not positive definite: unstable, or singular
-            blocking = _blocking_pair(pairs, hi, lo, contacts, rattler, bonds, overlap, parted)
-            if blocking is not None:
-                held += 1
+            mode = _unstable_mode(contacts, rattler, hi.shape)
+            if mode is not None:
+                blocking = _blocking_pair(pairs, hi, lo, mode, rattler, bonds, overlap, parted)
+                if blocking is None:  # it gives way further than a small move: no verdict
+                    return None, bonds, rattler, held
+                held, parted, definite = held + 1, None, False
                 bonds = bonds.copy()
                 bonds[blocking] = True
                 sums = pairs.sums(hi, lo, radii, bonds)
                 continue
-            y, residual, _ = pinned_solve(contacts, rattler, force)  # consistent, singular
+            y, residual, solver = pinned_solve(contacts, rattler, force)  # singular, consistent
         if not np.all(np.isfinite(y)) or residual > 1e-6:
             return None, bonds, rattler, held
+        parted, definite = None, solver == "cholmod"
         step = -y.reshape(n, dim)
         _carry_rattlers(pairs, step, rattler)
         displace(hi, lo, step)

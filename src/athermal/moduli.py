@@ -440,18 +440,18 @@ def _solve(
 
     CHOLMOD first; when ``h`` is not positive definite, or the residual exceeds
     ``RESIDUAL_TOL``, MINRES (from the direct answer, if any), which also solves consistent
-    singular systems (``b`` in the range of ``h``); not ``iterative``: zeros and an infinite
-    residual where ``h`` is not positive definite.
+    singular systems (``b`` in the range of ``h``). Not ``iterative``: CHOLMOD's answer as it
+    is, or zeros, an infinite residual and ``"none"`` where ``h`` is not positive definite.
     """
     norms = np.linalg.norm(b, axis=0)
     y = _cholesky_solve(h, b)
     if y is None and not iterative:
-        return np.zeros_like(b), np.inf, "cholmod"
+        return np.zeros_like(b), np.inf, "none"
     if y is None:
         y = np.zeros_like(b)
     else:
         residual = _relative_residual(h, y, b, norms)
-        if residual <= RESIDUAL_TOL:
+        if residual <= RESIDUAL_TOL or not iterative:
             return y, residual, "cholmod"
     for col in range(b.shape[1]):
         y[:, col] = spla.minres(h, b[:, col], x0=y[:, col], rtol=1e-14, maxiter=10 * b.shape[0])[0]
