@@ -57,6 +57,7 @@ def one(dim: int, n: int, seed: int) -> dict[str, Any]:
         "contacts_formed": point.contacts_formed,
         "rattlers_readmitted": point.rattlers_readmitted,
         "instabilities": point.instabilities,
+        "rearrangements": point.rearrangements,
         **{k: v for k, v in vars(cert).items() if k != "precision"},
     }
 
@@ -69,24 +70,26 @@ def report(rows: list[dict[str, Any]]) -> str:
         "`phi_c` is the certified jammed bound; `in float64` is its place in the float64 "
         "bracket (0: its unjammed bound, 1: its jammed bound); `shed` and `formed` are contacts, "
         "`readmitted` rattlers squeezed by their cage, `unstable` networks that a parted contact "
-        "left unstable, held by a gap closing along the unstable mode.",
+        "left unstable, held by a gap closing along the unstable mode, `rearranged` trials "
+        "relaxed in float64 because their network gave way at any step.",
         "",
         "| d | N | seed | phi_c | width | in float64 | trials | shed | formed | readmitted | "
-        "unstable | N_c - N_iso | pressure | balance / <f> | lowest eigenvalue | jam s | "
-        "bisect s |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        "unstable | rearranged | N_c - N_iso | pressure | balance / <f> | lowest eigenvalue | "
+        "jam s | bisect s |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for r in rows:
         head = f"| {r['dim']} | {r['n']} | {r['seed']} |"
         if r["refused"]:
-            lines.append(f"{head} refused: {r['refused']} |" + " |" * 15)
+            lines.append(f"{head} refused: {r['refused']} |" + " |" * 16)
             continue
         span = r["float64_phi_high"] - r["float64_phi_low"]
         place = (r["phi_high"] - r["float64_phi_low"]) / span
         lines.append(
             f"{head} {r['phi_high']:.15f} | {r['phi_high'] - r['phi_low']:.1e} | {place:.3f} | "
             f"{r['trials']} | {r['contacts_shed']} | {r['contacts_formed']} | "
-            f"{r['rattlers_readmitted']} | {r['instabilities']} | {r['excess_contacts']} | "
+            f"{r['rattlers_readmitted']} | {r['instabilities']} | {r['rearrangements']} | "
+            f"{r['excess_contacts']} | "
             f"{r['pressure']:.1e} | "
             f"{r['relative_force_balance']:.1e} | {r['lowest_eigenvalue']:.2e} | "
             f"{r['jam_seconds']:.2f} | {r['bisect_seconds']:.2f} |"

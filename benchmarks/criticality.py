@@ -6,13 +6,17 @@ For each N, packings of seeds ``0 .. K-1`` are jammed (:func:`athermal.experimen
 directory (a rerun reuses it). Their forces and gaps are pooled
 (:func:`athermal.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and ``gamma``
 fitted over the default windows and over a scan of others, so that the dependence on the window
-is shown beside the value. Run from the repository root::
+is shown beside the value. With ``--epsilon E`` below 1e-9 each jamming point is bracketed to E
+in double-double (:func:`athermal.certify.bisect_jamming_point`) and the certified packing at its
+jammed bound is taken. Run from the repository root::
 
     python -m benchmarks.criticality --n 1024 --packings 120
     python -m benchmarks.criticality --n 1024 4096 --packings 120 30
+    python -m benchmarks.criticality --n 1024 --packings 120 --epsilon 1e-12
 
 Results: ``benchmarks/results/criticality.md`` and ``.json``; the figures
-``docs/figures/criticality_n<N>.png``.
+``docs/figures/criticality_n<N>.png`` (with ``--epsilon E``: ``criticality_epsE`` and
+``criticality_n<N>_epsE.png``).
 """
 
 from __future__ import annotations
@@ -23,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from athermal.certify import certify
+from athermal.certify import bisect_jamming_point, certify
 from athermal.criticality import (
     FORCE_WINDOW,
     GAMMA,
@@ -37,6 +41,7 @@ from athermal.errors import ConvergenceError, InputError
 from athermal.experiments import JamSpec, jam_packing
 from athermal.io import read_gsd, write_gsd
 from athermal.plot import criticality_figure, save
+from athermal.protocols import EPSILON, RESOLUTION
 from benchmarks.machine import ROOT, pin
 from benchmarks.machine import save as save_results
 
@@ -44,16 +49,24 @@ FORCE_SCAN = ((1e-3, 1e-1), (3e-3, 1e-1), (1e-2, 1e-1), (1e-3, 3e-2), (1e-4, 1e-
 GAP_SCAN = ((1e-5, 1e-2), (1e-4, 1e-2), (1e-3, 1e-2), (1e-4, 1e-3), (1e-3, 3e-2))
 
 
-def packings(n: int, count: int, cache: Path) -> tuple[list[Path], list[str]]:
-    """The certified packings of seeds ``0 .. count-1``, made where missing; the refusals."""
+def packings(
+    n: int, count: int, cache: Path, epsilon: float = EPSILON
+) -> tuple[list[Path], list[str]]:
+    """The certified packings of seeds ``0 .. count-1``, made where missing (bracketed to
+    ``epsilon`` in double-double below float64's resolution); the refusals."""
     cache.mkdir(parents=True, exist_ok=True)
     spec, files, refused = JamSpec(n=n), [], []
     for seed in range(count):
         path = cache / f"p{seed:04d}.gsd"
         if not path.exists():
             jammed = jam_packing(spec, seed)
+            phi_c = jammed.phi_c
             try:
-                done = certify(jammed.packing, spec.model)
+                if epsilon < RESOLUTION:
+                    point = bisect_jamming_point(jammed.packing, spec.model, epsilon)
+                    done, phi_c = point.jammed, point.phi_high
+                else:
+                    done = certify(jammed.packing, spec.model)
             except (InputError, ConvergenceError) as exc:
                 refused.append(f"seed {seed}: {exc}")
                 continue
@@ -63,7 +76,7 @@ def packings(n: int, count: int, cache: Path) -> tuple[list[Path], list[str]]:
                 model=spec.model,
                 seed=seed,
                 position_lo=done.position_lo,
-                observables={**done.certificate.log(), "phi_c": jammed.phi_c},
+                observables={**done.certificate.log(), "phi_c": phi_c},
             )
             print(f"N {n} seed {seed}: {done.certificate.relative_force_balance:.1e}", flush=True)
         files.append(path)
@@ -106,10 +119,13 @@ def _fit(values: Any, window: tuple[float, float], sign: int) -> list[float]:
     return [*window, sign * (fit.a - 1.0), fit.stderr, fit.points]
 
 
-def report(results: list[dict[str, Any]], refused: list[str]) -> str:
+def report(results: list[dict[str, Any]], refused: list[str], epsilon: float = EPSILON) -> str:
     """The markdown: per N the exponents at the default windows, then the window scans."""
     lines = [
         "# Weak forces and small gaps at jamming (2D, bidisperse, alpha = 2, certified packings)",
+        "",
+        f"Jamming points bracketed to epsilon = {epsilon:g}"
+        + (" in double-double." if epsilon < RESOLUTION else " in float64."),
         "",
         f"Default windows: f / <f> in {FORCE_WINDOW}, h in {GAP_WINDOW}. Mean field: theta_e "
         f"= {THETA_E}, gamma = {GAMMA}.",
@@ -148,20 +164,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cache", type=str, nargs="+", default=None, help="one folder per N")
     parser.add_argument("--output-dir", type=str, default=str(ROOT / "benchmarks" / "results"))
     parser.add_argument("--figure-dir", type=str, default=str(ROOT / "docs" / "figures"))
+    parser.add_argument("--epsilon", type=float, default=EPSILON)
     args = parser.parse_args(argv)
     pin()
     output = Path(args.output_dir)
     Path(args.figure_dir).mkdir(parents=True, exist_ok=True)
+    tag = "" if args.epsilon == EPSILON else f"_eps{args.epsilon:g}"
     caches = args.cache or [
-        str(ROOT / "benchmarks" / "cache" / f"criticality_n{n}") for n in args.n
+        str(ROOT / "benchmarks" / "cache" / f"criticality_n{n}{tag}") for n in args.n
     ]
     results, refused = [], []
     for n, count, cache in zip(args.n, args.packings, caches, strict=True):
-        files, no = packings(n, count, Path(cache))
+        files, no = packings(n, count, Path(cache), args.epsilon)
         refused += [f"N {n}, {r}" for r in no]
-        results.append(study(n, files, Path(args.figure_dir) / f"criticality_n{n}.png"))
-    markdown = report(results, refused) + "\n"
-    save_results(output, "criticality", {"results": results, "refused": refused}, markdown)
+        results.append(study(n, files, Path(args.figure_dir) / f"criticality_n{n}{tag}.png"))
+    markdown = report(results, refused, args.epsilon) + "\n"
+    data = {"epsilon": args.epsilon, "results": results, "refused": refused}
+    save_results(output, f"criticality{tag}", data, markdown)
     print(markdown)
     return 0
 

@@ -38,9 +38,11 @@ from .errors import ConvergenceError, InputError
 from .extended import PRECISION, NearPairs, PairSums, displace, half_steps
 from .modes import lowest_eigenpairs, zero_tolerance
 from .moduli import nonrattler_hessian, pinned_solve
+from .objective import Objective
 from .observables import isostatic_contacts, rattlers
 from .packing import Packing
-from .relaxation import round_off_floor
+from .protocols.jamming import FINAL_RTOL, JAMMING_MINIMIZER, energy_threshold
+from .relaxation import Relaxer, energy_scale, force_tolerance, round_off_floor
 
 TARGET = 1e-20
 """Force balance a certificate asks for: ``max_i |F_i| <= TARGET x`` the mean contact force."""
@@ -480,7 +482,8 @@ class CertifiedJamming:
     trials, the contacts the network shed on the way (a hyperstatic network loses the contacts
     whose forces vanish first) and formed, the rattlers readmitted (squeezed by their cage), and
     the instabilities: how often a network that a parted contact left unstable was held by a
-    gap that closed along its unstable mode."""
+    gap that closed along its unstable mode, and the rearrangements: trials relaxed in float64
+    because their network gave way at any step."""
 
     jammed: CertifiedPacking
     phi_low: float
@@ -490,6 +493,7 @@ class CertifiedJamming:
     contacts_formed: int
     rattlers_readmitted: int
     instabilities: int
+    rearrangements: int
 
 
 def bisect_jamming_point(
@@ -515,6 +519,8 @@ def bisect_jamming_point(
     the sense that opens the most stretched contact that parted, until a near gap closes; that
     pair joins the network (``docs/decisions.md``, "Jamming below float64's resolution"). A
     singular one is solved by MINRES, and a jammed verdict needs a positive definite Hessian.
+    A trial that gives no verdict at any step (a network that turns floppy and collapses) is
+    relaxed in float64, the packing rearranging, and the march goes on from its network.
     The trials march down from the certified packing, each from the last jammed one and at
     most a step away (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered
     after one that gives no verdict: the network's response runs along its soft modes), then
@@ -526,11 +532,12 @@ def bisect_jamming_point(
     below ~1e-14 resolves overlaps finer than that clearance (not measured).
 
     Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
-    :class:`ConvergenceError` when a step of ``epsilon / 4`` gives no verdict or
-    ``max_trials`` run out (never a verdict on an unbalanced state, a saddle, or a rattler with
-    no room); what :func:`certify` raises for the start and the jammed bound. The returned
-    certificate states the force balance reached: at a pressure ~1e-13, double-double's ~1e-32
-    is ~1e-18 of the mean contact force.
+    :class:`ConvergenceError` when a trial that gives no verdict at a step of ``epsilon / 4``
+    cannot be relaxed, or its relaxed network balanced, or ``max_trials`` run out (never a
+    verdict on an unbalanced state, a saddle, or a rattler with no room); what :func:`certify`
+    raises for the start and the jammed bound. The returned certificate states the force
+    balance reached: at a pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean
+    contact force.
     """
     if half_steps(model.alpha) != 2:
         raise InputError("alpha: the certified bisection takes harmonic contacts (alpha = 2)")
@@ -546,7 +553,7 @@ def bisect_jamming_point(
     hi, lo = start.packing.positions.copy(), start.position_lo.copy()
     phi0, radii0, dim = packing.phi, packing.radii, packing.dim
     high, low, step, trials, radii = phi0, -1.0, FIRST_STEP, 0, radii0
-    readmitted, instabilities = 0, 0
+    readmitted, instabilities, rearranged, shed, formed = 0, 0, 0, 0, 0
     while low < 0.0 or high - low > epsilon:
         if trials == max_trials:
             raise ConvergenceError(f"certify: no bracket of {epsilon:g} in {max_trials} trials")
@@ -557,13 +564,36 @@ def bisect_jamming_point(
         verdict, trial_bonds, trial_rattler, held = _trial(
             pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler
         )
-        if verdict is None:
-            if step < epsilon / 4.0:
-                raise ConvergenceError(
-                    f"certify: the network's force balance at phi = {phi:.15f} does not converge"
-                )
+        if verdict is None and step >= epsilon / 4.0:
             step /= 4.0
             continue
+        if verdict is None:  # at any step the network gives way: the packing rearranges
+            relaxed = _rearranged(Packing(hi, trial_radii, packing.cell), model, phi)
+            rearranged += 1
+            if relaxed is None:
+                low = phi
+                continue
+            moved = NearPairs(relaxed, model, GAP_REACH)
+            trial_hi, trial_lo = relaxed.positions.copy(), np.zeros_like(relaxed.positions)
+            sums = moved.sums(trial_hi, trial_lo)
+            _, start_rattler = contact_network(moved, trial_hi, sums)
+            live = ~(start_rattler[moved.first] | start_rattler[moved.second])
+            start_bonds = live & (sums.overlap[0] > 0.0)
+            full = moved.stiffness.copy()
+            verdict, trial_bonds, trial_rattler, held = _trial(
+                moved, full, trial_hi, trial_lo, trial_radii, start_bonds, start_rattler
+            )
+            moved.stiffness = full
+            if verdict is None:
+                raise ConvergenceError(
+                    f"certify: at phi = {phi:.15f} the network gives way, and the network of the "
+                    "packing relaxed there does not balance"
+                )
+            if verdict:  # another packing from here on: it may stay jammed below the old bound
+                shed += int(np.sum(first & ~bonds))
+                formed += int(np.sum(bonds & ~first))
+                pairs, stiffness, first, rattler = moved, full, start_bonds, start_rattler
+                low = -1.0
         if verdict:
             readmitted += int(np.sum(rattler & ~trial_rattler))
             instabilities += held
@@ -580,11 +610,33 @@ def bisect_jamming_point(
         low,
         jammed.packing.phi,
         trials,
-        int(np.sum(first & ~bonds)),
-        int(np.sum(bonds & ~first)),
+        shed + int(np.sum(first & ~bonds)),
+        formed + int(np.sum(bonds & ~first)),
         readmitted,
         instabilities,
+        rearranged,
     )
+
+
+def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | None:
+    """A trial whose network gives no verdict at any step: a contact parts and the network
+    collapses (an isostatic one at a pressure of ~1e-8 turns floppy), and the packing
+    rearranges. Relaxed from ``start`` (the last jammed positions, the trial's radii) in float64
+    to a minimum, as ``jam``'s own steps are: that minimum, or None (unjammed) when its energy
+    lies below ``jam``'s threshold. Raises :class:`ConvergenceError` when no minimum is
+    found."""
+    objective = Objective(start, model)
+    floor = energy_threshold(start.dim, model.alpha) * start.n * energy_scale(start.radii, model)
+    try:
+        result, _ = Relaxer(objective, JAMMING_MINIMIZER).relax_to_minimum(
+            objective.x0, gtol=force_tolerance(start, model, FINAL_RTOL), etol=floor
+        )
+    except ConvergenceError as exc:
+        raise ConvergenceError(
+            f"certify: at phi = {phi:.15f} the network gives way, and relaxing the packing there "
+            f"found no minimum ({exc})"
+        ) from exc
+    return None if result.energy <= floor else result.packing
 
 
 def _unstable_mode(

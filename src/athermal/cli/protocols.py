@@ -238,6 +238,7 @@ def jam(args: argparse.Namespace) -> None:
                     "contacts_formed": point.contacts_formed,
                     "rattlers_readmitted": point.rattlers_readmitted,
                     "instabilities": point.instabilities,
+                    "rearrangements": point.rearrangements,
                 }
             else:
                 certified = certify(result.packing, model)
