@@ -52,12 +52,7 @@ def one(dim: int, n: int, seed: int) -> dict[str, Any]:
         "bisect_seconds": time.perf_counter() - t1,
         "phi_low": point.phi_low,
         "phi_high": point.phi_high,
-        "trials": point.trials,
-        "contacts_shed": point.contacts_shed,
-        "contacts_formed": point.contacts_formed,
-        "rattlers_readmitted": point.rattlers_readmitted,
-        "instabilities": point.instabilities,
-        "rearrangements": point.rearrangements,
+        **point.march(),
         **{k: v for k, v in vars(cert).items() if k != "precision"},
     }
 

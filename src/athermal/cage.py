@@ -29,9 +29,9 @@ from .minimize import minimize
 
 CLEARANCE = 1e-14
 """A placed particle keeps ``CLEARANCE x`` the sum of the radii clear of the neighbours whose
-spheres define its place: ~100 times the round-off of the offsets (~1e-18 of a cell width when
-rounded once from double-double), below the overlaps of a packing ~1e-13 above its jamming
-point, whose cages have no more room than those."""
+spheres define its place: well above the round-off of offsets rounded once from double-double,
+below the overlaps of a packing bracketed to 1e-12 (``docs/decisions.md``, "Jamming below
+float64's resolution")."""
 TRIES = 8
 """Starts of :func:`free_places`: from rest, then random."""
 

@@ -35,7 +35,7 @@ from numpy.typing import NDArray
 from .cage import free_place, free_places
 from .contact import ContactModel, Contacts
 from .errors import ConvergenceError, InputError
-from .extended import PRECISION, NearPairs, PairSums, displace, half_steps
+from .extended import PRECISION, NearPairs, PairSums, displace, half_steps, two_sum
 from .modes import lowest_eigenpairs, zero_tolerance
 from .moduli import nonrattler_hessian, pinned_solve
 from .objective import Objective
@@ -368,19 +368,10 @@ def _offsets(
     that is among ``movers`` (the first end where both are), rounded once from double-double."""
     one, two = pairs.first[which], pairs.second[which]
     shift = pairs.images[which] @ pairs.packing.cell.h.T
-    near, error = _two_sum(hi[one], -hi[two])  # x_first - x_second, rounded once at the end
-    near, more = _two_sum(near, shift)
+    near, error = two_sum(hi[one], -hi[two])  # x_first - x_second, rounded once at the end
+    near, more = two_sum(near, shift)
     sep = near + ((error + more) + (lo[one] - lo[two]))
     return np.where(np.isin(one, movers)[:, None], -sep, sep)
-
-
-def _two_sum(
-    a: NDArray[np.float64], b: NDArray[np.float64]
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``a + b`` and its rounding error, exactly (Knuth's two-sum, elementwise)."""
-    total = a + b
-    part = total - a
-    return total, (a - (total - part)) + (b - part)
 
 
 def _place_together(
@@ -495,6 +486,12 @@ class CertifiedJamming:
     instabilities: int
     rearrangements: int
 
+    def march(self) -> dict[str, int]:
+        """The trials and what happened on the way, by name (``jam --json``'s
+        ``bisected_in_double_double``)."""
+        names = ("trials", "contacts_shed", "contacts_formed", "rattlers_readmitted")
+        return {n: getattr(self, n) for n in (*names, "instabilities", "rearrangements")}
+
 
 def bisect_jamming_point(
     packing: Packing, model: ContactModel, epsilon: float, *, max_trials: int = MAX_TRIALS
@@ -528,8 +525,7 @@ def bisect_jamming_point(
     of ~1e-28 are round-off there, and a float64 minimum lies ~1e-8 away along the soft modes.
     Harmonic contacts (alpha = 2) only: a spring in tension continues the contact's force
     linearly. Rattlers are placed with a clearance of :data:`athermal.cage.CLEARANCE` x the sum
-    of the radii (~1e-16 ... 1e-15 in cell units): measured at epsilon = 1e-12; an epsilon
-    below ~1e-14 resolves overlaps finer than that clearance (not measured).
+    of the radii, which bounds the epsilon this resolves (``docs/decisions.md``).
 
     Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
     :class:`ConvergenceError` when a trial that gives no verdict at a step of ``epsilon / 4``
@@ -619,12 +615,11 @@ def bisect_jamming_point(
 
 
 def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | None:
-    """A trial whose network gives no verdict at any step: a contact parts and the network
-    collapses (an isostatic one at a pressure of ~1e-8 turns floppy), and the packing
-    rearranges. Relaxed from ``start`` (the last jammed positions, the trial's radii) in float64
-    to a minimum, as ``jam``'s own steps are: that minimum, or None (unjammed) when its energy
-    lies below ``jam``'s threshold. Raises :class:`ConvergenceError` when no minimum is
-    found."""
+    """A trial whose network gives no verdict at any step: a contact parts, the network turns
+    floppy and collapses, and the packing rearranges. Relaxed from ``start`` (the last jammed
+    positions, the trial's radii) in float64 to a minimum, as ``jam``'s own steps are: that
+    minimum, or None (unjammed) when its energy lies below ``jam``'s threshold. Raises
+    :class:`ConvergenceError` when no minimum is found."""
     objective = Objective(start, model)
     floor = energy_threshold(start.dim, model.alpha) * start.n * energy_scale(start.radii, model)
     try:

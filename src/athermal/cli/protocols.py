@@ -233,12 +233,7 @@ def jam(args: argparse.Namespace) -> None:
                 bisected = {
                     "float64_phi_low": result.phi_low,
                     "float64_phi_high": result.phi_c,
-                    "trials": point.trials,
-                    "contacts_shed": point.contacts_shed,
-                    "contacts_formed": point.contacts_formed,
-                    "rattlers_readmitted": point.rattlers_readmitted,
-                    "instabilities": point.instabilities,
-                    "rearrangements": point.rearrangements,
+                    **point.march(),
                 }
             else:
                 certified = certify(result.packing, model)
