@@ -251,7 +251,7 @@ def test_jam_certify_bisects_below_float64_and_refuses_it_otherwise(tmp_path, ca
     assert frame.packing.phi == result["phi_high"] and frame.position_lo is not None
 
 
-@pytest.mark.parametrize("name", ["n4096_seed1", "n4096_seed2", "n1024_seed108"])
+@pytest.mark.parametrize("name", ["n4096_seed1", "n4096_seed2", "n1024_seed108", "n1024_seed32"])
 def test_packings_that_shed_contacts_or_rearrange_are_bracketed(name):
     """Packings jammed once and stored (a jam's trajectory differs between CPUs) whose march
     meets what a plain continuation cannot: two hyperstatic ones (N = 4096, 5 and 7 contacts
@@ -259,8 +259,9 @@ def test_packings_that_shed_contacts_or_rearrange_are_bracketed(name):
     bonds have no room in the cage that closes in on them and are readmitted; on the second, a
     contact parts and leaves the network unstable, held by a gap that closes along the unstable
     mode; on the third (N = 1024), an isostatic network turns floppy when a contact parts at a
-    pressure of ~1e-8, and the packing rearranges. Every bracket closes to 1e-12 inside
-    float64's."""
+    pressure of ~1e-8, and the packing rearranges; on the fourth, the contact parts within
+    1e-13 of the last jammed trial, a change float64 cannot see, so the rearrangement starts
+    along the unstable mode. Every bracket closes to 1e-12 inside float64's."""
     data = np.load(DATA / f"jammed_{name}.npz")
     packing = at.Packing(data["positions"], data["radii"], at.Cell(data["h"]))
     model = at.ContactModel(2.0)
@@ -271,7 +272,7 @@ def test_packings_that_shed_contacts_or_rearrange_are_bracketed(name):
         assert point.contacts_shed > 0 and point.rattlers_readmitted > 0
     if name == "n4096_seed2":
         assert point.contacts_shed > 0 and point.instabilities > 0
-    if name == "n1024_seed108":
+    if name in ("n1024_seed108", "n1024_seed32"):
         assert point.rearrangements > 0
     cert = point.jammed.certificate
     assert cert.converged and cert.lowest_eigenvalue > 0.0 and cert.pressure < 1e-11

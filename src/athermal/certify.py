@@ -564,7 +564,10 @@ def bisect_jamming_point(
             step /= 4.0
             continue
         if verdict is None:  # at any step the network gives way: the packing rearranges
-            relaxed = _rearranged(Packing(hi, trial_radii, packing.cell), model, phi)
+            trial_hi, trial_lo = hi.copy(), lo.copy()
+            _trial(pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler, escape=True)
+            start_moved = Packing(trial_hi + trial_lo, trial_radii, packing.cell)
+            relaxed = _rearranged(start_moved, model, phi)
             rearranged += 1
             if relaxed is None:
                 low = phi
@@ -616,10 +619,12 @@ def bisect_jamming_point(
 
 def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | None:
     """A trial whose network gives no verdict at any step: a contact parts, the network turns
-    floppy and collapses, and the packing rearranges. Relaxed from ``start`` (the last jammed
-    positions, the trial's radii) in float64 to a minimum, as ``jam``'s own steps are: that
-    minimum, or None (unjammed) when its energy lies below ``jam``'s threshold. Raises
-    :class:`ConvergenceError` when no minimum is found."""
+    floppy and collapses, and the packing rearranges. Relaxed from ``start`` (the trial's
+    radii; the last jammed positions moved along the network's first unstable mode until a gap
+    closes, so that a contact parted by less than float64 resolves starts the rearrangement) in
+    float64 to a minimum, as ``jam``'s own steps are: that minimum, or None (unjammed) when its
+    energy lies below ``jam``'s threshold. Raises :class:`ConvergenceError` when no minimum is
+    found."""
     objective = Objective(start, model)
     floor = energy_threshold(start.dim, model.alpha) * start.n * energy_scale(start.radii, model)
     try:
@@ -715,12 +720,16 @@ def _trial(
     radii: NDArray[np.float64],
     bonds: NDArray[np.bool_],
     rattler: NDArray[np.bool_],
+    *,
+    escape: bool = False,
 ) -> tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_], int]:
     """Balance the network ``bonds`` at ``radii`` from ``hi + lo`` (updated in place), the
     rattlers' pairs without force: whether it is jammed (None: Newton did not converge in
     :data:`TRIAL_ITERATIONS`, or its correction could not be solved: never a verdict), its bonds,
     its rattlers (a particle left with fewer than ``d + 1`` bonds by shed contacts joins them)
-    and how often its network gave way and a closing gap held it (:func:`_blocking_pair`)."""
+    and how often its network gave way and a closing gap held it (:func:`_blocking_pair`).
+    With ``escape``, it stops (no verdict) once it has moved along the first unstable mode:
+    where a rearrangement starts, below float64's resolution."""
     n, dim = hi.shape
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     pairs.stiffness = np.where(live, stiffness, 0.0)
@@ -778,7 +787,7 @@ def _trial(
             mode = _unstable_mode(contacts, rattler, hi.shape)
             if mode is not None:
                 blocking = _blocking_pair(pairs, hi, lo, mode, rattler, bonds, overlap, parted)
-                if blocking is None:  # it gives way further than a small move: no verdict
+                if blocking is None or escape:  # it gives way further than a small move
                     return None, bonds, rattler, held
                 held, parted, definite = held + 1, None, False
                 bonds = bonds.copy()
