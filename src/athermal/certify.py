@@ -517,7 +517,8 @@ def bisect_jamming_point(
     pair joins the network (``docs/decisions.md``, "Jamming below float64's resolution"). A
     singular one is solved by MINRES, and a jammed verdict needs a positive definite Hessian.
     A trial that gives no verdict at any step (a network that turns floppy and collapses) is
-    relaxed in float64, the packing rearranging, and the march goes on from its network.
+    relaxed in float64 from where it first moved along an unstable mode, the packing
+    rearranging, and the march goes on from its network.
     The trials march down from the certified packing, each from the last jammed one and at
     most a step away (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered
     after one that gives no verdict: the network's response runs along its soft modes), then
@@ -777,8 +778,8 @@ def _trial(
             rattler = rattler | rattlers(pairs.contacts(hi, overlap, bonds), n, dim)
             live = ~(rattler[pairs.first] | rattler[pairs.second])
             bonds = bonds & live
-            if not bonds.any():  # the network came apart: no load is borne
-                return False, bonds, rattler, held
+            if not bonds.any():  # the network came apart under load: it rearranges
+                return None, bonds, rattler, held
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
