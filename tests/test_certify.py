@@ -251,7 +251,9 @@ def test_jam_certify_bisects_below_float64_and_refuses_it_otherwise(tmp_path, ca
     assert frame.packing.phi == result["phi_high"] and frame.position_lo is not None
 
 
-@pytest.mark.parametrize("name", ["n4096_seed1", "n4096_seed2", "n1024_seed108", "n1024_seed32"])
+@pytest.mark.parametrize(
+    "name", ["n4096_seed1", "n4096_seed2", "n1024_seed108", "n1024_seed32", "n1024_seed80"]
+)
 def test_packings_that_shed_contacts_or_rearrange_are_bracketed(name):
     """Packings jammed once and stored (a jam's trajectory differs between CPUs) whose march
     meets what a plain continuation cannot: two hyperstatic ones (N = 4096, 5 and 7 contacts
@@ -261,7 +263,10 @@ def test_packings_that_shed_contacts_or_rearrange_are_bracketed(name):
     mode; on the third (N = 1024), an isostatic network turns floppy when a contact parts at a
     pressure of ~1e-8, and the packing rearranges; on the fourth, the contact parts within
     1e-13 of the last jammed trial, a change float64 cannot see, so the rearrangement starts
-    along the unstable mode. Every bracket closes to 1e-12 inside float64's."""
+    along the unstable mode; on the fifth, a trial whose network comes apart under load (its
+    tensile contacts part and the rest cascade into rattlers at a pressure of ~1e-8) is not
+    unjammed: the packing stays jammed ~3e-8 below it. Every bracket closes to 1e-12 inside
+    float64's, at a jammed bound whose pressure vanishes with the bracket."""
     data = np.load(DATA / f"jammed_{name}.npz")
     packing = at.Packing(data["positions"], data["radii"], at.Cell(data["h"]))
     model = at.ContactModel(2.0)

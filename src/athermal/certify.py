@@ -37,7 +37,7 @@ from .contact import ContactModel, Contacts
 from .errors import ConvergenceError, InputError
 from .extended import PRECISION, NearPairs, PairSums, displace, half_steps, two_sum
 from .modes import lowest_eigenpairs, zero_tolerance
-from .moduli import nonrattler_hessian, pinned_solve
+from .moduli import nonrattler_hessian, pinned_solve, relaxing_displacement
 from .objective import Objective
 from .observables import isostatic_contacts, rattlers
 from .packing import Packing
@@ -104,6 +104,11 @@ class Certificate:
     smallest_gap : the smallest surface-to-surface gap ``|x_i - x_j| - r_i - r_j`` between
         non-rattlers not in contact (within :data:`GAP_REACH` mean diameters).
     energy, pressure : of the refined packing, in double-double, rounded to float64.
+    linear_phi_c : the jamming point by the packing's linear response (:func:`toward_jamming`):
+        ``phi / (1 + e_c)^d``, ``e_c`` the isotropic expansion at which its overlaps vanish;
+        first order in ``phi - phi_c`` while the network holds on the way.
+    linearity : ``max |delta / (e_c d delta/de) - 1|`` over the contacts: 0 when they vanish
+        together (an isostatic network in its linear regime).
     iterations : Newton steps taken.
     target : the relative force balance asked for.
     converged : ``relative_force_balance <= target``, or ``force_balance`` at double-double's
@@ -124,6 +129,8 @@ class Certificate:
     smallest_gap: float
     energy: float
     pressure: float
+    linear_phi_c: float
+    linearity: float
     iterations: int
     target: float
     converged: bool
@@ -442,6 +449,7 @@ def _certificate(
     n_live = int((~rattler).sum())
     network, _ = contact_network(pairs, packing.positions, sums)
     lowest = _lowest_eigenvalue(network, rattler, packing.dim)
+    strain, _, linearity = toward_jamming(pairs, overlap, network, rattler, live)
     balance = sums.largest_force()
     mean_force = float(force.mean())
     volume = packing.cell.volume
@@ -459,11 +467,43 @@ def _certificate(
         smallest_gap=float(gaps.min()) if gaps.size else float("inf"),
         energy=sums.energy[0] + sums.energy[1],
         pressure=float(np.trace(virial)) / (packing.dim * volume),
+        linear_phi_c=packing.phi / (1.0 + strain) ** packing.dim,
+        linearity=linearity,
         iterations=iterations,
         target=target,
         converged=balance <= max(target * mean_force, precision_floor(packing, model)),
         precision=PRECISION,
     )
+
+
+def toward_jamming(
+    pairs: NearPairs,
+    overlap: NDArray[np.float64],
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    live: NDArray[np.bool_],
+) -> tuple[float, NDArray[np.float64], float]:
+    """The jamming point of a jammed packing by its linear response, to first order in its
+    distance from it.
+
+    Under an isotropic expansion ``x -> (1 + e) x`` of the cell (radii fixed) with the
+    non-affine relaxation of the non-rattlers (:func:`athermal.moduli.relaxing_displacement`),
+    each pair's distance grows at the rate ``d|x_ij|/de``, and each contact's ``overlap`` falls
+    at that rate; the expansion ``e_c`` at which they vanish (least squares over the
+    ``contacts``: in an isostatic network in its linear regime they vanish together) is the
+    jamming point, where a gap has grown by ``e_c`` times its rate. Returns ``e_c``, the rates
+    ``(P,)`` of the ``pairs`` (``overlap`` their double-double overlaps, ``live`` those between
+    non-rattlers) and the largest ``|overlap / (e_c rate) - 1|`` over the contacts.
+    """
+    hi = pairs.packing.positions
+    u = relaxing_displacement(contacts, rattler, np.eye(hi.shape[1]))
+    sep = pairs.separations(hi)
+    moved = sep + u[pairs.first] - u[pairs.second]
+    rate = np.einsum("kd,kd->k", sep, moved) / np.linalg.norm(sep, axis=1)
+    touch = live & (overlap > 0.0)
+    strain = float(np.sum(overlap[touch] * rate[touch]) / np.sum(rate[touch] ** 2))
+    linearity = float(np.max(np.abs(overlap[touch] / (strain * rate[touch]) - 1.0)))
+    return strain, rate, linearity
 
 
 @dataclass(frozen=True, eq=False)
@@ -506,19 +546,20 @@ def bisect_jamming_point(
     joins the network. The trial is jammed when every contact of the balanced network overlaps
     (a minimum with positive pressure) and every rattler has room in its cage, unjammed when
     every contact is apart (the network holds only in tension: relaxed, the packing loses its
-    load) or when what is left is floppy. Contacts that part while others hold leave the network
-    (a hyperstatic network sheds contacts on its way to ``phi_c``) and the trial is balanced
-    again; a particle left with fewer than ``d + 1`` contacts becomes a rattler. Rattlers carry
-    no force in the trials; one that has no room in its cage (the network closed in on it) bears
-    load and is readmitted with the contacts it has at the least overlapping place there. When
-    the network's Hessian (pre-stress included) is not positive definite, and has a negative
-    eigenvalue (a parted contact left it unstable), the network is moved along that mode, in
-    the sense that opens the most stretched contact that parted, until a near gap closes; that
-    pair joins the network (``docs/decisions.md``, "Jamming below float64's resolution"). A
-    singular one is solved by MINRES, and a jammed verdict needs a positive definite Hessian.
-    A trial that gives no verdict at any step (a network that turns floppy and collapses) is
-    relaxed in float64 from where it first moved along an unstable mode, the packing
-    rearranging, and the march goes on from its network.
+    load). Contacts that part while others hold leave the network (a hyperstatic network sheds
+    contacts on its way to ``phi_c``) and the trial is balanced again; a particle left with
+    fewer than ``d + 1`` contacts becomes a rattler. Rattlers carry no force in the trials; one
+    that has no room in its cage (the network closed in on it) bears load and is readmitted with
+    the contacts it has at the least overlapping place there. When the network's Hessian
+    (pre-stress included) is not positive definite, and has a negative eigenvalue (a parted
+    contact left it unstable), the network is moved along that mode, in the sense that opens the
+    most stretched contact that parted, until a near gap closes; that pair joins the network
+    (``docs/decisions.md``, "Jamming below float64's resolution"). A singular one is solved by
+    MINRES, and a jammed verdict needs a positive definite Hessian. A trial that gives no
+    verdict at any step (a network that turns floppy and collapses, or comes apart into rattlers
+    while it bears load: not unjammed, ``docs/decisions.md``) is relaxed in float64 from where
+    it first moved along an unstable mode, the packing rearranging, and the march goes on from
+    its network.
     The trials march down from the certified packing, each from the last jammed one and at
     most a step away (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered
     after one that gives no verdict: the network's response runs along its soft modes), then
@@ -616,6 +657,21 @@ def bisect_jamming_point(
         instabilities,
         rearranged,
     )
+
+
+def _clear(
+    pairs: NearPairs, hi: NDArray[np.float64], lo: NDArray[np.float64], radii: NDArray[np.float64]
+) -> bool | None:
+    """A trial whose network came apart (its tensile contacts parted, and the particles left
+    with too few contacts cascaded into rattlers): False (unjammed) when every particle that
+    still overlaps a neighbour moves to a place clear of all of them (:func:`_free_rattlers`,
+    ``hi + lo`` updated): a state without overlaps, so without load, lies a small move away.
+    None (no verdict: the packing rearranges) when some bear load."""
+    try:
+        _, squeezed = _free_rattlers(pairs, hi, lo, np.ones(hi.shape[0], dtype=bool), radii)
+    except ConvergenceError:
+        return None
+    return None if squeezed.size else False
 
 
 def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | None:
@@ -778,8 +834,8 @@ def _trial(
             rattler = rattler | rattlers(pairs.contacts(hi, overlap, bonds), n, dim)
             live = ~(rattler[pairs.first] | rattler[pairs.second])
             bonds = bonds & live
-            if not bonds.any():  # the network came apart under load: it rearranges
-                return None, bonds, rattler, held
+            if not bonds.any():  # the network came apart: unjammed if nothing overlaps
+                return _clear(pairs, hi, lo, radii), bonds, rattler, held
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue

@@ -12,14 +12,17 @@ removed iteratively) of a packing at its jamming point:
 - forces ``f / <f>``, ``<f>`` the packing's mean contact force, split into the *localized* ones
   (the contact touches a buckler) and the *extended* ones (the others);
 - gaps ``h = |x_i - x_j| / (r_i + r_j) - 1 > 0`` between non-rattlers not in contact, within
-  :data:`~athermal.certify.GAP_REACH` mean diameters;
+  :data:`~athermal.certify.GAP_REACH` mean diameters, taken at the packing's jamming point
+  ``h_c`` (the packing expanded to it by its linear response,
+  :func:`athermal.certify.toward_jamming`), so that they do not depend on how far above it the
+  packing was jammed; pairs that touch there (the pressure made their gap) are counted apart;
 
 each computed in double-double from the packing's positions (with their low parts when it is
 certified, :mod:`athermal.certify`), so that the smallest values are not round-off. The
 exponents come from pooling many packings: the cumulative distributions go as
 ``f^(1 + theta)`` and ``h^(1 - gamma)``, and each is fitted by maximum likelihood of a power-law
 density truncated to a window (:func:`fit_truncated_power_law`); a window below which the
-finite pressure of the packings (forces and gaps ~ its overlaps) or their count cuts the law,
+finite pressure of the packings (forces ~ its overlaps) or their count cuts the law,
 and above which the law gives way to the bulk of the distribution, is a choice the report
 states (:data:`FORCE_WINDOW`, :data:`GAP_WINDOW`).
 """
@@ -33,7 +36,7 @@ import numpy as np
 import scipy.optimize
 from numpy.typing import NDArray
 
-from .certify import GAP_REACH, contact_network
+from .certify import GAP_REACH, contact_network, toward_jamming
 from .contact import ContactModel
 from .errors import InputError
 from .extended import NearPairs
@@ -61,9 +64,14 @@ class WeakForcesAndGaps:
     ----------
     forces : ``(M,)`` ``f / <f>`` of the contacts between non-rattlers.
     localized : ``(M,)`` True where the contact touches a buckler.
-    gaps : ``(G,)`` gaps ``h`` between non-rattlers not in contact, within reach.
+    gaps : ``(G,)`` gaps ``h_c`` at the packing's jamming point (:func:`toward_jamming`)
+        between non-rattlers that do not touch there, within reach.
     n_live : non-rattlers.
     bucklers : non-rattlers with exactly ``d + 1`` contacts.
+    touching : pairs of non-rattlers apart in the packing that touch at its jamming point: the
+        expansion to it closes more than half of their gap (``h_c < h - h_c``), a gap the
+        pressure made, not one of the jammed structure.
+    jamming_strain : the isotropic expansion ``e_c`` of the cell to the jamming point.
     """
 
     forces: NDArray[np.float64]
@@ -71,6 +79,8 @@ class WeakForcesAndGaps:
     gaps: NDArray[np.float64]
     n_live: int
     bucklers: int
+    touching: int
+    jamming_strain: float
 
 
 @dataclass(frozen=True)
@@ -125,14 +135,22 @@ def weak_forces_and_gaps(
     buckler = ~rattler & (counts == packing.dim + 1)
     force = contacts.force_magnitude
     overlap = sums.overlap[0] + sums.overlap[1]
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    strain, rate, _ = toward_jamming(pairs, overlap, contacts, rattler, live)
     sigma = packing.radii[pairs.first] + packing.radii[pairs.second]
-    gap = ~(rattler[pairs.first] | rattler[pairs.second]) & (overlap <= 0.0)
+    gap = live & (overlap <= 0.0)
+    h = -overlap[gap] / sigma[gap]
+    closing = strain * rate[gap] / sigma[gap]  # h_c - h
+    h_c = h + closing
+    touching = h_c < -closing
     return WeakForcesAndGaps(
         forces=force / force.mean(),
         localized=buckler[i] | buckler[j],
-        gaps=-overlap[gap] / sigma[gap],
+        gaps=h_c[~touching],
         n_live=int((~rattler).sum()),
         bucklers=int(buckler.sum()),
+        touching=int(touching.sum()),
+        jamming_strain=strain,
     )
 
 

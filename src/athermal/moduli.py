@@ -198,10 +198,23 @@ def nonaffine_displacement(
     dim = packing.dim
     d1_arr = _untilting(packing, float_array(d1, "d1", (dim, dim)), "d1")
     contacts, rattler = nonrattler_contacts(packing, model)
-    _, xi = strain_terms(contacts, packing.n, d1_arr)
-    y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None], packing.cell.walls)
+    return relaxing_displacement(contacts, rattler, d1_arr, packing.cell.walls)
+
+
+def relaxing_displacement(
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    d1: NDArray[np.float64],
+    walls: tuple[int, ...] = (),
+) -> NDArray[np.float64]:
+    """:func:`nonaffine_displacement` on given ``contacts`` between the non-rattlers (those of
+    a certified packing, found in double-double): ``u = -H^+ Xi`` ``(N, d)``, zero on the
+    ``rattler`` particles. A ``RuntimeWarning`` reports a poor solve."""
+    n, dim = rattler.size, d1.shape[0]
+    _, xi = strain_terms(contacts, n, d1)
+    y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None], walls)
     _warn_if_poor(residual, "nonaffine_displacement")
-    return -y[:, 0].reshape(packing.n, dim)
+    return -y[:, 0].reshape(n, dim)
 
 
 def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
