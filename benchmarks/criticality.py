@@ -85,11 +85,13 @@ def packings(
 
 def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
     """The exponents of one N at the default windows and over the scans."""
-    samples, balances = [], []
+    samples, balances, below = [], [], []
     for path in files:
         frame = read_gsd(path)
         samples.append(weak_forces_and_gaps(frame.packing, frame.model, frame.position_lo))
         balances.append(float(frame.log["certificate_relative_force_balance"][()]))
+        linear = float(frame.log["certificate_linear_phi_c"][()])
+        below.append(float(frame.log["phi_c"][()]) - linear)
     found = critical_exponents(samples)
     save(criticality_figure(samples, found, title=f"N = {n}, {len(samples)} packings"), figure)
     f = np.concatenate([s.forces for s in samples])
@@ -109,6 +111,9 @@ def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
         "gamma": [found.gamma, found.gamma_err, found.gap.points],
         "all_forces": _fit(f, FORCE_WINDOW, +1)[2:],
         "localized_fraction": float(loc.mean()),
+        "touching": sum(s.touching for s in samples),
+        "gaps_below_1e-8": int(np.sum(gaps < 1e-8)),
+        "phi_c_minus_linear": [min(below), max(below)],
         "scan": scan,
         "figure": figure.name,
     }
@@ -142,6 +147,21 @@ def report(results: list[dict[str, Any]], refused: list[str], epsilon: float = E
             + " | ".join(cells)
             + f" | {r['all_forces'][0]:.3f} ± {r['all_forces'][1]:.3f} ({r['all_forces'][2]:.0f})"
             + f" | {100 * r['localized_fraction']:.0f}% |"
+        )
+    lines += [
+        "",
+        "Gaps are taken at each packing's jamming point (the packing expanded to it by its linear"
+        " response); pairs that touch there (the pressure made their gap) are counted apart.",
+        "",
+        "| N | pairs touching at phi_c (per packing) | gaps below 1e-8 at phi_c | phi_c - "
+        "linear-response phi_c |",
+        "|---:|---:|---:|---|",
+    ]
+    for r in results:
+        low, high = r["phi_c_minus_linear"]
+        lines.append(
+            f"| {r['n']} | {r['touching']} ({r['touching'] / r['packings']:.2f}) | "
+            f"{r['gaps_below_1e-8']} | {low:.1e} ... {high:.1e} |"
         )
     lines += ["", "## The exponents against the window", ""]
     lines += ["| N | exponent | window | value ± stderr (points) |", "|---:|---|---|---|"]

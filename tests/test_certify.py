@@ -237,6 +237,37 @@ def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
     assert verdict is False
 
 
+def test_the_linear_response_finds_the_jamming_point(bisected):
+    """The certificate's jamming point by linear response lies inside the certified bracket;
+    from the float64 packing ~1e-6 above it, it misses by a second-order term only."""
+    jammed, point, model = bisected
+    bound = point.jammed.certificate
+    assert point.phi_low <= bound.linear_phi_c <= point.phi_high
+    assert bound.linearity < 1e-6  # ~1e-12 above it the overlaps vanish together
+    if point.contacts_shed or point.contacts_formed or point.rearrangements:
+        pytest.skip("the network changed on the way: no first-order extrapolation reaches it")
+    start = certify(jammed.packing, model).certificate
+    above = jammed.packing.phi - point.phi_high
+    assert 0.0 < start.linearity < 0.1
+    assert abs(start.linear_phi_c - point.phi_high) < 1e-3 * above
+
+
+def test_the_linear_response_of_a_compressed_crystal_is_exact():
+    """A triangular crystal of equal disks jams at pi / (2 sqrt 3); compressed, every contact
+    overlaps alike and the expansion back to it is affine, so the extrapolation is exact."""
+    nx, ny, a = 8, 8, 0.1
+    row = np.arange(nx) * a
+    positions = np.array(
+        [[x + 0.5 * a * (j % 2), j * a * np.sqrt(3.0) / 2.0] for j in range(ny) for x in row]
+    )
+    cell = at.Cell.box([nx * a, ny * a * np.sqrt(3.0) / 2.0])
+    packing = at.Packing(positions, np.full(nx * ny, 0.5 * a * (1.0 + 1e-5)), cell)
+    cert = certify(packing, at.ContactModel(2.0)).certificate
+    assert cert.excess_contacts == 3 * nx * ny - (2 * (nx * ny - 1) + 1)
+    assert cert.linearity < 1e-9
+    assert cert.linear_phi_c == pytest.approx(np.pi / (2.0 * np.sqrt(3.0)), rel=1e-13)
+
+
 def test_jam_certify_bisects_below_float64_and_refuses_it_otherwise(tmp_path, capsys):
     out = tmp_path / "j.gsd"
     args = ["jam", "--n", "64", "--seed", "3", "--picture", "none", "--json", "-o", str(out)]

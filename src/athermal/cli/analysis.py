@@ -198,6 +198,7 @@ def criticality(args: argparse.Namespace) -> None:
         "contacts": found.contacts,
         "localized_contacts": found.localized_contacts,
         "gaps": found.gaps,
+        "touching": sum(s.touching for s in samples),
     }
     for name, fit, value, mean_field in (
         ("theta_e", found.extended, found.theta_e, THETA_E),
