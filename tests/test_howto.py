@@ -46,12 +46,16 @@ def test_the_freud_example_reads_a_file(tmp_path):
 
 
 def test_a_jamming_point_is_certified_and_its_exponents_fitted(tmp_path):
-    one, read, below, many = blocks(HOWTO / "certify.md")
+    one, read, below, linear, many = blocks(HOWTO / "certify.md")
     paste(one, tmp_path)
     balance = re.search(r"force balance (\S+) of", paste(read, tmp_path)).group(1)
     assert float(balance) <= 1e-20
     width = re.search(r"\(bracket (\S+)\)", paste(below, tmp_path)).group(1)
     assert float(width) <= 1e-12
+    out = paste(linear, tmp_path)
+    low, high = (float(v) for v in re.search(r"\[(\S+), (\S+)\]", out).groups())
+    phi_c = float(re.search(r"phi_c = (\S+) ", out).group(1))
+    assert low < phi_c < high
     out = paste(many, tmp_path)
     assert "theta_e" in out and "gamma" in out and (tmp_path / "criticality.png").exists()
 
