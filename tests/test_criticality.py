@@ -8,7 +8,13 @@ import numpy as np
 import pytest
 
 import athermal as at
-from athermal.certify import GAP_REACH, bisect_jamming_point, certify, contact_network
+from athermal.certify import (
+    GAP_REACH,
+    bisect_jamming_point,
+    certify,
+    contact_network,
+    toward_jamming,
+)
 from athermal.cli import main
 from athermal.criticality import (
     critical_exponents,
@@ -98,8 +104,26 @@ def test_the_samples_of_a_jammed_packing(certified):
         rtol=1e-6,
     )
     assert np.all(sample.gaps > 0.0) and sample.gaps.max() < 0.5  # within reach
-    assert sample.gaps.size + sample.touching == measured_gaps(done, model).size
-    assert sample.jamming_strain > 0.0
+    # the expansion to the jamming point is the certificate's, and moves each gap by its rate
+    # (test_certify checks the rates against relaxed expansions)
+    strain = sample.jamming_strain
+    assert (done.packing.phi / (1.0 + strain) ** 2) == pytest.approx(
+        done.certificate.linear_phi_c, rel=1e-14
+    )
+    packing = done.packing
+    pairs = NearPairs(packing, model, GAP_REACH)
+    sums = pairs.sums(packing.positions.copy(), done.position_lo.copy())
+    network, rattler = contact_network(pairs, packing.positions, sums)
+    overlap = sums.overlap[0] + sums.overlap[1]
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    _, rate, _ = toward_jamming(pairs, packing.positions, overlap, network, rattler, live)
+    sigma = packing.radii[pairs.first] + packing.radii[pairs.second]
+    apart = live & (overlap <= 0.0)
+    closing = strain * rate[apart] / sigma[apart]
+    at_jamming = -overlap[apart] / sigma[apart] + closing
+    touching = at_jamming < -closing  # the pressure made more than half of the gap
+    assert sample.touching == touching.sum() and sample.gaps.size == (~touching).sum()
+    np.testing.assert_allclose(np.sort(sample.gaps), np.sort(at_jamming[~touching]), rtol=1e-12)
 
 
 def test_pooled_exponents_need_enough_values(certified):
@@ -132,15 +156,20 @@ def test_the_command_pools_files_and_refuses_bad_windows(certified, tmp_path, ca
     assert "no such file" in capsys.readouterr().err
 
 
+def stored(name):
+    data = np.load(DATA / f"jammed_{name}.npz")
+    return at.Packing(data["positions"], data["radii"], at.Cell(data["h"]))
+
+
 def test_gaps_at_the_jamming_point_do_not_depend_on_epsilon():
-    """Taken at the jamming point, the gaps of a packing jammed in float64 (~1e-6 above it)
-    and of the same packing bracketed to 1e-12 agree: the extrapolation removes nearly all of
-    the shift the pressure gave them (measured gaps move by ~1e-7 between the two)."""
+    """Taken at the jamming point, the gaps of a packing jammed in float64 (~6e-7 above it;
+    stored, N = 256, no contact changes on the way) and of the same packing bracketed to 1e-12
+    agree: the extrapolation removes nearly all of the shift the pressure gave them (measured
+    gaps move by ~1e-7 between the two)."""
     model = at.ContactModel(2.0)
-    jammed = at.jam(at.random_packing(128, 0.8, seed=5), model).packing
+    jammed = stored("n256_seed2")
     point = bisect_jamming_point(jammed, model, 1e-12)
-    if point.contacts_shed or point.contacts_formed or point.rearrangements:
-        pytest.skip("the network changed on the way: no first-order extrapolation reaches it")
+    assert point.contacts_shed == point.contacts_formed == point.rearrangements == 0
     above, at_jamming = certify(jammed, model), point.jammed
     a = weak_forces_and_gaps(above.packing, model, above.position_lo)
     b = weak_forces_and_gaps(at_jamming.packing, model, at_jamming.position_lo)
@@ -154,10 +183,10 @@ def test_pairs_that_touch_at_the_jamming_point_are_counted_apart():
     """A stored packing (N = 1024) with pairs whose gap the pressure made: at its certified
     bound ~1e-12 above its jamming point they are ~1e-13 apart, as far as its contacts
     overlap, and they touch at the jamming point; found alike from the float64 packing."""
-    data = np.load(DATA / "jammed_n1024_seed31.npz")
-    packing = at.Packing(data["positions"], data["radii"], at.Cell(data["h"]))
+    packing = stored("n1024_seed31")
     model = at.ContactModel(2.0)
     point = bisect_jamming_point(packing, model, 1e-12)
+    assert point.rearrangements == 0  # its last trials come apart and clear: unjammed
     above = certify(packing, model)
     a = weak_forces_and_gaps(above.packing, model, above.position_lo)
     b = weak_forces_and_gaps(point.jammed.packing, model, point.jammed.position_lo)

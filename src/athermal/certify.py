@@ -107,8 +107,8 @@ class Certificate:
     linear_phi_c : the jamming point by the packing's linear response (:func:`toward_jamming`):
         ``phi / (1 + e_c)^d``, ``e_c`` the isotropic expansion at which its overlaps vanish;
         first order in ``phi - phi_c`` while the network holds on the way.
-    linearity : ``max |delta / (e_c d delta/de) - 1|`` over the contacts: 0 when they vanish
-        together (an isostatic network in its linear regime).
+    linearity : ``max |delta / (e_c d|x_ij|/de) - 1|`` over the contacts: 0 when their overlaps
+        vanish together (an isostatic network in its linear regime).
     iterations : Newton steps taken.
     target : the relative force balance asked for.
     converged : ``relative_force_balance <= target``, or ``force_balance`` at double-double's
@@ -449,7 +449,7 @@ def _certificate(
     n_live = int((~rattler).sum())
     network, _ = contact_network(pairs, packing.positions, sums)
     lowest = _lowest_eigenvalue(network, rattler, packing.dim)
-    strain, _, linearity = toward_jamming(pairs, overlap, network, rattler, live)
+    strain, _, linearity = toward_jamming(pairs, packing.positions, overlap, network, rattler, live)
     balance = sums.largest_force()
     mean_force = float(force.mean())
     volume = packing.cell.volume
@@ -478,6 +478,7 @@ def _certificate(
 
 def toward_jamming(
     pairs: NearPairs,
+    hi: NDArray[np.float64],
     overlap: NDArray[np.float64],
     contacts: Contacts,
     rattler: NDArray[np.bool_],
@@ -492,17 +493,20 @@ def toward_jamming(
     at that rate; the expansion ``e_c`` at which they vanish (least squares over the
     ``contacts``: in an isostatic network in its linear regime they vanish together) is the
     jamming point, where a gap has grown by ``e_c`` times its rate. Returns ``e_c``, the rates
-    ``(P,)`` of the ``pairs`` (``overlap`` their double-double overlaps, ``live`` those between
-    non-rattlers) and the largest ``|overlap / (e_c rate) - 1|`` over the contacts.
+    ``(P,)`` of the ``pairs`` at positions ``hi`` (``overlap`` their double-double overlaps,
+    ``live`` those between non-rattlers; ``contacts``, found at ``hi``, are the pairs of ``live``
+    that overlap) and the largest ``|overlap / (e_c rate) - 1|`` over the contacts (infinite
+    where a contact does not open).
     """
-    hi = pairs.packing.positions
     u = relaxing_displacement(contacts, rattler, np.eye(hi.shape[1]))
     sep = pairs.separations(hi)
     moved = sep + u[pairs.first] - u[pairs.second]
     rate = np.einsum("kd,kd->k", sep, moved) / np.linalg.norm(sep, axis=1)
     touch = live & (overlap > 0.0)
     strain = float(np.sum(overlap[touch] * rate[touch]) / np.sum(rate[touch] ** 2))
-    linearity = float(np.max(np.abs(overlap[touch] / (strain * rate[touch]) - 1.0)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = overlap[touch] / (strain * rate[touch])
+    linearity = float(np.max(np.abs(np.nan_to_num(share, nan=np.inf) - 1.0)))
     return strain, rate, linearity
 
 
@@ -665,20 +669,26 @@ def _clear(
     """A trial whose network came apart (its tensile contacts parted, and the particles left
     with too few contacts cascaded into rattlers): False (unjammed) when every particle that
     still overlaps a neighbour moves to a place clear of all of them (:func:`_free_rattlers`,
-    ``hi + lo`` updated): a state without overlaps, so without load, lies a small move away.
-    None (no verdict: the packing rearranges) when some bear load."""
+    ``hi + lo`` updated), none by more than :data:`BLOCKED_MOVE` mean diameters: a state
+    without overlaps, so without load, lies a small move away. None (no verdict: the packing
+    rearranges) when some bear load, or clear only farther away."""
+    start = hi.copy(), lo.copy()
     try:
         _, squeezed = _free_rattlers(pairs, hi, lo, np.ones(hi.shape[0], dtype=bool), radii)
     except ConvergenceError:
         return None
-    return None if squeezed.size else False
+    moved = float(np.abs((hi - start[0]) + (lo - start[1])).max())
+    if squeezed.size or moved > BLOCKED_MOVE * 2.0 * float(radii.mean()):
+        return None
+    return False
 
 
 def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | None:
     """A trial whose network gives no verdict at any step: a contact parts, the network turns
     floppy and collapses, and the packing rearranges. Relaxed from ``start`` (the trial's
     radii; the last jammed positions moved along the network's first unstable mode until a gap
-    closes, so that a contact parted by less than float64 resolves starts the rearrangement) in
+    closes, so that a contact parted by less than float64 resolves starts the rearrangement, or
+    where the trial, run again with ``escape``, stopped without meeting one) in
     float64 to a minimum, as ``jam``'s own steps are: that minimum, or None (unjammed) when its
     energy lies below ``jam``'s threshold. Raises :class:`ConvergenceError` when no minimum is
     found."""

@@ -51,9 +51,9 @@ A_RANGE = (1e-6, 50.0)
 FORCE_WINDOW = (1e-3, 1e-1)
 """Default window of ``f / <f>`` for the force exponents."""
 GAP_WINDOW = (1e-5, 1e-2)
-"""Default window of ``h`` for the gap exponent: above the overlaps of a packing jammed at
-epsilon = 1e-6, below the first neighbour shell (``docs/howto/certify.md`` measures the
-exponents against the window)."""
+"""Default window of ``h`` for the gap exponent: above where a packing of 1024 holds about one
+gap, and far above the gaps' share of the pressure at epsilon = 1e-6 (~1e-7), below the first
+neighbour shell (``docs/howto/certify.md`` measures the exponents against the window)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -70,7 +70,8 @@ class WeakForcesAndGaps:
     bucklers : non-rattlers with exactly ``d + 1`` contacts.
     touching : pairs of non-rattlers apart in the packing that touch at its jamming point: the
         expansion to it closes more than half of their gap (``h_c < h - h_c``), a gap the
-        pressure made, not one of the jammed structure.
+        pressure made, not one of the jammed structure. From a packing far above its jamming
+        point this also takes real gaps smaller than that share (~1e-7 at epsilon 1e-6).
     jamming_strain : the isotropic expansion ``e_c`` of the cell to the jamming point.
     """
 
@@ -136,7 +137,7 @@ def weak_forces_and_gaps(
     force = contacts.force_magnitude
     overlap = sums.overlap[0] + sums.overlap[1]
     live = ~(rattler[pairs.first] | rattler[pairs.second])
-    strain, rate, _ = toward_jamming(pairs, overlap, contacts, rattler, live)
+    strain, rate, _ = toward_jamming(pairs, packing.positions, overlap, contacts, rattler, live)
     sigma = packing.radii[pairs.first] + packing.radii[pairs.second]
     gap = live & (overlap <= 0.0)
     h = -overlap[gap] / sigma[gap]

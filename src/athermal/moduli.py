@@ -213,7 +213,7 @@ def relaxing_displacement(
     n, dim = rattler.size, d1.shape[0]
     _, xi = strain_terms(contacts, n, d1)
     y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None], walls)
-    _warn_if_poor(residual, "nonaffine_displacement")
+    _warn_if_poor(residual, "the linear response to a deformation")
     return -y[:, 0].reshape(n, dim)
 
 
