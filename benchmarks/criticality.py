@@ -70,6 +70,10 @@ def packings(
             except (InputError, ConvergenceError) as exc:
                 refused.append(f"seed {seed}: {exc}")
                 continue
+            if not done.certificate.converged:
+                balance = done.certificate.relative_force_balance
+                refused.append(f"seed {seed}: not certified (force balance {balance:.1e})")
+                continue
             write_gsd(
                 path,
                 done.packing,

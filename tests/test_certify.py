@@ -262,6 +262,14 @@ def test_the_linear_response_finds_the_jamming_point():
     assert abs(start.linear_phi_c - point.phi_high) < 1e-3 * above
 
 
+def test_a_first_newton_step_along_a_soft_mode_does_not_stop_the_refinement():
+    """A stored packing (N = 4096) whose network has a soft mode: the first Newton step moves
+    it by ~3e-9 and only halves the largest force; the steps after it converge."""
+    packing, _, _ = stored("n4096_seed23")
+    cert = certify(packing, at.ContactModel(2.0)).certificate
+    assert cert.converged and cert.relative_force_balance <= TARGET and cert.iterations >= 3
+
+
 def test_the_rates_of_the_linear_response_are_those_of_relaxed_expansions():
     """Each pair's distance grows with an isotropic expansion of the cell at the rate
     ``toward_jamming`` gives: central differences of packings expanded by +-1e-6 and relaxed

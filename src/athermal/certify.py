@@ -56,8 +56,9 @@ ROUND_OFF_SLACK = 10.0
 MAX_ITERATIONS = 12
 """Newton steps at most (``docs/decisions.md``, "Certified jamming points")."""
 STALL = 0.5
-"""A step that does not reduce the largest residual force below this fraction of the previous
-one has reached the limit of the precision."""
+"""Two steps in a row that do not reduce the largest residual force below this fraction of the
+previous one have reached the limit of the precision (one such step alone may be the first
+along a soft mode, before Newton's quadratic convergence: ``docs/decisions.md``)."""
 FIRST_STEP = 1e-9
 """The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
 LARGEST_STEP = 1e-8
@@ -226,7 +227,7 @@ def certify(
     live_pair = ~(rattler[pairs.first] | rattler[pairs.second])
     network = live_pair & (sums.overlap[0] > 0.0)
     sums = _freed(pairs, hi, lo, rattler)
-    force, iterations = sums.largest_force(), 0
+    force, iterations, slow = sums.largest_force(), 0, 0
     best = (force, hi.copy(), lo.copy(), sums)
     enough = max(target * mean_force, precision_floor(packing, model))
     while force > enough and iterations < max_iterations:
@@ -239,7 +240,8 @@ def certify(
         force = sums.largest_force()
         if force < best[0]:
             best = (force, hi.copy(), lo.copy(), sums)
-        if force > STALL * previous:
+        slow = slow + 1 if force > STALL * previous else 0
+        if slow == 2:
             break
     force, hi, lo, sums = best
     _same_network(pairs, network, live_pair & (sums.overlap[0] > 0.0))

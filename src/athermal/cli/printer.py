@@ -14,14 +14,15 @@ import numpy as np
 DIGITS = 6
 """Significant digits of a printed number (``--json`` keeps every digit)."""
 PHI_DIGITS = 10
-"""Significant digits of a packing fraction (``phi``, ``phi_c``, ...): known to 1e-6 or better."""
+"""Significant digits of a packing fraction (``phi``, ``phi_c``, ``linear_phi_c``, ...): known
+to 1e-6 or better."""
 LONGEST = 12
 """A list of more numbers than this prints as its length, range and mean (``--json`` has them
 all): a histogram's 100 bins are not for reading on a terminal."""
 
 
 def _digits(key: str) -> int:
-    return PHI_DIGITS if key.startswith("phi") else DIGITS
+    return PHI_DIGITS if "phi" in key.split("_") else DIGITS
 
 
 def plain(value: Any) -> Any:
