@@ -687,13 +687,12 @@ def _clear(
 
 def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | None:
     """A trial whose network gives no verdict at any step: a contact parts, the network turns
-    floppy and collapses, and the packing rearranges. Relaxed from ``start`` (the trial's
-    radii; the last jammed positions moved along the network's first unstable mode until a gap
-    closes, so that a contact parted by less than float64 resolves starts the rearrangement, or
-    where the trial, run again with ``escape``, stopped without meeting one) in
-    float64 to a minimum, as ``jam``'s own steps are: that minimum, or None (unjammed) when its
-    energy lies below ``jam``'s threshold. Raises :class:`ConvergenceError` when no minimum is
-    found."""
+    floppy and collapses, and the packing rearranges. Relaxed from ``start`` (the trial's radii;
+    the last jammed positions moved along the network's first unstable mode until a gap closes,
+    so that a contact parted by less than float64 resolves starts the rearrangement, or where
+    the trial, run again with ``escape``, stopped without meeting one) in float64 to a minimum,
+    as ``jam``'s own steps are: that minimum, or None (unjammed) when its energy lies below
+    ``jam``'s threshold. Raises :class:`ConvergenceError` when no minimum is found."""
     objective = Objective(start, model)
     floor = energy_threshold(start.dim, model.alpha) * start.n * energy_scale(start.radii, model)
     try:
