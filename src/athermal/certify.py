@@ -501,9 +501,8 @@ def toward_jamming(
     where a contact does not open).
     """
     u = relaxing_displacement(contacts, rattler, np.eye(hi.shape[1]))
-    sep = pairs.separations(hi)
-    moved = sep + u[pairs.first] - u[pairs.second]
-    rate = np.einsum("kd,kd->k", sep, moved) / np.linalg.norm(sep, axis=1)
+    every = slice(None)  # the affine part stretches each pair by its length
+    rate = np.linalg.norm(pairs.separations(hi), axis=1) + _rates(pairs, hi, u, every)
     touch = live & (overlap > 0.0)
     strain = float(np.sum(overlap[touch] * rate[touch]) / np.sum(rate[touch] ** 2))
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -772,7 +771,10 @@ def _blocking_pair(
 
 
 def _rates(
-    pairs: NearPairs, hi: NDArray[np.float64], mode: NDArray[np.float64], which: NDArray[np.intp]
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    mode: NDArray[np.float64],
+    which: NDArray[np.intp] | slice,
 ) -> NDArray[np.float64]:
     """How fast the distance of each pair ``which`` grows along ``mode`` ``(N, d)``."""
     sep = pairs.separations(hi)[which]

@@ -52,7 +52,7 @@ FORCE_WINDOW = (1e-3, 1e-1)
 """Default window of ``f / <f>`` for the force exponents."""
 GAP_WINDOW = (1e-5, 1e-2)
 """Default window of ``h`` for the gap exponent: above where a packing of 1024 holds about one
-gap, and far above the gaps' share of the pressure at epsilon = 1e-6 (~1e-7), below the first
+gap, and far above the gaps' share of the pressure at epsilon = 1e-6, below the first
 neighbour shell (``docs/howto/certify.md`` measures the exponents against the window)."""
 
 
@@ -71,7 +71,7 @@ class WeakForcesAndGaps:
     touching : pairs of non-rattlers apart in the packing that touch at its jamming point: the
         expansion to it closes more than half of their gap (``h_c < h - h_c``), a gap the
         pressure made, not one of the jammed structure. From a packing far above its jamming
-        point this also takes real gaps smaller than that share (~1e-7 at epsilon 1e-6).
+        point this also takes real gaps smaller than that share (``docs/howto/certify.md``).
     jamming_strain : the isotropic expansion ``e_c`` of the cell to the jamming point.
     """
 
