@@ -8,10 +8,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._jit import _jit, _jit_fast
+from ._jit import _jit
 
 
-@_jit_fast
+@_jit
 def _row_norm_sq(v, p, dim):  # type: ignore[no-untyped-def]
     """``|v_p|^2`` of the ``dim``-vector at flat offset ``p``, under the kernels' ``fastmath``
     (the largest gradient and the step cap keep the bits they always had)."""

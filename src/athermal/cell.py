@@ -21,6 +21,7 @@ from itertools import product
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._portable import row_dots, row_norms, transform, upper_inverse
 from ._validate import float_array
 from .errors import InputError
 
@@ -143,14 +144,14 @@ class Cell:
     @cached_property
     def inverse(self) -> NDArray[np.float64]:
         """``h^-1``, shape ``(d, d)``; its rows are the reciprocal vectors."""
-        inv = np.asarray(np.linalg.inv(self.h), dtype=np.float64)
+        inv = upper_inverse(self.h)
         inv.setflags(write=False)
         return inv
 
     @cached_property
     def widths(self) -> NDArray[np.float64]:
         """Distances between opposite faces ``(d,)``: ``1 / |row k of h^-1|``."""
-        w = 1.0 / np.linalg.norm(self.inverse, axis=1)
+        w = 1.0 / row_norms(self.inverse)
         w.setflags(write=False)
         return w
 
@@ -167,11 +168,11 @@ class Cell:
 
     def fractional(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Fractional coordinates ``h^-1 x`` of positions or vectors ``(N, d)``."""
-        return np.asarray(x) @ self.inverse.T
+        return transform(x, self.inverse)
 
     def cartesian(self, s: NDArray[np.float64]) -> NDArray[np.float64]:
         """Cartesian coordinates ``h s`` of fractional ``(N, d)``."""
-        return np.asarray(s) @ self.h.T
+        return transform(s, self.h)
 
     def wrap(self, x: NDArray[np.float64]) -> NDArray[np.float64]:
         """Positions ``(N, d)`` mapped into the cell: fractional coordinates in ``[-1/2, 1/2)``
@@ -195,12 +196,12 @@ class Cell:
         jump[:, list(self.walls)] = 0.0
         base = cell.cartesian(s - jump)
         best = base.copy()
-        best_len = np.einsum("ij,ij->i", base, base)
+        best_len = row_dots(base, base)
         for shift in product((-1, 0, 1), repeat=self.dim):
             if not any(shift) or any(shift[a] for a in self.walls):
                 continue
-            trial = base + cell.h @ np.array(shift, dtype=np.float64)
-            length = np.einsum("ij,ij->i", trial, trial)
+            trial = base + transform(np.array([shift], dtype=np.float64), cell.h)
+            length = row_dots(trial, trial)
             closer = length < best_len
             best[closer] = trial[closer]
             best_len[closer] = length[closer]
@@ -212,7 +213,7 @@ class Cell:
         d_mat = float_array(deformation, "deformation", (self.dim, self.dim))
         if np.linalg.det(d_mat) <= 0.0:
             raise InputError("deformation: determinant must be > 0")
-        return Cell(d_mat @ self.h, self.walls)
+        return Cell(transform(self.h.T, d_mat).T, self.walls)
 
     def reduced(self) -> Cell:
         """The same lattice with every tilt at most half the box length it leans along.
@@ -235,7 +236,7 @@ class Cell:
 def particle_volumes(radii: NDArray[np.float64], dim: int) -> NDArray[np.float64]:
     """Area ``pi r^2`` (2D) or volume ``4/3 pi r^3`` (3D) of each particle ``(N,)``."""
     r = np.asarray(radii, dtype=np.float64)
-    out: NDArray[np.float64] = np.pi * r**2 if dim == 2 else (4.0 / 3.0) * np.pi * r**3
+    out: NDArray[np.float64] = np.pi * r * r if dim == 2 else (4.0 / 3.0) * np.pi * (r * r * r)
     return out
 
 

@@ -41,6 +41,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
+from ._portable import row_dots, transform
 from ._validate import float_array
 from .cell import AXES, pure_shear_derivatives, simple_shear, tilted_wall
 from .contact import ContactModel, Contacts, find_contacts, hessian
@@ -120,14 +121,14 @@ def strain_terms(
     length = contacts.distance
     unit = contacts.normal
     dphi = -contacts.force_magnitude
-    ddphi = contacts.stiffness * (contacts.alpha - 1.0) * contacts.overlap ** (contacts.alpha - 2.0)
-    a = r @ d1.T  # D1 r, (M, d)
-    na = np.einsum("cd,cd->c", unit, a)
-    aa = np.einsum("cd,cd->c", a, a)
+    ddphi = contacts.normal_stiffness
+    a = transform(r, d1)  # D1 r, (M, d)
+    na = row_dots(unit, a)
+    aa = row_dots(a, a)
     tension = dphi / length
     curvature = float(np.sum(ddphi * na**2 + tension * (aa - na**2)))
     if d2 is not None:
-        curvature += float(np.sum(dphi * np.einsum("cd,cd->c", unit, r @ d2.T)))
+        curvature += float(np.sum(dphi * row_dots(unit, transform(r, d2))))
     k_a = (ddphi * na)[:, None] * unit + tension[:, None] * (a - na[:, None] * unit)  # K D1 r
     xi = np.zeros((n, r.shape[1]))
     for axis in range(r.shape[1]):
@@ -137,13 +138,11 @@ def strain_terms(
     if contacts.walls is not None and contacts.walls.particle.size:
         wall = contacts.walls  # a flat wall: distance n.D r, no tangential term, no partner
         w_unit, w_r = wall.normal, wall.branch
-        w_na = np.einsum("cd,cd->c", w_unit, w_r @ d1.T)
-        w_ddphi = wall.stiffness * (wall.alpha - 1.0) * wall.overlap ** (wall.alpha - 2.0)
+        w_na = row_dots(w_unit, transform(w_r, d1))
+        w_ddphi = wall.normal_stiffness
         curvature += float(np.sum(w_ddphi * w_na**2))
         if d2 is not None:
-            curvature -= float(
-                np.sum(wall.force_magnitude * np.einsum("cd,cd->c", w_unit, w_r @ d2.T))
-            )
+            curvature -= float(np.sum(wall.force_magnitude * row_dots(w_unit, transform(w_r, d2))))
         np.add.at(xi, wall.particle, (w_ddphi * w_na)[:, None] * w_unit)
     return curvature, xi
 

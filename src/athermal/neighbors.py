@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from . import _blocks
 from ._jit import _jit, _jit_parallel, threads_usable
+from ._portable import transform
 from .cell import Cell
 from .errors import InputError
 
@@ -80,7 +81,7 @@ class NeighborList:
 
     def shifts(self, cell: Cell) -> NDArray[np.float64]:
         """Lattice translations ``(C, d)`` of the image codes in ``cell``."""
-        return np.ascontiguousarray(self.images @ cell.h.T)
+        return transform(self.images, cell.h)
 
     def separations(self, positions: NDArray[np.float64], cell: Cell) -> NDArray[np.float64]:
         """Separation vectors ``x_i - x_j + shift`` ``(P, d)`` of all listed pairs."""

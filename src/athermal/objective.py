@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from . import _blocks
 from ._blocks import PLACE, max_row_sq  # by name: numba folds PLACE in as a literal
 from ._jit import _jit
+from ._portable import dot, power
 from .contact import (
     ONE_THREAD,
     ContactModel,
@@ -308,8 +309,8 @@ class Objective:
             z_ref = 6.0 if self.dim == 2 else 12.0
             r_mean = float(np.mean(self.radii))
             k_max = max(float(np.max(model.kmat)), float(np.max(model.kwall)))
-            return 2.0 * z_ref * (alpha - 1.0) * k_max * r_mean ** (alpha - 2.0)
-        stiff = (alpha - 1.0) * contacts.stiffness * contacts.overlap ** (alpha - 2.0)
+            return 2.0 * z_ref * (alpha - 1.0) * k_max * float(power(r_mean, alpha - 2.0))
+        stiff = contacts.normal_stiffness
         per_particle = np.bincount(contacts.i, stiff, self.n)
         per_particle += np.bincount(contacts.j, stiff, self.n)
         particle, _, wall_stiff = walls.hessian_terms()
@@ -378,7 +379,7 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
         energy, contacts = evaluate(points, gradient, *evaluated)
         evaluations += 1
         last = a
-        code = feed(state, energy, np.dot(grad, direction))
+        code = feed(state, energy, dot(grad, direction))
     return code, evaluations, energy, contacts, False
 
 

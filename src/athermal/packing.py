@@ -8,6 +8,7 @@ from typing import Literal, get_args
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ._portable import root, transform
 from ._validate import choice, float_array, positive_scalar
 from .cell import AXES, Cell, particle_volumes
 from .errors import InputError
@@ -113,7 +114,7 @@ class Packing:
         """Affine deformation ``x -> D x`` of positions and cell (radii kept)."""
         new_cell = self.cell.deform(deformation)
         d_mat = np.asarray(deformation, dtype=np.float64)
-        return Packing(self.positions @ d_mat.T, self.radii, new_cell)
+        return Packing(transform(self.positions, d_mat), self.radii, new_cell)
 
     def scale_radii(self, factor: float) -> Packing:
         """Radii multiplied by ``factor``; positions and cell kept."""
@@ -123,7 +124,7 @@ class Packing:
         """The radii ``(N,)`` scaled uniformly to packing fraction ``phi``:
         ``r (phi / self.phi)^(1/d)`` (the protocols grow every step from one packing's radii,
         so that their radii do not drift by round-off)."""
-        return self.radii * (_check_phi(phi) / self.phi) ** (1.0 / self.dim)
+        return self.radii * root(_check_phi(phi) / self.phi, self.dim)
 
     def at_phi(self, phi: float) -> Packing:
         """Radii scaled uniformly so that the packing fraction becomes ``phi``."""
@@ -266,6 +267,6 @@ def random_packing(
     s = rng.random((base.size, cell.dim)) - 0.5
     if radii is None and sizes != "bidisperse":
         base = polydisperse_radii(base.size, sizes, polydispersity, rng)
-    scale = (target * cell.volume / particle_volumes(base, cell.dim).sum()) ** (1.0 / cell.dim)
+    scale = root(target * cell.volume / particle_volumes(base, cell.dim).sum(), cell.dim)
     packing = Packing(cell.cartesian(s), base * scale, cell)
     return packing.permuted(packing.spatial_order())

@@ -27,6 +27,7 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from . import _blocks
+from ._portable import sin_2pi, vdot
 from ._validate import choice, positive_scalar
 from .contact import assemble_blocks, find_contacts
 from .errors import InputError
@@ -124,7 +125,7 @@ def sine_perturbation(
     direction, so it is the same for every image of a particle, in any (tilted) cell.
     """
     s = objective.cell.fractional(positions)
-    out: NDArray[np.float64] = SINE_AMPLITUDE * r_cut * np.sin(2.0 * np.pi * s)
+    out: NDArray[np.float64] = SINE_AMPLITUDE * r_cut * sin_2pi(s)
     return out
 
 
@@ -238,8 +239,8 @@ class _PairPreconditioner(ABC):
         x = positions.ravel()
         _, g0 = self.objective(x)
         _, g1 = self.objective(x + v.ravel())
-        numerator = float(np.dot(v.ravel(), g1 - g0))
-        denominator = float(np.einsum("ia,ia->", v, unit @ v))
+        numerator = vdot(v, g1 - g0)
+        denominator = vdot(v, unit @ v)
         with np.errstate(divide="ignore", invalid="ignore"):
             mu = numerator / denominator if denominator > 0.0 else float("nan")
         if np.isfinite(mu) and mu > 0.0:
@@ -440,9 +441,7 @@ class ContactPreconditioner(_PairPreconditioner):
             obj.model,
             obj.neighbor_list(positions.ravel()),
         )
-        scale = (
-            contacts.stiffness * (contacts.alpha - 1.0) * contacts.overlap ** (contacts.alpha - 2.0)
-        )
+        scale = contacts.normal_stiffness
         normal = contacts.normal
         blocks = scale[:, None, None] * normal[:, :, None] * normal[:, None, :]
         stiffness = assemble_blocks(contacts.i, contacts.j, blocks, obj.n)

@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import minimize as library
+from ._portable import power
 from ._validate import choice
 from .cell import Cell
 from .contact import ContactModel, Contacts, find_contacts
@@ -550,7 +551,7 @@ def round_off_floor(contacts: Contacts, cell: Cell) -> float:
     """
     if contacts.i.size == 0:
         return 0.0
-    kappa = contacts.stiffness * (contacts.alpha - 1.0) * contacts.overlap ** (contacts.alpha - 2.0)
+    kappa = contacts.normal_stiffness
     scale = float(cell.widths.max())
     eps = float(np.finfo(np.float64).eps)
     return (
@@ -570,7 +571,7 @@ def force_tolerance(packing: Packing, model: ContactModel, rtol: float) -> float
 
 def energy_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
     """``k_max <r>^alpha``: the energy of an overlap of one mean radius (energy units)."""
-    return float(model.kmat.max()) * float(np.mean(radii)) ** model.alpha
+    return float(model.kmat.max()) * float(power(np.mean(radii), model.alpha))
 
 
 def minimize(

@@ -21,6 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from ._portable import power
 from .cell import AXES, Cell
 
 
@@ -66,7 +67,12 @@ class WallContacts:
     @property
     def force_magnitude(self) -> NDArray[np.float64]:
         """``k_w delta^(alpha-1)`` ``(W,)``, > 0 (repulsive)."""
-        return self.stiffness * self.overlap ** (self.alpha - 1.0)
+        return self.stiffness * power(self.overlap, self.alpha - 1.0)
+
+    @property
+    def normal_stiffness(self) -> NDArray[np.float64]:
+        """``(alpha - 1) k_w delta^(alpha-2)`` ``(W,)`` (force / length)."""
+        return (self.alpha - 1.0) * self.stiffness * power(self.overlap, self.alpha - 2.0)
 
     @property
     def force(self) -> NDArray[np.float64]:
@@ -81,13 +87,12 @@ class WallContacts:
     @property
     def energy(self) -> NDArray[np.float64]:
         """``k_w delta^alpha / alpha`` ``(W,)``."""
-        return self.stiffness * self.overlap**self.alpha / self.alpha
+        return self.stiffness * power(self.overlap, self.alpha) / self.alpha
 
     def hessian_terms(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
         """Each contact's one Hessian entry: particle, axis and ``(alpha - 1) k_w
         delta^(alpha-2)`` at ``(particle d + axis)`` on the diagonal (a flat wall: no other)."""
-        coef = (self.alpha - 1.0) * self.stiffness * self.overlap ** (self.alpha - 2.0)
-        return self.particle, self.axis, coef
+        return self.particle, self.axis, self.normal_stiffness
 
 
 def find_wall_contacts(

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from .. import _blocks
 from .._jit import _jit
+from .._portable import dot
 from ..linalg import cholesky_solve_columns
 from ._conjugate import RESTARTED, SLOPE, STEP_GUESS, YG, beta_of, next_direction
 from ._memory import Memory, direction_into, store_pair
@@ -168,7 +169,7 @@ def iterate(
             break
         if lbfgs:
             direction_into(grad, z, s, y, py, sy, ypy, gamma, work, rows, ring, direction)
-            slope = np.dot(grad, direction)
+            slope = dot(grad, direction)
             step = 1.0
             if not slope < 0.0:
                 stop = HEAD

@@ -15,7 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .._jit import _jit, _jit_fast
+from .._jit import _jit
+from .._portable import dot, vdot
 from .result import Preconditioner
 
 _COUNT, _FREE, _FRESH = 0, 1, 2
@@ -108,20 +109,20 @@ class Memory:
             x, x_new, grad, grad_new, z, z_new, self.s[row], self.y[row], self.py[row]
         )
         self.py[row] = precon.solve(self.y[row])
-        _keep(row, sy, float(self.y[row] @ self.py[row]), *self.arrays())
+        _keep(row, sy, vdot(self.y[row], self.py[row]), *self.arrays())
 
     def refresh(self, precon: Preconditioner) -> None:
         """Recompute ``P^-1 y``, ``gamma`` and ``y.P^-1 y`` of every stored pair after ``P``
         was rebuilt."""
         for slot in self.slots:
             self.py[slot] = precon.solve(self.y[slot])
-            ypy = float(self.y[slot] @ self.py[slot])
+            ypy = vdot(self.y[slot], self.py[slot])
             if not ypy > 0.0:  # cannot happen for an SPD P; keep the direction well defined
                 self.clear()
                 return
             self.gamma[slot] = self.sy[slot, slot] / ypy
         rows = self.order
-        products = self.y[rows] @ self.py[rows].T
+        products = np.array([[vdot(self.y[a], self.py[b]) for b in rows] for a in rows])
         self.ypy[np.ix_(rows, rows)] = 0.5 * (products + products.T)
 
     def direction(self, grad: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -142,8 +143,8 @@ def _complete_newest(s, y, py, sy, ypy, gamma, work, rows, ring):
     newest = rows[count - 1]
     for t in range(count):
         r = rows[t]
-        sy[r, newest] = np.dot(s[r], y[newest])
-        ypy[r, newest] = ypy[newest, r] = np.dot(py[r], y[newest])
+        sy[r, newest] = dot(s[r], y[newest])
+        ypy[r, newest] = ypy[newest, r] = dot(py[r], y[newest])
     ring[_FRESH] = 0
 
 
@@ -193,7 +194,7 @@ _CHUNK = 1024
 """Entries of a vector per block of the L-BFGS loops: two 8 kB blocks stay in L1 cache."""
 
 
-@_jit_fast
+@_jit
 def lbfgs_direction(grad, z, s_mem, py_mem, y_new, fresh, sy_mat, ypy_mat, gamma, order, work, out):
     """The L-BFGS step ``out = -H grad`` in compact form (Byrd, Nocedal & Schnabel 1994),
     ``H0 = gamma_newest P^-1``, in two blocked passes over the stored vectors.
@@ -291,7 +292,7 @@ def lbfgs_direction(grad, z, s_mem, py_mem, y_new, fresh, sy_mat, ypy_mat, gamma
                 o_blk[p] += cs * s_blk[p] + cp * py_blk[p]
 
 
-@_jit_fast
+@_jit
 def lbfgs_pair(x, x_new, g, g_new, z, z_new, s, y, py):
     """One L-BFGS pair in one pass: ``s = x_new - x``, ``y = g_new - g``, ``py = z_new - z``
     (written into the given rows; when ``py`` is ``y`` itself, ``z`` must be ``g`` and ``py``

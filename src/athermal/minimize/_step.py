@@ -15,6 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from .._portable import vdot
 from ._wolfe import GO_ON, TRIAL, feed, resumed
 from .linesearch import C1, EPS, MAX_EVALUATIONS, LineSearchResult, started
 from .result import Problem
@@ -43,7 +44,7 @@ def advance(
     if resume is None:
         state, code = started(
             energy,
-            float(grad @ direction) if slope is None else slope,
+            vdot(grad, direction) if slope is None else slope,
             step,
             C1,
             c2,
@@ -79,7 +80,7 @@ def advance(
         point = x + float(state[TRIAL]) * direction
         f, g = problem(point)
         last = (point, f, g)
-        code = int(feed(state, f, float(g @ direction)))
+        code = int(feed(state, f, vdot(g, direction)))
     ls = LineSearchResult.of(state, code)
     if not ls.ok:
         return ls, x, energy, grad

@@ -24,6 +24,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from .._portable import vdot
 from .._validate import choice
 from ._compiled import CONVERGED, FULL, LIMIT, SEARCH, TAIL, CompiledLoop
 from ._conjugate import RESTARTED, SLOPE, STEP_GUESS, YG, beta_of, next_direction
@@ -61,7 +62,7 @@ def cg(
         return tracker.finish(x, Status.CONVERGED, "converged")
     y = precon.solve(grad) if precon is not None else grad
     direction = -y
-    yg = float(y @ grad)
+    yg = vdot(y, grad)
     slope = -yg
     step = 1.0
     restarted = True

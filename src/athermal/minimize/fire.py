@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._jit import _jit
+from .._portable import vdot
 from .._validate import positive_scalar
 from ..errors import InputError
 from .result import MinimizeResult, Preconditioner, Problem, Status, Tracker
@@ -235,7 +236,7 @@ def fire(
         else:
             slope = grad
 
-        if float(grad @ v) < 0.0:  # power F . v > 0: downhill
+        if vdot(grad, v) < 0.0:  # power F . v > 0: downhill
             n_positive += 1
             if n_positive > n_delay:
                 dt = min(dt * f_inc, dt_max)

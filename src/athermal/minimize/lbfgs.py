@@ -32,6 +32,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from .._portable import vdot
 from ._compiled import CONVERGED, FULL, HEAD, LIMIT, SEARCH, TAIL, CompiledLoop
 from ._memory import Memory
 from ._step import advance
@@ -92,7 +93,7 @@ def lbfgs(
         else:
             if resume is None:
                 direction = pairs.direction(grad, z)
-                if not float(grad @ direction) < 0.0:  # curvature pairs gone stale: restart
+                if not vdot(grad, direction) < 0.0:  # curvature pairs gone stale: restart
                     pairs.clear()
                     direction = -z
             ls, x_new, energy_new, grad_new = advance(

@@ -52,6 +52,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from .._portable import vdot, vnorm
 from ..linalg import Factor, cholesky
 from ._step import advance
 from .result import MinimizeResult, Problem, Status, Tracker
@@ -333,20 +334,20 @@ def newton_direction(
     z = factor.solve(r)
     p = np.zeros_like(grad)
     d = z.copy()
-    rz = float(r @ z)
-    stop = eta * float(np.linalg.norm(grad))
+    rz = vdot(r, z)
+    stop = eta * vnorm(grad)
     for k in range(maxiter):
         hd = hessian.dot(d)
-        curvature = float(d @ hd)
+        curvature = vdot(d, hd)
         if not curvature > 0.0:
             return (z, k, None) if k == 0 else (p, k, d)
         a = rz / curvature
         p += a * d
         r -= a * hd
-        if float(np.linalg.norm(r)) <= stop:
+        if vnorm(r) <= stop:
             return p, k + 1, None
         z = factor.solve(r)
-        rz_new = float(r @ z)
+        rz_new = vdot(r, z)
         d = z + (rz_new / rz) * d
         rz = rz_new
     return p, maxiter, None
@@ -359,7 +360,7 @@ def _fresh_descent(
     nearly singular ``M`` (rattlers' zero modes, a small shift) leaves even that uphill."""
     factor.build(hessian)
     direction = -factor.solve(grad)
-    return direction if float(direction @ grad) < 0.0 else -grad
+    return direction if vdot(direction, grad) < 0.0 else -grad
 
 
 def follow_negative_curvature(
@@ -374,8 +375,8 @@ def follow_negative_curvature(
     direction of non-positive curvature, ``(n_dof,)``), signed so that it descends, from a
     first step of Euclidean ``length``; unchanged when ``curved`` is orthogonal to ``grad`` or
     the search finds no step."""
-    slope = float(grad @ curved)
-    norm = float(np.linalg.norm(curved))
+    slope = vdot(grad, curved)
+    norm = vnorm(curved)
     if slope == 0.0 or norm == 0.0 or not length > 0.0:
         return x, energy, grad
     downhill = -np.sign(slope) * curved
@@ -402,17 +403,17 @@ def newton(
     energy, grad = problem(x)
     if tracker.record(energy, grad):
         return tracker.finish(x, Status.CONVERGED, "converged")
-    start_norm = float(np.linalg.norm(grad))
+    start_norm = vnorm(grad)
     refactor = True
     while tracker.iterations < maxiter:
         hessian = problem.hessian(x)
         if refactor or not factor.follow(hessian):
             factor.build(hessian)
-        eta = min(ETA_MAX, float(np.sqrt(np.linalg.norm(grad) / start_norm)))
+        eta = min(ETA_MAX, float(np.sqrt(vnorm(grad) / start_norm)))
         direction, inner, negative = newton_direction(hessian, grad, factor, eta, INNER_MAX)
         tracker.linear_iterations += inner
         refactor = inner > REFACTOR_INNER
-        if not float(direction @ grad) < 0.0:  # round-off of a near-singular M: CG's answers
+        if not vdot(direction, grad) < 0.0:  # round-off of a near-singular M: CG's answers
             direction, refactor, negative = _fresh_descent(hessian, grad, factor), True, None
         ls, x_new, energy_new, grad_new = advance(problem, x, energy, grad, direction, 1.0, 0.9)
         if not ls.ok and not refactor:  # retry along -M^-1 g on a fresh factor
@@ -424,7 +425,7 @@ def newton(
             )
         x, energy, grad = x_new, energy_new, grad_new
         if negative is not None:
-            length = ls.step * float(np.linalg.norm(direction))
+            length = ls.step * vnorm(direction)
             x, energy, grad = follow_negative_curvature(problem, x, energy, grad, negative, length)
         if tracker.record(energy, grad):
             return tracker.finish(x, Status.CONVERGED, "converged")

@@ -1,0 +1,217 @@
+"""Arithmetic whose result is the same bits on every IEEE-754 machine: what the paths that decide
+a trajectory use in place of BLAS and libm (``docs/decisions.md``, "Same input, same bits").
+
+A BLAS kernel (``np.dot``, ``@``, ``np.linalg.norm``) sums in an order chosen for the CPU it runs
+on, and a libm or SIMD ``pow``, ``sin`` or ``cbrt`` rounds as the CPU's variant does; both make a
+chaotic relaxation end in another minimum on another machine. Here every result is a fixed
+sequence of correctly rounded operations (``+ - * /`` and ``sqrt``):
+
+* :func:`dot` and :func:`norm`: a sum in eight interleaved lanes, combined pairwise;
+* :func:`transform`: points times a small matrix, ``(N, d) @ m.T``, each entry summed in order;
+  :func:`upper_inverse`: the inverse of a cell matrix;
+* :func:`power` and :func:`power_of`: ``x^e`` for ``e`` a multiple of 1/2 as products and one
+  square root (the contact law's 2, 2.5 and 3 and their derivatives); another exponent falls
+  back to ``pow`` and is not portable (:func:`portable_exponent` tells);
+* :func:`root`: ``x^(1/d)`` for ``d`` = 1, 2, 3, the radii's scale at a packing fraction;
+* :func:`sin_2pi`: ``sin(2 pi s)`` by a fixed polynomial.
+"""
+
+from __future__ import annotations
+
+import math
+from fractions import Fraction
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._jit import _jit
+
+LANES = 8
+"""Interleaved partial sums of :func:`dot` (element ``p`` goes to lane ``p mod 8``)."""
+
+
+@_jit
+def dot(a, b):  # type: ignore[no-untyped-def]
+    """``sum_p a_p b_p`` of two flat float64 vectors of one length, in a fixed order: lane ``k``
+    sums the products ``p = k, k + 8, ...`` in turn, and the lanes are added pairwise."""
+    n = a.size
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = 0.0
+    top = n - n % LANES
+    for p in range(0, top, LANES):
+        s0 += a[p] * b[p]
+        s1 += a[p + 1] * b[p + 1]
+        s2 += a[p + 2] * b[p + 2]
+        s3 += a[p + 3] * b[p + 3]
+        s4 += a[p + 4] * b[p + 4]
+        s5 += a[p + 5] * b[p + 5]
+        s6 += a[p + 6] * b[p + 6]
+        s7 += a[p + 7] * b[p + 7]
+    rest = n - top
+    if rest > 0:
+        s0 += a[top] * b[top]
+    if rest > 1:
+        s1 += a[top + 1] * b[top + 1]
+    if rest > 2:
+        s2 += a[top + 2] * b[top + 2]
+    if rest > 3:
+        s3 += a[top + 3] * b[top + 3]
+    if rest > 4:
+        s4 += a[top + 4] * b[top + 4]
+    if rest > 5:
+        s5 += a[top + 5] * b[top + 5]
+    if rest > 6:
+        s6 += a[top + 6] * b[top + 6]
+    return ((s0 + s1) + (s2 + s3)) + ((s4 + s5) + (s6 + s7))
+
+
+@_jit
+def norm(a):  # type: ignore[no-untyped-def]
+    """Euclidean norm of a flat float64 vector, ``sqrt(dot(a, a))``."""
+    return np.sqrt(dot(a, a))
+
+
+def vdot(a: ArrayLike, b: ArrayLike) -> float:
+    """:func:`dot` of two arrays of one size read flat (any shape, made contiguous float64)."""
+    return float(
+        dot(
+            np.ascontiguousarray(a, dtype=np.float64).ravel(),
+            np.ascontiguousarray(b, dtype=np.float64).ravel(),
+        )
+    )
+
+
+def vnorm(a: ArrayLike) -> float:
+    """:func:`norm` of an array read flat."""
+    return float(norm(np.ascontiguousarray(a, dtype=np.float64).ravel()))
+
+
+def row_norms(a: ArrayLike) -> NDArray[np.float64]:
+    """Euclidean norm of each row of ``(M, d)``, summed over the row in order."""
+    rows = np.asarray(a, dtype=np.float64)
+    total = np.zeros(rows.shape[0])
+    for k in range(rows.shape[1]):
+        total = total + rows[:, k] * rows[:, k]
+    return np.sqrt(total)
+
+
+def row_dots(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
+    """``sum_k a_ik b_ik`` of each row of two ``(M, d)`` arrays, summed over the row in order."""
+    left = np.asarray(a, dtype=np.float64)
+    right = np.asarray(b, dtype=np.float64)
+    total = np.zeros(left.shape[0])
+    for k in range(left.shape[1]):
+        total = total + left[:, k] * right[:, k]
+    return total
+
+
+def transform(points: ArrayLike, matrix: ArrayLike) -> NDArray[np.float64]:
+    """``points @ matrix.T`` for points ``(M, d)`` and a matrix ``(e, d)``: entry ``(i, r)`` is
+    ``sum_c m_rc x_ic`` summed over ``c`` in order. Returns ``(M, e)``."""
+    x = np.asarray(points, dtype=np.float64)
+    m = np.asarray(matrix, dtype=np.float64)
+    out = np.zeros((x.shape[0], m.shape[0]))
+    for r in range(m.shape[0]):
+        column = np.zeros(x.shape[0])
+        for c in range(m.shape[1]):
+            column = column + m[r, c] * x[:, c]
+        out[:, r] = column
+    return out
+
+
+def upper_inverse(h: ArrayLike) -> NDArray[np.float64]:
+    """Inverse of an upper-triangular matrix ``(d, d)`` by back substitution, column by column
+    in a fixed order (LAPACK's ``inv`` sums in the order of the CPU's BLAS kernels)."""
+    m = np.asarray(h, dtype=np.float64)
+    d = m.shape[0]
+    out = np.zeros((d, d))
+    for col in range(d):
+        for row in range(col, -1, -1):
+            acc = 1.0 if row == col else 0.0
+            for k in range(row + 1, col + 1):
+                acc -= m[row, k] * out[k, col]
+            out[row, col] = acc / m[row, row]
+    return out
+
+
+def portable_exponent(e: float) -> bool:
+    """Whether :func:`power` computes ``x^e`` from correctly rounded operations alone: ``e`` a
+    multiple of 1/2 in ``[0, 16]``."""
+    twice = 2.0 * float(e)
+    return twice == math.floor(twice) and 0.0 <= twice <= 32.0
+
+
+def power(x: ArrayLike, e: float) -> NDArray[np.float64]:
+    """``x^e`` elementwise for ``x >= 0``: for ``e`` a multiple of 1/2 (:func:`portable_exponent`)
+    ``x^floor(e)`` by repeated products and one ``sqrt(x)`` factor, the same bits everywhere;
+    else NumPy's ``power`` (the CPU's own rounding)."""
+    base = np.asarray(x, dtype=np.float64)
+    if not portable_exponent(e):
+        return np.asarray(np.power(base, e), dtype=np.float64)
+    whole = math.floor(e)
+    out = np.ones_like(base)
+    for _ in range(whole):
+        out = out * base
+    if e != whole:
+        out = out * np.sqrt(base) if whole else np.sqrt(base)
+    return out
+
+
+@_jit
+def power_of(x, e):  # type: ignore[no-untyped-def]
+    """Compiled scalar twin of :func:`power`: ``x^e`` for ``x >= 0``, the same bits."""
+    twice = 2.0 * e
+    if twice == math.floor(twice) and 0.0 <= twice <= 32.0:
+        whole = math.floor(e)
+        out = 1.0
+        for _ in range(whole):
+            out = out * x
+        if e != whole:
+            out = out * np.sqrt(x) if whole else np.sqrt(x)
+        return out
+    return x**e
+
+
+def root(x: float, d: int) -> float:
+    """``x^(1/d)`` for ``x > 0`` and ``d`` in 1, 2, 3, correctly rounded but in the rarest
+    ties: ``sqrt`` for 2; for 3, Newton's iteration in plain arithmetic from a start made of
+    ``frexp``'s exponent, then the neighbour of the float64 result whose cube is nearest ``x``
+    (compared exactly as rationals)."""
+    x = float(x)
+    if d == 1:
+        return x
+    if d == 2:
+        return math.sqrt(x)
+    if d != 3:
+        raise ValueError(f"root: d must be 1, 2 or 3, got {d}")
+    if not (x > 0.0 and math.isfinite(x)):
+        raise ValueError(f"root: x must be positive and finite, got {x}")
+    _, exponent = math.frexp(x)  # x < 2^exponent
+    y = math.ldexp(1.0, -(-exponent // 3))  # y^3 >= x: Newton then falls monotonically
+    for _ in range(60):
+        y_next = y - (y * y * y - x) / (3.0 * y * y)
+        if y_next == y:
+            break
+        y = y_next
+    target = Fraction(x)
+    candidates = (math.nextafter(y, 0.0), y, math.nextafter(y, math.inf))
+    return min(candidates, key=lambda c: (abs(Fraction(c) ** 3 - target), c))
+
+
+# sin(2 pi s) on s in [-1/4, 1/4] as t * P(t^2), t = 2 pi s: the Taylor series to t^23 (its
+# remainder below 2e-17 at |t| = pi / 2), coefficients (-1)^k / (2k + 1)!
+_SIN_TERMS = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(12))
+
+
+def sin_2pi(s: ArrayLike) -> NDArray[np.float64]:
+    """``sin(2 pi s)`` elementwise by plain arithmetic: ``s`` reduced to ``[-1/2, 1/2)`` by its
+    nearest integer, folded to ``[-1/4, 1/4]`` by ``sin(pi - t) = sin t``, then the Taylor
+    polynomial (within a few 1e-16 of ``sin``); the same bits on every machine."""
+    u = np.asarray(s, dtype=np.float64)
+    u = u - np.floor(u + 0.5)
+    u = np.where(u > 0.25, 0.5 - u, np.where(u < -0.25, -0.5 - u, u))
+    t = (2.0 * math.pi) * u
+    t2 = t * t
+    acc = np.full_like(t, _SIN_TERMS[-1])
+    for coefficient in reversed(_SIN_TERMS[:-1]):
+        acc = acc * t2 + coefficient
+    return np.asarray(t * acc, dtype=np.float64)
