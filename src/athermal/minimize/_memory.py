@@ -195,6 +195,30 @@ _CHUNK = 1024
 
 
 @_jit
+def _two_dots(a, b, w):  # type: ignore[no-untyped-def]
+    """``(a.w, b.w)`` of three vectors of one length, each summed in four interleaved lanes
+    (element ``p`` to lane ``p mod 4``, lanes added pairwise): a fixed order, so the same bits
+    on every CPU, and four independent sums the compiler can keep in one vector register."""
+    n = w.size
+    a0 = a1 = a2 = a3 = 0.0
+    b0 = b1 = b2 = b3 = 0.0
+    top = n - n % 4
+    for p in range(0, top, 4):
+        a0 += a[p] * w[p]
+        a1 += a[p + 1] * w[p + 1]
+        a2 += a[p + 2] * w[p + 2]
+        a3 += a[p + 3] * w[p + 3]
+        b0 += b[p] * w[p]
+        b1 += b[p + 1] * w[p + 1]
+        b2 += b[p + 2] * w[p + 2]
+        b3 += b[p + 3] * w[p + 3]
+    for p in range(top, n):
+        a0 += a[p] * w[p]
+        b0 += b[p] * w[p]
+    return (a0 + a1) + (a2 + a3), (b0 + b1) + (b2 + b3)
+
+
+@_jit
 def lbfgs_direction(grad, z, s_mem, py_mem, y_new, fresh, sy_mat, ypy_mat, gamma, order, work, out):
     """The L-BFGS step ``out = -H grad`` in compact form (Byrd, Nocedal & Schnabel 1994),
     ``H0 = gamma_newest P^-1``, in two blocked passes over the stored vectors.
@@ -234,22 +258,11 @@ def lbfgs_direction(grad, z, s_mem, py_mem, y_new, fresh, sy_mat, ypy_mat, gamma
         for t in range(count):
             s_blk = s_mem[order[t], lo:hi]
             py_blk = py_mem[order[t], lo:hi]
-            a = 0.0
-            b = 0.0
+            a, b = _two_dots(s_blk, py_blk, g_blk)
             if fresh:
-                c = 0.0
-                e = 0.0
-                for p in range(hi - lo):
-                    a += s_blk[p] * g_blk[p]
-                    b += py_blk[p] * g_blk[p]
-                    c += s_blk[p] * y_blk[p]
-                    e += py_blk[p] * y_blk[p]
+                c, e = _two_dots(s_blk, py_blk, y_blk)
                 col_sy[t] += c
                 col_ypy[t] += e
-            else:
-                for p in range(hi - lo):
-                    a += s_blk[p] * g_blk[p]
-                    b += py_blk[p] * g_blk[p]
             u[t] += a
             v[t] += b
     newest = order[count - 1]

@@ -348,6 +348,8 @@ def newton_direction(
             return p, k + 1, None
         z = factor.solve(r)
         rz_new = vdot(r, z)
+        if not rz_new > 0.0:  # r = 0 to round-off, or lost to a nearly singular factor
+            return p, k + 1, None
         d = z + (rz_new / rz) * d
         rz = rz_new
     return p, maxiter, None
