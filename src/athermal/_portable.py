@@ -9,9 +9,9 @@ sequence of correctly rounded operations (``+ - * /`` and ``sqrt``):
 * :func:`dot` and :func:`norm`: a sum in eight interleaved lanes, combined pairwise;
 * :func:`transform`: points times a small matrix, ``(N, d) @ m.T``, each entry summed in order;
   :func:`upper_inverse`: the inverse of a cell matrix;
-* :func:`power` and :func:`power_of`: ``x^e`` for ``e`` a multiple of 1/2 as products and one
-  square root (the contact law's 2, 2.5 and 3 and their derivatives); another exponent falls
-  back to ``pow`` and is not portable (:func:`portable_exponent` tells);
+* :func:`power` and :func:`power_of`: ``x^e``, for ``e`` a multiple of 1/2 (the contact law's
+  2, 2.5 and 3 and their derivatives) as products and one square root, else by series of
+  ``exp`` and ``ln``;
 * :func:`root`: ``x^(1/d)`` for ``d`` = 1, 2, 3, the radii's scale at a packing fraction;
 * :func:`sin_2pi`: ``sin(2 pi s)`` by a fixed polynomial.
 """
@@ -133,32 +133,49 @@ def upper_inverse(h: ArrayLike) -> NDArray[np.float64]:
     return out
 
 
-def portable_exponent(e: float) -> bool:
-    """Whether :func:`power` computes ``x^e`` from correctly rounded operations alone: ``e`` a
-    multiple of 1/2 in ``[0, 16]``."""
-    twice = 2.0 * float(e)
-    return twice == math.floor(twice) and 0.0 <= twice <= 32.0
+# ln(m) = 2 atanh(u), u = (m - 1) / (m + 1), |u| < 0.172 for m in [1/sqrt 2, sqrt 2): the series
+# to u^23 (remainder below 1e-18); exp(r) for |r| <= ln(2) / 2: the Taylor series to r^16
+# (remainder below 1e-18); ln 2 split into a part with a short mantissa and the rest
+_ATANH_TERMS = tuple(1.0 / (2 * k + 1) for k in range(12))
+_EXP_TERMS = tuple(1.0 / math.factorial(k) for k in range(17))
+_LN2_HI = 0.693147180369123816490  # 2^-32 resolution: k ln2_hi is exact for |k| < 2^20
+_LN2_LO = 1.90821492927058770002e-10
+_SQRT_HALF = 0.7071067811865476
 
 
-def power(x: ArrayLike, e: float) -> NDArray[np.float64]:
-    """``x^e`` elementwise for ``x >= 0``: for ``e`` a multiple of 1/2 (:func:`portable_exponent`)
-    ``x^floor(e)`` by repeated products and one ``sqrt(x)`` factor, the same bits everywhere;
-    else NumPy's ``power`` (the CPU's own rounding)."""
-    base = np.asarray(x, dtype=np.float64)
-    if not portable_exponent(e):
-        return np.asarray(np.power(base, e), dtype=np.float64)
-    whole = math.floor(e)
-    out = np.ones_like(base)
-    for _ in range(whole):
-        out = out * base
-    if e != whole:
-        out = out * np.sqrt(base) if whole else np.sqrt(base)
-    return out
+@_jit
+def _log(x):  # type: ignore[no-untyped-def]
+    """Natural logarithm of ``x > 0`` by ``frexp`` and the atanh series, basic operations only."""
+    m, e = math.frexp(x)
+    if m < _SQRT_HALF:
+        m *= 2.0
+        e -= 1
+    u = (m - 1.0) / (m + 1.0)
+    u2 = u * u
+    acc = _ATANH_TERMS[11]
+    for k in range(10, -1, -1):
+        acc = acc * u2 + _ATANH_TERMS[k]
+    return (e * _LN2_HI + 2.0 * u * acc) + e * _LN2_LO
+
+
+@_jit
+def _exp(t):  # type: ignore[no-untyped-def]
+    """``e^t`` by ``t = k ln 2 + r`` and the Taylor series of ``e^r``, basic operations only."""
+    k = math.floor(t / (_LN2_HI + _LN2_LO) + 0.5)
+    r = (t - k * _LN2_HI) - k * _LN2_LO
+    acc = _EXP_TERMS[16]
+    for j in range(15, -1, -1):
+        acc = acc * r + _EXP_TERMS[j]
+    return math.ldexp(acc, k)
 
 
 @_jit
 def power_of(x, e):  # type: ignore[no-untyped-def]
-    """Compiled scalar twin of :func:`power`: ``x^e`` for ``x >= 0``, the same bits."""
+    """``x^e`` for ``x >= 0`` from ``+ - * /`` and ``sqrt`` alone, the same bits on every
+    IEEE-754 machine: for ``e`` a multiple of 1/2 up to 16, ``x^floor(e)`` by repeated products
+    and one factor ``sqrt(x)`` (correctly rounded steps); for another ``e``, ``exp(e ln x)`` by
+    the series above (within a few ulp of ``pow``; no libm ``pow``, whose rounding is the CPU's
+    variant's)."""
     twice = 2.0 * e
     if twice == math.floor(twice) and 0.0 <= twice <= 32.0:
         whole = math.floor(e)
@@ -168,7 +185,23 @@ def power_of(x, e):  # type: ignore[no-untyped-def]
         if e != whole:
             out = out * np.sqrt(x) if whole else np.sqrt(x)
         return out
-    return x**e
+    if x == 0.0:
+        return 0.0 if e > 0.0 else (1.0 if e == 0.0 else np.inf)
+    return _exp(e * _log(x))
+
+
+@_jit
+def _power_into(x, e, out):  # type: ignore[no-untyped-def]
+    for p in range(x.size):
+        out[p] = power_of(x[p], e)
+
+
+def power(x: ArrayLike, e: float) -> NDArray[np.float64]:
+    """:func:`power_of` elementwise over an array ``x >= 0`` (any shape)."""
+    base = np.array(x, dtype=np.float64)  # a C-ordered copy, 0-d for a scalar
+    out = np.empty_like(base)
+    _power_into(base.reshape(-1), float(e), out.reshape(-1))
+    return out
 
 
 def root(x: float, d: int) -> float:

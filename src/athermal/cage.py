@@ -25,6 +25,7 @@ from itertools import combinations
 import numpy as np
 from numpy.typing import NDArray
 
+from ._portable import row_dots, transform, vdot, vnorm
 from .minimize import minimize
 
 CLEARANCE = 1e-14
@@ -46,7 +47,7 @@ def free_place(
     cage leaves no such place."""
     offsets, reach = np.asarray(offsets, np.float64), np.asarray(reach, np.float64)
     inside = [p for p in _clear_places(offsets, reach) if reached(p, offsets, reach)]
-    return min(inside, key=lambda p: float(p @ p)) if inside else None
+    return min(inside, key=lambda p: vdot(p, p)) if inside else None
 
 
 def nearest_clear(
@@ -87,8 +88,8 @@ def reached(
 ) -> bool:
     """Whether the straight ``move`` ``(d,)`` comes no closer to any neighbour at ``offsets``
     ``(m, d)`` than ``min(its distance now, its reach) - slack``: it passes through none."""
-    length_sq = max(float(move @ move), np.finfo(float).tiny)
-    t = np.clip(offsets @ move / length_sq, 0.0, 1.0)  # (m,): each neighbour's nearest point
+    length_sq = max(vdot(move, move), np.finfo(float).tiny)
+    t = np.clip(row_dots(offsets, move[None, :]) / length_sq, 0.0, 1.0)  # each nearest point
     nearest = np.linalg.norm(t[:, None] * move[None, :] - offsets, axis=1)
     allowed = np.minimum(np.linalg.norm(offsets, axis=1), reach)
     return bool(np.all(nearest >= allowed * (1.0 - CLEARANCE) - slack))
@@ -107,7 +108,7 @@ def _circle(
     """The points nearest to the origin where the spheres ``(a, ra)`` and ``(b, rb)`` meet: the
     two crossings in 2D, the circle's nearest point in 3D; none when they do not meet."""
     axis = b - a
-    length = float(np.linalg.norm(axis))
+    length = vnorm(axis)
     if length == 0.0:
         return np.empty((0, dim))
     axis = axis / length
@@ -120,13 +121,13 @@ def _circle(
     if dim == 2:
         side = np.array([-axis[1], axis[0]])
         return np.array([centre + across * side, centre - across * side])
-    toward = -centre - np.dot(-centre, axis) * axis
-    norm = float(np.linalg.norm(toward))
+    toward = -centre - vdot(-centre, axis) * axis
+    norm = vnorm(toward)
     if norm == 0.0:  # the origin on the axis: every point of the circle is as near
         toward = np.cross(axis, [1.0, 0.0, 0.0])
-        if np.linalg.norm(toward) < 0.5:
+        if vnorm(toward) < 0.5:
             toward = np.cross(axis, [0.0, 1.0, 0.0])
-        norm = float(np.linalg.norm(toward))
+        norm = vnorm(toward)
     return (centre + across * toward / norm)[None, :]
 
 
@@ -139,13 +140,17 @@ def _three(centres: NDArray[np.float64], radii: NDArray[np.float64]) -> NDArray[
         - (radii[1:] - radii[0]) * (radii[1:] + radii[0])
     )
     normal = np.cross(a[0], a[1])
-    nn = float(np.dot(normal, normal))
+    nn = vdot(normal, normal)
     if nn == 0.0:
         return np.empty((0, 3))
-    base = np.linalg.lstsq(a, rhs, rcond=None)[0]  # on the line where the three planes meet
+    # on the line where the three planes a x = rhs meet: the least-norm x = a^T (a a^T)^-1 rhs
+    (g00, g01), (g10, g11) = transform(a, a)
+    det = g00 * g11 - g01 * g10
+    y = np.array([g11 * rhs[0] - g01 * rhs[1], g00 * rhs[1] - g10 * rhs[0]]) / det
+    base = transform(y[None, :], a.T)[0]
     rel = base - centres[0]
-    rel = rel - np.dot(rel, normal) / nn * normal  # the line's point nearest to the first centre
-    s_sq = (radii[0] ** 2 - np.dot(rel, rel)) / nn
+    rel = rel - vdot(rel, normal) / nn * normal  # the line's point nearest to the first centre
+    s_sq = (radii[0] ** 2 - vdot(rel, rel)) / nn
     if s_sq < 0.0:
         return np.empty((0, 3))
     s = np.sqrt(s_sq)
@@ -186,7 +191,7 @@ def free_places(
         grad = np.zeros((movers, dim))
         np.add.at(grad, first, push)
         np.add.at(grad, other[~fixed], -push[~fixed])
-        return float(over @ over), grad.reshape(-1)
+        return vdot(over, over), grad.reshape(-1)
 
     rng = np.random.default_rng(seed)
     best: tuple[float, NDArray[np.float64]] | None = None

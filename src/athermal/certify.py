@@ -32,6 +32,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from ._portable import power, root, row_dots, transform
 from .cage import free_place, free_places
 from .contact import ContactModel, Contacts
 from .errors import ConvergenceError, InputError
@@ -254,7 +255,7 @@ def precision_floor(packing: Packing, model: ContactModel) -> float:
     """The force balance double-double resolves at ``packing``: :data:`DD_FLOOR` x the largest
     stiffness x the largest cell width^(alpha - 1) (force units)."""
     width = float(packing.cell.widths.max())
-    return DD_FLOOR * float(model.kmat.max()) * width ** (model.alpha - 1.0)
+    return DD_FLOOR * float(model.kmat.max()) * float(power(width, model.alpha - 1.0))
 
 
 def contact_network(
@@ -376,7 +377,7 @@ def _offsets(
     """``x_j - x_i`` ``(len(which), d)`` of the pairs ``which`` at ``hi + lo``, ``i`` the end
     that is among ``movers`` (the first end where both are), rounded once from double-double."""
     one, two = pairs.first[which], pairs.second[which]
-    shift = pairs.images[which] @ pairs.packing.cell.h.T
+    shift = transform(pairs.images[which], pairs.packing.cell.h)
     near, error = two_sum(hi[one], -hi[two])  # x_first - x_second, rounded once at the end
     near, more = two_sum(near, shift)
     sep = near + ((error + more) + (lo[one] - lo[two]))
@@ -446,7 +447,7 @@ def _certificate(
     overlap = sums.overlap[0] + sums.overlap[1]
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     touching = live & (overlap > 0.0)
-    force = pairs.stiffness[touching] * overlap[touching] ** (model.alpha - 1.0)
+    force = pairs.stiffness[touching] * power(overlap[touching], model.alpha - 1.0)
     gaps = -overlap[live & (overlap <= 0.0)]
     n_live = int((~rattler).sum())
     network, _ = contact_network(pairs, packing.positions, sums)
@@ -601,7 +602,7 @@ def bisect_jamming_point(
         if trials == max_trials:
             raise ConvergenceError(f"certify: no bracket of {epsilon:g} in {max_trials} trials")
         phi = high - step if low < 0.0 else max(0.5 * (low + high), high - step)
-        trial_radii = radii0 * (phi / phi0) ** (1.0 / dim)
+        trial_radii = radii0 * root(phi / phi0, dim)
         trial_hi, trial_lo = hi.copy(), lo.copy()
         trials += 1
         verdict, trial_bonds, trial_rattler, held = _trial(
@@ -750,8 +751,8 @@ def _blocking_pair(
     best: tuple[float, int, float] | None = None
     for sense in senses:  # |sep + t sense (m_i - m_j)| = r_i + r_j, the smallest t > 0
         along = sense * (mode[pairs.first[near]] - mode[pairs.second[near]])
-        a = np.einsum("kd,kd->k", along, along)
-        b = 2.0 * np.einsum("kd,kd->k", sep, along)
+        a = row_dots(along, along)
+        b = 2.0 * row_dots(sep, along)
         c = gap * (2.0 * length - gap)  # |sep|^2 - (r_i + r_j)^2, from the double-double gap
         disc = b * b - 4.0 * a * c
         closing = (b < 0.0) & (disc >= 0.0)
@@ -779,7 +780,7 @@ def _rates(
     """How fast the distance of each pair ``which`` grows along ``mode`` ``(N, d)``."""
     sep = pairs.separations(hi)[which]
     unit = sep / np.linalg.norm(sep, axis=1)[:, None]
-    return np.einsum("kd,kd->k", unit, mode[pairs.first[which]] - mode[pairs.second[which]])
+    return row_dots(unit, mode[pairs.first[which]] - mode[pairs.second[which]])
 
 
 def _trial(

@@ -24,6 +24,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from ._portable import transform
 from .contact import ContactModel, Contacts
 from .errors import InputError
 from .neighbors import build_neighbor_list
@@ -245,7 +246,7 @@ class NearPairs:
 
     def separations(self, hi: NDArray[np.float64]) -> NDArray[np.float64]:
         """``x_i - x_j + h n`` ``(P, d)`` of every pair at ``hi``, float64."""
-        return hi[self.first] - hi[self.second] + self.images @ self.packing.cell.h.T
+        return hi[self.first] - hi[self.second] + transform(self.images, self.packing.cell.h)
 
     def contacts(
         self, hi: NDArray[np.float64], overlap: NDArray[np.float64], keep: NDArray[np.bool_]

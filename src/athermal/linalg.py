@@ -21,7 +21,7 @@ import importlib.util
 import os
 import sys
 from collections.abc import Iterator
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -48,6 +48,9 @@ with N). The contact preconditioner's matrix is no M-matrix: its ``auto`` stays 
 Measurements: ``docs/decisions.md``, section "Sparse solvers", ``IncompleteCholeskyFactor``."""
 AMG_CYCLES = 1
 """Default number of AMG V-cycles per application (N = 65536, 2D: ~19 matrix-vector products)."""
+AMG_SEED = 0
+"""Seed of the random vectors third-party solvers would otherwise draw afresh: pyamg's setup
+(:func:`aggregation_hierarchy`) and ARPACK's start (:func:`arpack_start`)."""
 
 
 class NotPositiveDefinite(ValueError):
@@ -113,6 +116,34 @@ class SpluFactor:
         return bool(np.all(self._lu.U.diagonal() > 0.0))
 
 
+def arpack_start(size: int) -> NDArray[np.float64]:
+    """A fixed start vector ``(size,)`` for ARPACK (``eigsh``'s ``v0``), whose own is drawn at
+    random: unit length, Gaussian entries from :data:`AMG_SEED`, so that it has a part along
+    every eigenvector (a constant vector would lie in a packing's translations)."""
+    v = np.random.default_rng(AMG_SEED).standard_normal(size)
+    return np.asarray(v / np.sqrt(np.sum(v * v)), dtype=np.float64)
+
+
+def aggregation_hierarchy(
+    matrix: sp.spmatrix, near_null: NDArray[np.float64], max_coarse: int | None = None
+) -> Any:
+    """pyamg's smoothed-aggregation hierarchy of the SPD ``matrix`` with the near-null vectors
+    ``near_null`` (one per column), the same in every run: its setup estimates a spectral radius
+    from a vector of NumPy's global random state, drawn here from :data:`AMG_SEED`, the caller's
+    state put back after."""
+    import pyamg
+
+    options = {} if max_coarse is None else {"max_coarse": max_coarse}
+    caller = np.random.get_state()  # noqa: NPY002 (pyamg draws from the legacy state)
+    np.random.seed(AMG_SEED)  # noqa: NPY002
+    try:
+        return pyamg.smoothed_aggregation_solver(
+            matrix, B=near_null, symmetry="hermitian", **options
+        )
+    finally:
+        np.random.set_state(caller)  # noqa: NPY002
+
+
 class AmgFactor:
     """``cycles`` smoothed-aggregation V-cycles from a zero start: a fixed SPD linear operator.
 
@@ -125,12 +156,10 @@ class AmgFactor:
     backend = "pyamg"
 
     def __init__(self, matrix: sp.spmatrix, cycles: int, near_null: NDArray[np.float64]) -> None:
-        import pyamg
-
         block = near_null.shape[1]
         system = sp.bsr_matrix(matrix, blocksize=(block, block)) if block > 1 else matrix
         self._cycles = cycles
-        self._ml = pyamg.smoothed_aggregation_solver(system, B=near_null, symmetry="hermitian")
+        self._ml = aggregation_hierarchy(system, near_null)
 
     def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
         b = np.asarray(rhs, dtype=np.float64)

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from .atomic import replacing
 from .contact import ContactModel
 from .errors import InputError
+from .linalg import arpack_start
 from .moduli import STABILITY_TOL, stiffness_matrix
 from .packing import Packing
 
@@ -101,11 +102,15 @@ def zero_tolerance(h: sp.spmatrix) -> float:
 def lowest_eigenpairs(h: sp.spmatrix, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
     symmetric ``h``: ARPACK in shift-invert mode about ``-zero_tolerance(h)`` (so the matrix it
-    factors is positive definite at a minimum), from a fixed start vector (reproducible)."""
-    size = h.shape[0]
-    start = np.full(size, 1.0 / np.sqrt(size))  # ARPACK's own start is random
+    factors is positive definite at a minimum), from a fixed start vector
+    (:func:`~athermal.linalg.arpack_start`)."""
     values, vecs = spla.eigsh(
-        h.tocsc(), k=k, sigma=-zero_tolerance(h), which="LM", tol=1e-12, v0=start
+        h.tocsc(),
+        k=k,
+        sigma=-zero_tolerance(h),
+        which="LM",
+        tol=1e-12,
+        v0=arpack_start(h.shape[0]),
     )
     order = np.argsort(values)
     return values[order], vecs[:, order]

@@ -46,7 +46,7 @@ from ._validate import float_array
 from .cell import AXES, pure_shear_derivatives, simple_shear, tilted_wall
 from .contact import ContactModel, Contacts, find_contacts, hessian
 from .errors import InputError
-from .linalg import cholesky
+from .linalg import arpack_start, cholesky
 from .observables import pressure, rattlers, stress
 from .packing import Packing
 
@@ -332,7 +332,9 @@ def stability(
     if h.shape[0] <= DENSE_EIGEN_DOFS:
         values, vectors = np.linalg.eigh(h.toarray())
     else:
-        values, vectors = spla.eigsh(h, k=1, which="SA", tol=1e-10, maxiter=100 * h.shape[0])
+        values, vectors = spla.eigsh(
+            h, k=1, which="SA", tol=1e-10, maxiter=100 * h.shape[0], v0=arpack_start(h.shape[0])
+        )
     value = float(values[0])
     if value >= -shift:
         return Stability(True, value, None, shift)

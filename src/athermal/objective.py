@@ -104,7 +104,7 @@ class Objective:
             0.25
             * float(np.finfo(np.float64).eps)
             * float(self.cell.widths.max())
-            * float(model.kmat.max()) ** (1.0 / model.alpha)
+            * float(power(model.kmat.max(), 1.0 / model.alpha))
         )
         alpha = float(model.alpha)
         self.hooks = Hooks(self.dim, self.max_step, (noise_scale, alpha, 1.0 - 1.0 / alpha))

@@ -4,7 +4,7 @@ start, with :data:`SWEEPS` damped Jacobi sweeps before and after each coarse cor
 exact solve on the coarsest level.
 
 The hierarchy (aggregates, smoothed prolongators ``P``, Galerkin operators ``P^T A P``) is
-pyamg's (:func:`pyamg.smoothed_aggregation_solver`, the constant vector as near-null space),
+pyamg's (:func:`~athermal.linalg.aggregation_hierarchy`, the constant vector as near-null space),
 set up on the host at the preconditioner's rebuilds (:meth:`athermal.precon.ExpPreconditioner
 .assemble`, when a particle has moved ``r_cut / 4``); the cycle runs on the device as sparse
 products over padded coordinate lists. Jacobi before and after, restriction ``P^T`` and an
@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from ..linalg import aggregation_hierarchy
 from ._pairs import capacity_for, padded
 
 SWEEPS = 2
@@ -79,11 +80,7 @@ class Hierarchy:
     ) -> Hierarchy:
         """The hierarchy of the SPD ``matrix`` ``(N, N)``; ``capacities`` those of the last
         build (grown where needed; a different number of levels starts afresh)."""
-        import pyamg
-
-        ml = pyamg.smoothed_aggregation_solver(
-            matrix, B=np.ones((matrix.shape[0], 1)), symmetry="hermitian", max_coarse=MAX_COARSE
-        )
+        ml = aggregation_hierarchy(matrix, np.ones((matrix.shape[0], 1)), MAX_COARSE)
         wanted = []
         for level in ml.levels[:-1]:
             wanted += [level.A.shape[0], level.A.nnz, level.P.nnz]

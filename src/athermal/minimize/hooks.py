@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from .. import _blocks
 from .._jit import _jit
+from .._portable import power_of
 from ..errors import InputError
 
 
@@ -18,7 +19,7 @@ from ..errors import InputError
 def round_off(scale: float, factor: float, power: float, value: float) -> float:
     """``scale (factor max(value, 0))^power``: the absolute round-off of ``f`` near ``value``
     (:attr:`Hooks.noise`), the one formula the line search uses from Python and compiled code."""
-    return scale * (factor * max(value, 0.0)) ** power
+    return scale * power_of(factor * max(value, 0.0), power)
 
 
 @dataclass(frozen=True)

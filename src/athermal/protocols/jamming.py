@@ -64,6 +64,7 @@ from typing import Literal
 
 import numpy as np
 
+from .._portable import power
 from .._records import Value, as_row
 from .._validate import choice, positive_scalar
 from ..contact import ContactModel, Contacts, find_contacts
@@ -145,7 +146,7 @@ def energy_threshold(dim: int, alpha: float) -> float:
     ``(RESOLUTION / (10 d))^alpha``. A packing jammed by ``Delta phi`` has overlaps
     ``delta ~ <r> Delta phi / (d phi)`` and ``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``,
     so states jammed by more than ~``RESOLUTION / 10`` lie above it."""
-    return float((RESOLUTION / (10.0 * dim)) ** alpha)
+    return float(power(RESOLUTION / (10.0 * dim), alpha))
 
 
 def check_epsilon(epsilon: float) -> float:
