@@ -15,7 +15,7 @@ import pytest
 
 PACKAGE = Path(__file__).resolve().parent.parent / "src" / "athermal"
 LIBRARY = sorted((PACKAGE / "minimize").glob("*.py"))
-BELOW = {"errors", "_validate", "_jit", "_blocks", "linalg"}
+BELOW = {"errors", "_validate", "_jit", "_portable", "_blocks", "linalg"}
 """The modules of athermal that the minimizers may import (none of them imports upward)."""
 
 

@@ -195,7 +195,7 @@ _CHUNK = 1024
 
 
 @_jit
-def _two_dots(a, b, w):  # type: ignore[no-untyped-def]
+def _two_dots(a, b, w):
     """``(a.w, b.w)`` of three vectors of one length, each summed in four interleaved lanes
     (element ``p`` to lane ``p mod 4``, lanes added pairwise): a fixed order, so the same bits
     on every CPU, and four independent sums the compiler can keep in one vector register."""
