@@ -293,7 +293,7 @@ def test_the_slab_kernel_matches_one_thread_whatever_the_threads(dim, walls):
             numba.set_num_threads(threads)
             g = np.empty_like(x)
             e, c = energy_gradient_contacts(
-                x, p.radii, typeid, shifts, nl, model, g, walls_args, slabs
+                x, p.radii, typeid, shifts, nl, model, g, walls_args, (slabs, True)
             )
             results.append((e, g))
             assert c == c_one

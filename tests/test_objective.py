@@ -5,6 +5,7 @@ import pytest
 
 from athermal.contact import ContactModel, packing_energy
 from athermal.errors import InputError
+from athermal.neighbors import build_neighbor_list
 from athermal.objective import Objective
 from athermal.packing import random_packing
 
@@ -58,8 +59,31 @@ def test_the_objective_takes_the_threads_kernel_for_large_lists(monkeypatch):
     monkeypatch.setattr(contact, "PARALLEL_PAIRS", 0)
     threaded = Objective(p, model)
     e, g = threaded(threaded.x0)
-    assert threaded._slabs.size > 4
+    assert threaded._slabs[0].size > 4 and threaded._slabs[1]
     assert e == pytest.approx(e_serial, rel=1e-13)
     np.testing.assert_allclose(g, g_serial, atol=1e-14 * np.abs(g_serial).max())
     result = relax(p, model, Minimizer("lbfgs", "exp"), gtol=1e-12)
     assert result.converged
+
+
+def test_a_large_list_sums_in_its_slabs_order_on_any_number_of_threads(monkeypatch):
+    """From ``PARALLEL_PAIRS`` on, the energy and gradient are summed slab by slab whether the
+    threads run or not (a worker thread, one core): the same bits."""
+    import athermal.contact as contact
+
+    p = random_packing(2048, 0.86, seed=5)
+    model = ContactModel(2.5)
+    monkeypatch.setattr(contact, "PARALLEL_PAIRS", 0)
+    nlist = build_neighbor_list(p.positions, p.radii, p.cell)
+    slabs, _ = contact.parallel_slabs(nlist)
+    assert slabs.size > 4
+    results = []
+    for threads in (True, False):
+        grad = np.zeros_like(p.positions)
+        energy = contact.energy_gradient_contacts(
+            p.positions, p.radii, model.typeid(p), nlist.shifts(p.cell), nlist, model, grad,
+            slabs=(slabs, threads),
+        )  # fmt: skip
+        results.append((energy, grad))
+    assert results[0][0] == results[1][0]
+    np.testing.assert_array_equal(results[0][1], results[1][1])

@@ -94,8 +94,8 @@ class ContactModel:
 
 
 ONE_THREAD = np.zeros(0, dtype=np.int64)
-"""The ``slabs`` argument of :func:`evaluate` that keeps it on one thread (writable, as the
-slabs of a list are: numba compiles read-only arrays as another type)."""
+"""The ``slabs`` argument of :func:`evaluate` that sums pair by pair (writable, as the slabs of a
+list are: numba compiles read-only arrays as another type)."""
 NO_WALLS = (np.zeros(0, dtype=np.int64), np.zeros(0))
 """The walled axes and half lengths (:data:`Walls`) of a periodic cell."""
 PARALLEL_PAIRS = 100_000
@@ -103,14 +103,15 @@ PARALLEL_PAIRS = 100_000
 measured in ``docs/decisions.md``, "The kernels on many cores")."""
 
 
-def parallel_slabs(nlist: NeighborList) -> NDArray[np.int64]:
-    """``nlist``'s slabs when its energy and gradient should run on the threads (at least
-    :data:`PARALLEL_PAIRS` pairs, slabs listed, more than one numba thread and allowed core,
-    and the main thread: numba's default threading layer takes one caller at a time), else
-    empty: the ``slabs`` argument of :func:`evaluate`."""
-    if nlist.n_pairs < PARALLEL_PAIRS or not threads_usable():
-        return ONE_THREAD
-    return nlist.slabs
+def parallel_slabs(nlist: NeighborList) -> tuple[NDArray[np.int64], bool]:
+    """The ``slabs`` and ``threads`` arguments of :func:`evaluate` for ``nlist``: its slabs when
+    it lists at least :data:`PARALLEL_PAIRS` pairs (else empty: pair by pair), and whether the
+    threads can sum them (more than one numba thread and allowed core, and the main thread:
+    numba's default threading layer takes one caller at a time). Either way the sum is the
+    same bits: the order is the list's, not the machine's."""
+    if nlist.n_pairs < PARALLEL_PAIRS or not nlist.slabs.size:
+        return ONE_THREAD, False
+    return nlist.slabs, threads_usable()
 
 
 def energy_gradient(
@@ -139,13 +140,15 @@ def energy_gradient_contacts(
     model: ContactModel,
     grad: NDArray[np.float64],
     walls: Walls | None = None,
-    slabs: NDArray[np.int64] | None = None,
+    slabs: tuple[NDArray[np.int64], bool] | None = None,
 ) -> tuple[float, int]:
     """:func:`energy_gradient` and the number of overlapping pairs and wall contacts, from the
     same pass (``walls``: :meth:`ContactModel.walls`, none: a periodic cell; ``slabs``:
-    :func:`parallel_slabs`, none: one thread)."""
+    :func:`parallel_slabs` of ``nlist``, found here when not given)."""
     if walls is None:
         walls = (*NO_WALLS, model.kwall)
+    if slabs is None:
+        slabs = parallel_slabs(nlist)
     energy, contacts = evaluate(
         positions,
         grad,
@@ -158,7 +161,7 @@ def energy_gradient_contacts(
         model.kmat,
         model.alpha,
         *walls,
-        ONE_THREAD if slabs is None else slabs,
+        *slabs,
     )
     return float(energy), int(contacts)
 
@@ -531,33 +534,61 @@ def _pairs_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, l
     return energy, contacts
 
 
+@_jit
+def _slab(  # type: ignore[no-untyped-def]
+    x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs, s, energies, overlapping
+):
+    """The pairs of slab ``s``: their gradient added into ``grad``, ``alpha`` x their energy
+    into ``energies[s]`` and their overlapping pairs into ``overlapping[s]``."""
+    lo, hi = slabs[s], slabs[s + 1]
+    if x.shape[1] == 2:
+        e, c = _pairs_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi)
+    else:
+        e, c = _pairs_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi)
+    energies[s] = e
+    overlapping[s] = c
+
+
 @_jit_parallel
 def energy_gradient_slabs(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs):  # type: ignore[no-untyped-def]
     """:func:`energy_gradient_2d` (or 3d) on the threads: the pairs of the even slabs of the
     list (:attr:`~athermal.neighbors.NeighborList.slabs`) at once, then those of the odd ones
     (slabs of one parity share no particle, so no two threads add into one row of ``grad``).
     Every row of ``grad`` gets its terms in one order whatever the number of threads, and the
-    slabs' energies are summed in slab order: the result does not depend on the threads."""
+    slabs' energies are summed in slab order: the same bits as :func:`energy_gradient_slabs_serial`
+    on one thread."""
     count = slabs.size - 1
     energies = np.zeros(count)
     overlapping = np.zeros(count, dtype=np.int64)
     grad[:] = 0.0
-    two = x.shape[1] == 2
     for parity in range(2):
         for half in prange(count // 2):
-            s = 2 * half + parity
-            if two:
-                e, c = _pairs_2d(
-                    x, radii, first, second, code, shift, typeid, kmat, alpha, grad,
-                    slabs[s], slabs[s + 1],
-                )  # fmt: skip
-            else:
-                e, c = _pairs_3d(
-                    x, radii, first, second, code, shift, typeid, kmat, alpha, grad,
-                    slabs[s], slabs[s + 1],
-                )  # fmt: skip
-            energies[s] = e
-            overlapping[s] = c
+            _slab(
+                x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs,
+                2 * half + parity, energies, overlapping,
+            )  # fmt: skip
+    energy = 0.0
+    for s in range(count):
+        energy += energies[s]
+    return energy / alpha, overlapping.sum()
+
+
+@_jit
+def energy_gradient_slabs_serial(  # type: ignore[no-untyped-def]
+    x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs
+):
+    """:func:`energy_gradient_slabs` on the calling thread alone, in the same order (even slabs,
+    then odd ones): where the threads cannot run, a large packing still gets their bits."""
+    count = slabs.size - 1
+    energies = np.zeros(count)
+    overlapping = np.zeros(count, dtype=np.int64)
+    grad[:] = 0.0
+    for parity in range(2):
+        for half in range(count // 2):
+            _slab(
+                x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs,
+                2 * half + parity, energies, overlapping,
+            )  # fmt: skip
     energy = 0.0
     for s in range(count):
         energy += energies[s]
@@ -777,16 +808,20 @@ def evaluate(  # type: ignore[no-untyped-def]
     half,
     kwall,
     slabs,
+    threads,
 ):
     """The contact energy and overlapping pairs at ``points`` ``(N, d)``, its gradient written
     into ``gradient`` ``(N, d)``, by the kernel of the dimension (arguments as
-    :func:`energy_gradient_2d`), on the threads when ``slabs`` holds the list's slabs
-    (:func:`energy_gradient_slabs`; empty: on one thread), then the walls'
-    (:func:`wall_energy_gradient`): the one evaluation every caller uses, so that the energy at
-    a point is the same bits from Python and from compiled loops."""
+    :func:`energy_gradient_2d`), in the order of the list's slabs when ``slabs`` holds them
+    (:func:`energy_gradient_slabs` on the threads when ``threads``, else its one-thread twin;
+    empty: pair by pair), then the walls' (:func:`wall_energy_gradient`): the one evaluation
+    every caller uses, so that the energy at a point is the same bits from Python and from
+    compiled loops, and on any number of threads."""
     args = (radii, first, second, images, shift, typeid, kmat, alpha, gradient)
-    if slabs.size:
+    if slabs.size and threads:
         energy, contacts = energy_gradient_slabs(points, *args, slabs)
+    elif slabs.size:
+        energy, contacts = energy_gradient_slabs_serial(points, *args, slabs)
     elif points.shape[1] == 2:
         energy, contacts = energy_gradient_2d(points, *args)
     else:

@@ -88,7 +88,7 @@ class Objective:
         self._walls = model.walls(self.cell)
         self._nlist: NeighborList | None = None
         self._shifts = np.zeros((1, self.dim))
-        self._slabs = ONE_THREAD
+        self._slabs = (ONE_THREAD, False)
         self._last_x = np.full(self.n_dof, np.nan)  # NaN: nothing evaluated yet
         self._last: tuple[float, NDArray[np.float64]] = (0.0, np.zeros(0))
         self._last_contacts = 0
@@ -196,7 +196,7 @@ class Objective:
         return (
             *self._pair_arguments(nlist),
             *self._walls,
-            self._slabs,
+            *self._slabs,
             nlist.reference,
             nlist.reach_sq,
         )
@@ -361,8 +361,8 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
     evaluated here, or, when none was, the point out of reach).
 
     Energies and gradients are :func:`evaluate`'s, as in :meth:`Objective.__call__`."""
-    evaluated = arguments[:12]  # what evaluate takes after the points and their gradient
-    reference, reach_sq = arguments[12], arguments[13]
+    evaluated = arguments[:13]  # what evaluate takes after the points and their gradient
+    reference, reach_sq = arguments[13], arguments[14]
     n, dim = reference.shape
     points = trial.reshape(n, dim)
     gradient = grad.reshape(n, dim)
