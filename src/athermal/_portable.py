@@ -8,7 +8,8 @@ sequence of correctly rounded operations (``+ - * /`` and ``sqrt``):
 
 * :func:`dot` and :func:`norm`: a sum in eight interleaved lanes, combined pairwise;
 * :func:`transform`: points times a small matrix, ``(N, d) @ m.T``, each entry summed in order;
-  :func:`upper_inverse`: the inverse of a cell matrix;
+  :func:`outer_sum`: a sum of outer products (stress, fabric); :func:`upper_inverse`: the
+  inverse of a cell matrix;
 * :func:`power` and :func:`power_of`: ``x^e``, for ``e`` a multiple of 1/2 (the contact law's
   2, 2.5 and 3 and their derivatives) as products and one square root, else by series of
   ``exp`` and ``ln``;
@@ -118,6 +119,18 @@ def transform(points: ArrayLike, matrix: ArrayLike) -> NDArray[np.float64]:
     return out
 
 
+def outer_sum(a: ArrayLike, b: ArrayLike) -> NDArray[np.float64]:
+    """``sum_c a_c (x) b_c`` ``(d, e)`` of rows ``a (M, d)`` and ``b (M, e)``: each entry NumPy's
+    pairwise sum of the products (a fixed order; ``einsum`` may sum in its SIMD paths' order)."""
+    left = np.asarray(a, dtype=np.float64)
+    right = np.asarray(b, dtype=np.float64)
+    out = np.zeros((left.shape[1], right.shape[1]))
+    for r in range(left.shape[1]):
+        for c in range(right.shape[1]):
+            out[r, c] = np.sum(left[:, r] * right[:, c])
+    return out
+
+
 def upper_inverse(h: ArrayLike) -> NDArray[np.float64]:
     """Inverse of an upper-triangular matrix ``(d, d)`` by back substitution, column by column
     in a fixed order (LAPACK's ``inv`` sums in the order of the CPU's BLAS kernels)."""
@@ -174,8 +187,8 @@ def power_of(x, e):  # type: ignore[no-untyped-def]
     """``x^e`` for ``x >= 0`` from ``+ - * /`` and ``sqrt`` alone, the same bits on every
     IEEE-754 machine: for ``e`` a multiple of 1/2 up to 16, ``x^floor(e)`` by repeated products
     and one factor ``sqrt(x)`` (correctly rounded steps); for another ``e``, ``exp(e ln x)`` by
-    the series above (within a few ulp of ``pow``; no libm ``pow``, whose rounding is the CPU's
-    variant's)."""
+    the series above (a relative error of a few ulp of ``1 + |e ln x|``, the rounding of the
+    exponent; no libm ``pow``, whose rounding is the CPU's variant's)."""
     twice = 2.0 * e
     if twice == math.floor(twice) and 0.0 <= twice <= 32.0:
         whole = math.floor(e)

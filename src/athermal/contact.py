@@ -16,7 +16,7 @@ from numba import prange
 from numpy.typing import NDArray
 
 from ._jit import _jit, _jit_parallel, threads_usable
-from ._portable import power, power_of, row_norms
+from ._portable import outer_sum, power, power_of, row_norms
 from .cell import Cell
 from .errors import InputError
 from .neighbors import NeighborList
@@ -336,9 +336,9 @@ def strain_derivative(contacts: Contacts) -> NDArray[np.float64]:
     ``dE/d(epsilon_ab) = -sum_c f_a l_b`` (cell, walls and positions deformed together; a wall
     contact's ``l`` from the wall to the centre); it equals ``-V sigma``.
     """
-    out = -np.einsum("ca,cb->ab", contacts.force, contacts.branch)
+    out = -outer_sum(contacts.force, contacts.branch)
     if contacts.walls is not None:
-        out -= np.einsum("ca,cb->ab", contacts.walls.force, contacts.walls.branch)
+        out -= outer_sum(contacts.walls.force, contacts.walls.branch)
     return out
 
 

@@ -34,6 +34,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from ._portable import transform, upper_inverse
 from ._validate import choice, positive_scalar
 from .cell import Cell
 from .contact import ContactModel, find_contacts, gradient, total_energy
@@ -125,7 +126,7 @@ class Enthalpy:
         """The configuration at ``x``: positions ``F u``, cell ``F h0`` (one particle order)."""
         f = self.deformation(x)
         u = np.asarray(x[: self.n * self.dim]).reshape(self.n, self.dim)
-        return Packing(u @ f.T, self.radii, Cell(f @ self.h0, self.walls))
+        return Packing(transform(u, f), self.radii, Cell(transform(self.h0.T, f).T, self.walls))
 
     def __call__(self, x: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         """``H`` and its gradient ``((N + d) d,)`` at ``x``."""
@@ -139,8 +140,8 @@ class Enthalpy:
         sigma = stress(contacts, packing.cell)
         grad = np.empty(self.n_dof)
         d = self.dim
-        grad[: self.n * d] = (gradient(contacts, self.n) @ f).ravel()
-        d_f = volume * (self.pressure * np.eye(d) - sigma) @ np.linalg.inv(f).T
+        grad[: self.n * d] = transform(gradient(contacts, self.n), f.T).ravel()
+        d_f = volume * transform(self.pressure * np.eye(d) - sigma, upper_inverse(f))
         cell_grad = np.zeros((d, d))
         if self.freedom == "shape":
             cell_grad[self._upper] = d_f[self._upper] / self.scale
@@ -184,7 +185,8 @@ class EnthalpyPreconditioner:
         if self._exp is not None and self._reference is not None:
             positions, f_ref = self._reference
             moved = float(np.sqrt(((packing.positions - positions) ** 2).sum(axis=1)).max())
-            strained = float(np.abs(f @ np.linalg.inv(f_ref) - np.eye(self.problem.dim)).max())
+            relative = transform(upper_inverse(f_ref).T, f).T  # f f_ref^-1
+            strained = float(np.abs(relative - np.eye(self.problem.dim)).max())
             if moved <= REBUILD_FRACTION * self._exp.r_cut and strained <= CELL_REBUILD:
                 return
         objective = Objective(packing, self.problem.model, sort=False)

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from ._portable import outer_sum
 from .cell import AXES, Cell, particle_volumes
 from .contact import ContactModel, Contacts, find_contacts, gradient, total_energy
 from .packing import Packing
@@ -23,7 +24,7 @@ from .walls import wall_pressures, wall_stress
 def stress(contacts: Contacts, cell: Cell) -> NDArray[np.float64]:
     """Stress tensor ``(1/V) sum_c l_c (x) f_c`` ``(d, d)`` (symmetric), wall contacts included
     (:mod:`athermal.walls`)."""
-    sigma = np.einsum("ca,cb->ab", contacts.branch, contacts.force) / cell.volume
+    sigma = outer_sum(contacts.branch, contacts.force) / cell.volume
     if contacts.walls is not None:
         sigma += wall_stress(contacts.walls, cell)
     return sigma
@@ -47,16 +48,23 @@ def fabric(contacts: Contacts, radii: NDArray[np.float64], cell: Cell) -> NDArra
     vol = particle_volumes(radii, cell.dim)
     weight = vol[contacts.i] + vol[contacts.j]
     n = contacts.normal
-    return np.einsum("c,ca,cb->ab", weight, n, n) / cell.volume
+    return outer_sum(weight[:, None] * n, n) / cell.volume
 
 
 def isotropic_part(tensor: NDArray[np.float64]) -> float:
-    """Mean eigenvalue of a symmetric tensor: ``(lambda_1 + lambda_2) / 2`` in 2D."""
-    return float(np.mean(np.linalg.eigvalsh(tensor)))
+    """Mean eigenvalue of a symmetric tensor, ``trace / d``: ``(lambda_1 + lambda_2) / 2`` in
+    2D."""
+    return float(np.trace(tensor) / tensor.shape[0])
 
 
 def deviatoric_part(tensor: NDArray[np.float64]) -> float:
-    """``(lambda_max - lambda_min) / 2``: the paper's ``|lambda_1 - lambda_2| / 2`` in 2D."""
+    """``(lambda_max - lambda_min) / 2``: the paper's ``|lambda_1 - lambda_2| / 2`` in 2D, there
+    ``sqrt(((t_xx - t_yy) / 2)^2 + t_xy^2)`` (correctly rounded steps; in 3D LAPACK's
+    eigenvalues)."""
+    if tensor.shape[0] == 2:
+        half = 0.5 * (tensor[0, 0] - tensor[1, 1])
+        off = 0.5 * (tensor[0, 1] + tensor[1, 0])
+        return float(np.sqrt(half * half + off * off))
     eig = np.linalg.eigvalsh(tensor)
     return float((eig[-1] - eig[0]) / 2.0)
 

@@ -25,7 +25,7 @@ from ._validate import choice
 from .cell import Cell
 from .contact import ContactModel, Contacts, find_contacts
 from .errors import FROZEN_NOT_ON_JAX, JAX_MISSING, ConvergenceError, InputError
-from .linalg import SOLVERS, SolverName
+from .linalg import SOLVERS, SolverName, available, resolve_solver
 from .minimize import NEWTON_TAKES_NO_PRECON, MinimizeResult, Preconditioner, Status
 from .moduli import stability
 from .objective import Objective
@@ -94,6 +94,24 @@ class Minimizer:
             raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
         if not self.A >= 0.0:
             raise InputError(f"A: must be >= 0, got {self.A!r}")
+
+    def machine_dependence(self, n: int, dim: int) -> str:
+        """Empty when this minimizer's relaxations of ``n`` particles in ``dim`` dimensions are
+        the same bits on every CPU, else what makes them this machine's: a solver that sums in
+        its BLAS's order, or another engine (``docs/decisions.md``, "Same input, same bits")."""
+        if self.backend == "jax":
+            return "the JAX engine: XLA compiles for each device"
+        base, precon = resolve_method(self.method, self.precon)
+        if base == "newton":
+            return "Newton-CG: its low-rank correction is formed with BLAS and LAPACK"
+        if precon == "none":
+            return ""
+        solver = resolve_solver(self.solver, n, dim, m_matrix=precon == "exp")
+        if solver == "amg":
+            return "AMG: pyamg's setup and coarse solve call BLAS"
+        if solver == "direct" and not available("cholespy"):
+            return "SciPy's SuperLU (cholespy missing) calls BLAS"
+        return ""
 
     @property
     def label(self) -> str:

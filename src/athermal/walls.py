@@ -21,7 +21,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from ._portable import power
+from ._portable import outer_sum, power
 from .cell import AXES, Cell
 
 
@@ -143,7 +143,7 @@ def wall_hessian(walls: WallContacts, n: int) -> sp.csr_matrix:
 
 def wall_stress(walls: WallContacts, cell: Cell) -> NDArray[np.float64]:
     """The wall contacts' part of the stress, ``(1/V) sum_c l_c (x) f_c`` ``(d, d)``."""
-    return np.einsum("ca,cb->ab", walls.branch, walls.force) / cell.volume
+    return outer_sum(walls.branch, walls.force) / cell.volume
 
 
 def wall_pressures(walls: WallContacts, cell: Cell) -> dict[str, float]:
