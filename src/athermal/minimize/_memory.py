@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .._jit import _jit
-from .._portable import dot, vdot
+from .._portable import LANES, add_products, dot, lane_total, vdot
 from .result import Preconditioner
 
 _COUNT, _FREE, _FRESH = 0, 1, 2
@@ -191,31 +191,9 @@ def direction_into(grad, z, s, y, py, sy, ypy, gamma, work, rows, ring, out):
 
 
 _CHUNK = 1024
-"""Entries of a vector per block of the L-BFGS loops: two 8 kB blocks stay in L1 cache."""
-
-
-@_jit
-def _two_dots(a, b, w):
-    """``(a.w, b.w)`` of three vectors of one length, each summed in four interleaved lanes
-    (element ``p`` to lane ``p mod 4``, lanes added pairwise): a fixed order, so the same bits
-    on every CPU, and four independent sums the compiler can keep in one vector register."""
-    n = w.size
-    a0 = a1 = a2 = a3 = 0.0
-    b0 = b1 = b2 = b3 = 0.0
-    top = n - n % 4
-    for p in range(0, top, 4):
-        a0 += a[p] * w[p]
-        a1 += a[p + 1] * w[p + 1]
-        a2 += a[p + 2] * w[p + 2]
-        a3 += a[p + 3] * w[p + 3]
-        b0 += b[p] * w[p]
-        b1 += b[p + 1] * w[p + 1]
-        b2 += b[p + 2] * w[p + 2]
-        b3 += b[p + 3] * w[p + 3]
-    for p in range(top, n):
-        a0 += a[p] * w[p]
-        b0 += b[p] * w[p]
-    return (a0 + a1) + (a2 + a3), (b0 + b1) + (b2 + b3)
+"""Entries of a vector per block of the L-BFGS loops: two 8 kB blocks stay in L1 cache (a
+multiple of :data:`~athermal._portable.LANES`, so that each dot product's lanes get the
+elements they get in :func:`~athermal._portable.dot`)."""
 
 
 @_jit
@@ -246,25 +224,19 @@ def lbfgs_direction(grad, z, s_mem, py_mem, y_new, fresh, sy_mat, ypy_mat, gamma
     v = work[1]
     col_sy = work[2]
     col_ypy = work[3]
-    for t in range(count):
-        u[t] = 0.0
-        v[t] = 0.0
-        col_sy[t] = 0.0
-        col_ypy[t] = 0.0
+    # the dot products' lanes, as :func:`dot` sums them: pair t's s and P^-1 y (rows of one
+    # flat array) against grad and y_new (y_new's products are only kept when fresh)
+    lanes = np.zeros((count, 2, 2, LANES))
     for lo in range(0, n, _CHUNK):
-        hi = min(n, lo + _CHUNK)
-        g_blk = grad[lo:hi]
-        y_blk = y_new[lo:hi]
+        size = min(n, lo + _CHUNK) - lo
         for t in range(count):
-            s_blk = s_mem[order[t], lo:hi]
-            py_blk = py_mem[order[t], lo:hi]
-            a, b = _two_dots(s_blk, py_blk, g_blk)
-            if fresh:
-                c, e = _two_dots(s_blk, py_blk, y_blk)
-                col_sy[t] += c
-                col_ypy[t] += e
-            u[t] += a
-            v[t] += b
+            at = order[t] * n + lo
+            add_products(lanes[t], s_mem, py_mem, (at, at), grad, y_new, (lo, lo), size)
+    for t in range(count):
+        u[t] = lane_total(lanes[t, 0, 0])
+        v[t] = lane_total(lanes[t, 1, 0])
+        col_sy[t] = lane_total(lanes[t, 0, 1])
+        col_ypy[t] = lane_total(lanes[t, 1, 1])
     newest = order[count - 1]
     if fresh:
         for t in range(count):
