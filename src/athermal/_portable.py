@@ -49,25 +49,28 @@ def _flat_float64(array: types.Type) -> bool:
 @intrinsic
 def _add_products(typingctx, lanes, rows, row_at, columns, column_at, blocks):  # type: ignore[no-untyped-def]
     """For ``q < blocks`` in turn and ``k < 8``: ``lanes[r, c, k] += rows[r][row_at[r] + 8 q + k]
-    * columns[c][column_at[c] + 8 q + k]`` for ``r, c`` in 0, 1 (``lanes (2, 2, 8)``; ``rows``
-    and ``columns`` pairs of flat C-contiguous float64 arrays, ``row_at`` and ``column_at`` an
-    offset into each).
+    * columns[c][column_at[c] + 8 q + k]`` for every row ``r`` and column ``c`` (``rows`` and
+    ``columns`` tuples of one or two flat C-contiguous float64 arrays, ``row_at`` and
+    ``column_at`` an offset into each; ``lanes (R, C, 8)``).
 
-    Four vectors of eight partial sums, held in registers through the loop, each block one
+    ``R x C`` vectors of eight partial sums, held in registers through the loop, each block one
     vector multiply and one vector add per sum: each lane rounds as the scalar operations would
     (no fused multiply-add: the instructions carry no fast-math flag), so the sums are the same
-    bits on any CPU, at the speed of the CPU's vectors, four sums in flight."""
-    for pair in (rows, columns):
-        if not (isinstance(pair, types.BaseTuple) and len(pair) == 2):
+    bits on any CPU, at the speed of the CPU's vectors, up to four sums in flight."""
+    for arrays, at in ((rows, row_at), (columns, column_at)):
+        if not (isinstance(arrays, types.BaseTuple) and 1 <= len(arrays) <= 2):
             return None
-        if not all(_flat_float64(array) for array in pair):
+        if not all(_flat_float64(array) for array in arrays):
+            return None
+        if not (isinstance(at, types.BaseTuple) and len(at) == len(arrays)):
             return None
     if not (isinstance(lanes, types.Array) and lanes.layout == "C" and lanes.ndim == 3):
         return None
+    shape = (len(rows), len(columns))
 
     def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
         lanes_v, rows_v, row_at_v, columns_v, column_at_v, blocks_v = args
-        lanes_t, rows_t, row_at_t, columns_t, column_at_t, _ = signature.args
+        lanes_t, rows_t, _, columns_t, _, _ = signature.args
 
         def data(array_type, value):  # type: ignore[no-untyped-def]
             return context.make_array(array_type)(context, builder, value).data
@@ -75,20 +78,25 @@ def _add_products(typingctx, lanes, rows, row_at, columns, column_at, blocks):  
         def vector_at(pointer, offset):  # type: ignore[no-untyped-def]
             return builder.bitcast(builder.gep(pointer, [offset]), _LANE_VECTOR.as_pointer())
 
-        def offsets(tuple_type, value):  # type: ignore[no-untyped-def]
-            return [builder.extract_value(value, k) for k in range(len(tuple_type))]
+        def unpacked(value, count):  # type: ignore[no-untyped-def]
+            return [builder.extract_value(value, k) for k in range(count)]
 
         sums = data(lanes_t, lanes_v)
-        into = [vector_at(sums, ir.Constant(blocks_v.type, LANES * k)) for k in range(4)]
+        into = [
+            vector_at(sums, ir.Constant(blocks_v.type, LANES * k))
+            for k in range(shape[0] * shape[1])
+        ]
         totals = []
         for pointer in into:
             total = cgutils.alloca_once(builder, _LANE_VECTOR)  # a register once promoted
             builder.store(builder.load(pointer, align=8), total)
             totals.append(total)
-        row_data = [data(rows_t[k], builder.extract_value(rows_v, k)) for k in range(2)]
-        column_data = [data(columns_t[k], builder.extract_value(columns_v, k)) for k in range(2)]
-        row_offsets = offsets(row_at_t, row_at_v)
-        column_offsets = offsets(column_at_t, column_at_v)
+        row_data = [data(rows_t[k], value) for k, value in enumerate(unpacked(rows_v, shape[0]))]
+        column_data = [
+            data(columns_t[k], value) for k, value in enumerate(unpacked(columns_v, shape[1]))
+        ]
+        row_offsets = unpacked(row_at_v, shape[0])
+        column_offsets = unpacked(column_at_v, shape[1])
         step = ir.Constant(blocks_v.type, LANES)
         with cgutils.for_range(builder, blocks_v) as loop:
             offset = builder.mul(loop.index, step)
@@ -100,33 +108,30 @@ def _add_products(typingctx, lanes, rows, row_at, columns, column_at, blocks):  
                 builder.load(vector_at(pointer, builder.add(at, offset)), align=8)
                 for pointer, at in zip(column_data, column_offsets, strict=True)
             ]
-            for r in range(2):
-                for c in range(2):
-                    total = totals[2 * r + c]
+            for r in range(shape[0]):
+                for c in range(shape[1]):
+                    total = totals[shape[1] * r + c]
                     product = builder.fmul(xs[r], ys[c])
                     builder.store(builder.fadd(builder.load(total), product), total)
         for pointer, total in zip(into, totals, strict=True):
             builder.store(builder.load(total), pointer, align=8)
         return context.get_dummy_value()
 
-    pair = types.UniTuple(types.intp, 2)
-    return types.void(lanes, rows, pair, columns, pair, types.intp), codegen
+    return types.void(lanes, rows, row_at, columns, column_at, types.intp), codegen
 
 
 @_jit
-def add_products(lanes, row0, row1, row_at, column0, column1, column_at, count):  # type: ignore[no-untyped-def]
-    """``lanes[r, c, k] += sum row_r[row_at[r] + j] column_c[column_at[c] + j]`` over
-    ``j < count`` with ``j = k mod 8``, in increasing ``j``, for ``r, c`` in 0, 1
-    (``lanes (2, 2, 8)``; the arrays C-contiguous, read flat from the offsets): four dot
-    products' lanes at once."""
-    rows = (row0.reshape(row0.size), row1.reshape(row1.size))
-    columns = (column0.reshape(column0.size), column1.reshape(column1.size))
+def add_products(lanes, rows, row_at, columns, column_at, count):  # type: ignore[no-untyped-def]
+    """``lanes[r, c, k] += sum rows[r][row_at[r] + j] columns[c][column_at[c] + j]`` over
+    ``j < count`` with ``j = k mod 8``, in increasing ``j``, for every row and column
+    (:func:`_add_products`: tuples of one or two flat C-contiguous arrays, an offset into
+    each; ``lanes (R, C, 8)``): up to four dot products' lanes at once."""
     blocks = count // LANES
     _add_products(lanes, rows, row_at, columns, column_at, blocks)
     top = blocks * LANES
     for j in range(top, count):
-        for r in range(2):
-            for c in range(2):
+        for r in range(len(rows)):
+            for c in range(len(columns)):
                 lanes[r, c, j - top] += rows[r][row_at[r] + j] * columns[c][column_at[c] + j]
 
 
@@ -143,8 +148,8 @@ def dot(a, b):  # type: ignore[no-untyped-def]
     """``sum_p a_p b_p`` of two flat C-contiguous float64 vectors of one length, in a fixed
     order: lane ``k`` sums the products ``p = k, k + 8, ...`` in turn (:func:`add_products`),
     and the lanes are added pairwise (:func:`lane_total`)."""
-    lanes = np.zeros((2, 2, LANES))
-    add_products(lanes, a, a, (0, 0), b, b, (0, 0), a.size)
+    lanes = np.zeros((1, 1, LANES))
+    add_products(lanes, (a.reshape(a.size),), (0,), (b.reshape(b.size),), (0,), a.size)
     return lane_total(lanes[0, 0])
 
 

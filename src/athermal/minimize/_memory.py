@@ -227,11 +227,13 @@ def lbfgs_direction(grad, z, s_mem, py_mem, y_new, fresh, sy_mat, ypy_mat, gamma
     # the dot products' lanes, as :func:`dot` sums them: pair t's s and P^-1 y (rows of one
     # flat array) against grad and y_new (y_new's products are only kept when fresh)
     lanes = np.zeros((count, 2, 2, LANES))
+    stored = (s_mem.reshape(s_mem.size), py_mem.reshape(py_mem.size))
+    against = (grad, y_new)
     for lo in range(0, n, _CHUNK):
         size = min(n, lo + _CHUNK) - lo
         for t in range(count):
             at = order[t] * n + lo
-            add_products(lanes[t], s_mem, py_mem, (at, at), grad, y_new, (lo, lo), size)
+            add_products(lanes[t], stored, (at, at), against, (lo, lo), size)
     for t in range(count):
         u[t] = lane_total(lanes[t, 0, 0])
         v[t] = lane_total(lanes[t, 1, 0])
