@@ -160,3 +160,17 @@ def test_amg_and_arpack_are_the_same_from_run_to_run():
     assert runs[0].iterations == runs[1].iterations and runs[0].energy == runs[1].energy
     np.testing.assert_array_equal(runs[0].packing.positions, runs[1].packing.positions)
     np.testing.assert_array_equal(arpack_start(10), arpack_start(10))
+
+
+def test_the_commands_say_whether_their_bits_are_portable(tmp_path, capsys):
+    """``relax`` prints ``bits``: ``portable`` on the default path, the reason with AMG."""
+    from athermal.cli import main
+
+    start = str(tmp_path / "p.gsd")
+    assert main(["random", "--n", "64", "--phi", "0.86", "-o", start, "--json"]) == 0
+    capsys.readouterr()
+    for solver, expected in (("direct", "portable"), ("amg", "AMG")):
+        out = str(tmp_path / f"{solver}.gsd")
+        argv = ["relax", start, "-o", out, "--precon", "exp", "--solver", solver, "--json"]
+        assert main(argv) == 0
+        assert json.loads(capsys.readouterr().out)["bits"].startswith(expected)

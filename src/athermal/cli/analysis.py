@@ -26,6 +26,9 @@ from ..protocols.finite_strain import finite_strain_bulk, finite_strain_shear
 from .common import check_certified, model_from
 from .printer import emit
 
+MODES_BITS = "this machine's: LAPACK's and ARPACK's eigensolvers sum in their BLAS's order"
+"""The ``bits`` of ``modes`` (docs/decisions.md, "Same input, same bits")."""
+
 
 def modes(args: argparse.Namespace) -> None:
     """``athermal modes``: eigenpairs of the stiffness matrix, D(omega), omega*."""
@@ -52,6 +55,7 @@ def modes(args: argparse.Namespace) -> None:
         "plateau_density": edge.plateau if edge else None,
         "seed": args.seed,
         "mean_participation": float(np.mean(found.participation)),
+        "bits": MODES_BITS,
         "output": args.output,
     }
     if args.figure != "none" and found.complete:

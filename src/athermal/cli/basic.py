@@ -21,6 +21,7 @@ from ..plot import force_distribution_figure, save
 from ..relaxation import RTOL, relax_objective
 from .common import (
     NotConverged,
+    bits,
     cell_from,
     file_observables,
     minimizer_from,
@@ -157,6 +158,9 @@ def relax(args: argparse.Namespace) -> None:
     summary = {
         "method": res.method,
         "precon": res.precon,
+        "bits": bits(minimizer_from(args), frame.packing.n, frame.packing.dim)
+        if args.pressure is None
+        else "portable",
         "converged": res.converged,
         "message": res.message,
         "iterations": res.iterations,

@@ -104,3 +104,9 @@ def check_certified(certificate: Certificate) -> None:
             f"the mean contact force, not {certificate.target:g} (the precision's limit); the "
             "packing and its certificate are written"
         )
+
+
+def bits(minimizer: Minimizer, n: int, dim: int) -> str:
+    """The ``bits`` a command prints: ``portable`` when its relaxations are the same bits on
+    every CPU, else why they are this machine's (:meth:`Minimizer.machine_dependence`)."""
+    return minimizer.machine_dependence(n, dim) or "portable"
