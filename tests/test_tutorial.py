@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from pasted import blocks, paste
+from pasted import blocks, check_printed, paste
 
 TUTORIAL = Path(__file__).resolve().parent.parent / "docs" / "tutorial.md"
 
@@ -15,7 +15,9 @@ TUTORIAL = Path(__file__).resolve().parent.parent / "docs" / "tutorial.md"
 def test_the_tutorial_runs_in_order_in_one_folder(tmp_path):
     out = {}
     for block in blocks(TUTORIAL):
-        out.setdefault(block.section, []).append(paste(block, tmp_path))
+        printed = paste(block, tmp_path)
+        check_printed(block, printed)  # the lines the page quotes, exactly: every CPU's
+        out.setdefault(block.section, []).append(printed)
     assert list(out) == [
         "1. Jam",
         "2. Compress",
@@ -38,6 +40,8 @@ def test_the_tutorial_runs_in_order_in_one_folder(tmp_path):
         "phic256/summary.json",
     ):
         assert (tmp_path / name).exists(), name
+    finite = out["3. Moduli"][0].splitlines()[-3]  # the last frame against finite strain
+    assert finite.split()[6] == "0.164013" and finite.split()[11] == "0.164011"  # as quoted
     modes = out["5. Modes"][1]
     assert "zero modes 2  negative 0" in modes
     ensemble = out["6. An ensemble"][1]
