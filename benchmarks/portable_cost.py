@@ -26,6 +26,7 @@ Results: ``benchmarks/results/portable_cost.md`` and ``.json``.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import subprocess
@@ -35,17 +36,33 @@ import time
 from pathlib import Path
 from typing import Any
 
-from benchmarks.machine import ROOT, pin, save
-
+ROOT = Path(__file__).resolve().parent.parent
+"""The repository (as :data:`benchmarks.machine.ROOT`, which this module imports only once the
+build it measures is loaded: :mod:`benchmarks.machine` imports athermal)."""
 NATIVE = "74effeb"
 """The last commit whose kernels ran with ``fastmath`` and whose dot products were BLAS's."""
 METHODS = ("L-BFGS", "P-L-BFGS", "FR-CG", "P-FR-CG", "FIRE")
 
 
-def child(quick: bool, repeats: int) -> dict[str, Any]:
-    """The measurements of the build on ``sys.path`` (run in the subprocess)."""
+def load_tree(src: Path) -> None:
+    """Make ``import athermal`` load the package in ``src`` (a worktree's ``src/``), before any
+    module of it is imported: the subprocess measures that build, not the installed one."""
+    init = src / "athermal" / "__init__.py"
+    spec = importlib.util.spec_from_file_location(
+        "athermal", init, submodule_search_locations=[str(init.parent)]
+    )
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["athermal"] = module
+    spec.loader.exec_module(module)
+
+
+def child(src: Path, quick: bool, repeats: int) -> dict[str, Any]:
+    """The measurements of the build in ``src`` (run in the subprocess)."""
+    load_tree(src)
     import athermal as at
     from athermal.bench import table1
+    from benchmarks.machine import pin
 
     pin(0)
     cases, alphas = ((3,), (2.0,)) if quick else ((1, 2, 3), (2.0, 2.5))
@@ -86,9 +103,9 @@ def child(quick: bool, repeats: int) -> dict[str, Any]:
 def measure(src: Path, quick: bool, repeats: int) -> dict[str, Any]:
     """Run :func:`child` on the tree whose package lies in ``src``, in a subprocess."""
     with tempfile.TemporaryDirectory() as cache:
-        env = {**os.environ, "PYTHONPATH": f"{src}{os.pathsep}{ROOT}", "NUMBA_CACHE_DIR": cache}
-        argv = [sys.executable, "-m", "benchmarks.portable_cost", "--child", "--repeats"]
-        argv.append(str(repeats))
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        argv = [sys.executable, "-m", "benchmarks.portable_cost", "--child", str(src)]
+        argv += ["--repeats", str(repeats)]
         if quick:
             argv.append("--quick")
         done = subprocess.run(argv, env=env, cwd=ROOT, capture_output=True, text=True, check=True)
@@ -137,12 +154,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--native", default=NATIVE, help=f"the native build's commit ({NATIVE})")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--quick", action="store_true", help="smoke test (a minute)")
-    parser.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
-    parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
+    parser.add_argument("--child", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--output-dir", type=Path, help="default: benchmarks/results")
     args = parser.parse_args(argv)
-    if args.child:
-        print(json.dumps(child(args.quick, args.repeats)))
+    if args.child is not None:
+        print(json.dumps(child(args.child, args.quick, args.repeats)))
         return 0
+    from benchmarks.machine import save
+
+    output = args.output_dir or ROOT / "benchmarks" / "results"
     with tempfile.TemporaryDirectory() as tree:
         subprocess.run(
             ["git", "worktree", "add", "--detach", tree, args.native],
@@ -172,7 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     print(text)
     name = "portable_cost_quick" if args.quick else "portable_cost"
-    save(args.output_dir, name, {"native": native, "portable": portable}, text)
+    save(output, name, {"native": native, "portable": portable}, text)
     return 0
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import importlib
 import json
+import os
 import sys
 
 import numpy as np
@@ -435,3 +436,19 @@ def test_jam_at_a_pressure_on_the_device(tmp_path, capsys):
     assert main([*args, "--backend", "jax", "--pressure", "1e-3"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["pressure"] == pytest.approx(1e-3, rel=2e-3) and report["checks_passed"]
+
+
+def test_deterministic_asks_xla_for_its_deterministic_scatter(tmp_path, capsys, monkeypatch):
+    """``--deterministic`` sets XLA's flag before JAX starts (it is refused without
+    ``--backend jax``: the numba engine is the same bits everywhere already)."""
+    from athermal.cli import main
+    from athermal.cli.door import DETERMINISTIC_OPS
+
+    start = str(tmp_path / "p.gsd")
+    assert main(["random", "--n", "64", "--phi", "0.86", "-o", start]) == 0
+    argv = ["relax", start, "-o", str(tmp_path / "r.gsd"), "--deterministic"]
+    assert main(argv) == 2
+    assert "--deterministic: only with --backend jax" in capsys.readouterr().err
+    monkeypatch.setenv("XLA_FLAGS", "")
+    assert main([*argv, "--backend", "jax", "--method", "plbfgs"]) == 0
+    assert os.environ["XLA_FLAGS"] == DETERMINISTIC_OPS

@@ -93,7 +93,8 @@ def test_jam_pressure_writes_the_packing_at_that_pressure(tmp_path, capsys):
     # the jamming check's numbers are labelled as the jammed packing's, at phi_c, not at P
     check = report["jamming_check"]
     assert check["phi"] == pytest.approx(report["phi_c"], abs=1e-12) and check["passed"]
-    assert check["pressure"] < 1e-4 * report["pressure"] and check["z"] < report["z"]
+    # at phi_c, at most epsilon above jamming: p ~ B epsilon, far below P (not P's numbers)
+    assert check["pressure"] < 1e-2 * report["pressure"] and check["z"] < report["z"]
     assert report["written"].startswith("the packing at pressure 0.002")
     for key in ("energy", "pressure", "z", "contacts", "excess_contacts"):
         assert float(frame.log[f"jamming_check_{key}"]) == check[key]

@@ -221,15 +221,21 @@ def test_compression_scaling_exponents_small(jammed_256):
     ~ Dphi^0.5 and G ~ Dphi^0.5 pooled over three packings (all their points in one fit, as the
     seed's figures average realizations), each fit over the points its rules take
     (:func:`~athermal.protocols.compress.fit_points`: at N = 256 z - z_iso counts 10 contacts
-    from Delta phi ~ 1e-3 up, and G is fitted from Delta phi N^2 >= 1). Measured (AMD EPYC,
-    seeds 2-4): p 1.005 ± 0.015, G 0.58 ± 0.11, z 0.57 ± 0.03.
+    from Delta phi ~ 1e-3 up, and G is fitted from Delta phi N^2 >= 1).
     """
     model = ContactModel(2.0)
     deltas = log_spaced(1e-6, 1e-1, 2)
     steps = list(compression_steps(jammed_256.packing, model, delta_phis=deltas))
     fits = scaling_exponents(steps, lower=1e-6)
     assert fits.pressure is not None and abs(fits.pressure.exponent - 1.0) < 0.1
-    assert all(s.z_excess >= -1e-12 for s in steps)
+    # never hypostatic in its basin; a packing this small and this near jamming may rearrange
+    # into a looser one on the way (seed 2 does at Delta phi = 1e-3, unstable to shear from the
+    # start): the step says so, and the fits stop there
+    for s in steps:
+        assert s.z_excess >= -1e-12 or "unjammed" in s.events
+        assert ("unjammed" in s.events) == (s.pressure < 1e-12)
+    if fits.left_basin is not None:
+        assert fits.pressure.x_max < fits.left_basin
     compressions = [[s.row() for s in steps]]
     for seed in (3, 4):
         packing = jam(random_packing(256, 0.8, seed=seed), model, epsilon=1e-6).packing

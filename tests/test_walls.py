@@ -14,13 +14,7 @@ from athermal.contact import ContactModel, find_contacts, gradient, hessian, tot
 from athermal.enthalpy import relax_at_pressure
 from athermal.errors import InputError
 from athermal.io import read_gsd, write_gsd
-from athermal.moduli import (
-    linear_response,
-    nonaffine_displacement,
-    nonrattler_contacts,
-    relaxed_strain_curvature,
-    stability,
-)
+from athermal.moduli import linear_response, relaxed_strain_curvature, stability
 from athermal.neighbors import brute_force_pairs, build_neighbor_list
 from athermal.objective import Objective
 from athermal.observables import isostatic_contacts, measure, stress
@@ -29,6 +23,7 @@ from athermal.protocols.jamming import jam
 from athermal.protocols.shear import shear_steps
 from athermal.relaxation import Minimizer, relax
 from athermal.walls import wall_pressures
+from conftest import network, network_strain
 
 WALLED = [(2, (1,)), (2, (0, 1)), (3, (2,)), (3, (0, 2))]
 
@@ -193,38 +188,6 @@ def compressed_between_walls():
     start = walled(2, (1,), n=128, phi=0.75, seed=4)
     result = jam(start, model)
     return settled(result.packing.at_phi(result.phi_c + 1e-2), model, 1e-15), model
-
-
-def network(packing, model):
-    """The contacts of ``packing``'s non-rattlers: pairs ``(i, j)`` and wall contacts
-    ``(i, axis, side)``."""
-    live, _ = nonrattler_contacts(packing, model)
-    w = live.walls
-    pairs = set(zip(live.i.tolist(), live.j.tolist(), strict=True))
-    return pairs | set(zip(w.particle.tolist(), w.axis.tolist(), w.side.tolist(), strict=True))
-
-
-def network_strain(packing, model, d1):
-    """The least ``|g|`` at which, along ``x -> (I + g d1) x`` in linear response (the affine
-    map and :func:`nonaffine_displacement`), a contact of ``packing``'s non-rattlers, with
-    each other or a wall, parts or a gap between them closes: their network holds below it."""
-    x, radii, cell = packing.positions, packing.radii, packing.cell
-    _, rattler = nonrattler_contacts(packing, model)
-    u = nonaffine_displacement(packing, model, d1)
-    nl = build_neighbor_list(x, radii, cell, float(radii.mean()))
-    live = ~(rattler[nl.first] | rattler[nl.second])
-    first, second, sep = nl.first[live], nl.second[live], nl.separations(x, cell)[live]
-    dist = np.linalg.norm(sep, axis=1)
-    overlaps = [radii[first] + radii[second] - dist]
-    rates = [-np.einsum("kd,kd->k", sep / dist[:, None], sep @ d1.T + u[first] - u[second])]
-    moved = x @ d1.T + u
-    for a in cell.walls:  # the overlap r - (side x_a + L_a / 2) with each wall
-        for side in (1.0, -1.0):
-            overlaps.append((radii - side * x[:, a] - 0.5 * cell.h[a, a])[~rattler])
-            rates.append((-side * moved[:, a] - 0.5 * d1[a, a] * cell.h[a, a])[~rattler])
-    overlap, rate = np.concatenate(overlaps), np.concatenate(rates)
-    moving = rate != 0.0
-    return float(np.min(np.abs(overlap[moving] / rate[moving])))
 
 
 def test_moduli_between_walls_match_finite_strain(compressed_between_walls):

@@ -141,6 +141,11 @@ def _work(args: argparse.Namespace) -> None:
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
+    if getattr(args, "deterministic", False) and args.backend != "jax":
+        raise InputError(
+            "--deterministic: only with --backend jax (the numba engine gives the same bits "
+            "everywhere already)"
+        )
     if getattr(args, "backend", "numba") == "jax":
         _jax(args)
     if args.command == "ensemble" and args.batch is not None:
@@ -201,6 +206,10 @@ def _work(args: argparse.Namespace) -> None:
             )
 
 
+DETERMINISTIC_OPS = "--xla_gpu_deterministic_ops=true"
+"""The XLA flag ``--deterministic`` sets: deterministic scatter-adds on a GPU."""
+
+
 def _jax(args: argparse.Namespace) -> None:
     """``--backend jax``: JAX installed, a method and preconditioner the engine has, no
     ``relax --pressure`` (the enthalpy runs on the numba engine)."""
@@ -210,6 +219,10 @@ def _jax(args: argparse.Namespace) -> None:
         raise InputError("--backend jax: --pressure runs on the numba engine; drop one of them")
     if getattr(args, "walls", ""):
         raise InputError(WALLS_NOT_ON_JAX)
+    if args.deterministic:  # read by XLA when JAX starts its first computation, not before
+        flags = os.environ.get("XLA_FLAGS", "")
+        if DETERMINISTIC_OPS not in flags:
+            os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISTIC_OPS}".strip()
     if args.command != "bench":
         Minimizer(args.method, precon_from(args), backend="jax")  # type: ignore[arg-type]
 

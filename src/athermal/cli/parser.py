@@ -132,6 +132,12 @@ def _backend(parser: Options) -> None:
         help="engine: numba (CPU) or jax (the extra athermal[jax]; lbfgs, cg, fire, plbfgs, "
         "pcg; no --solver)",
     )
+    parser.add_argument(
+        "--deterministic",
+        action="store_true",
+        help="with --backend jax on a GPU: XLA's deterministic scatter-adds, the same bits from "
+        "run to run (slower; the numba engine is the same bits everywhere already)",
+    )
 
 
 def _jamming(parser: Options) -> None:
