@@ -13,8 +13,7 @@ from ._jit import _jit
 
 @_jit
 def _row_norm_sq(v, p, dim):  # type: ignore[no-untyped-def]
-    """``|v_p|^2`` of the ``dim``-vector at flat offset ``p``, under the kernels' ``fastmath``
-    (the largest gradient and the step cap keep the bits they always had)."""
+    """``|v_p|^2`` of the ``dim``-vector at flat offset ``p``."""
     s = 0.0
     for k in range(dim):
         s += v[p + k] * v[p + k]
@@ -23,9 +22,9 @@ def _row_norm_sq(v, p, dim):  # type: ignore[no-untyped-def]
 
 @_jit
 def _row_gap_sq(u, v, a, w, p, dim):  # type: ignore[no-untyped-def]
-    """``|(u + a v) - w|^2`` of the ``dim``-vectors at flat offset ``p``, without ``fastmath``:
-    ``u + a v`` rounds as the trial points of :func:`~athermal.objective.energy_search` do, so
-    that the compiled and the Python reach tests agree on the point evaluated."""
+    """``|(u + a v) - w|^2`` of the ``dim``-vectors at flat offset ``p``: ``u + a v`` rounds as
+    the trial points of :func:`~athermal.objective.energy_search` do, so that the compiled and
+    the Python reach tests agree on the point evaluated."""
     s = 0.0
     for k in range(dim):
         t = (u[p + k] + a * v[p + k]) - w[p + k]

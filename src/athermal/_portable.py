@@ -293,6 +293,7 @@ def power_of(x, e):  # type: ignore[no-untyped-def]
 
 @_jit
 def _power_into(x, e, out):  # type: ignore[no-untyped-def]
+    """``out[p] = power_of(x[p], e)`` over flat arrays."""
     for p in range(x.size):
         out[p] = power_of(x[p], e)
 
