@@ -224,8 +224,8 @@ def lbfgs_direction(grad, z, s_mem, py_mem, y_new, fresh, sy_mat, ypy_mat, gamma
     v = work[1]
     col_sy = work[2]
     col_ypy = work[3]
-    # the dot products' lanes, as :func:`dot` sums them: pair t's s and P^-1 y (rows of one
-    # flat array) against grad and y_new (y_new's products are only kept when fresh)
+    # the dot products' lanes, as :func:`dot` sums them: pair t's s and P^-1 y (its rows of the
+    # flat stores) against grad and y_new (y_new's products are only kept when fresh)
     lanes = np.zeros((count, 2, 2, LANES))
     stored = (s_mem.reshape(s_mem.size), py_mem.reshape(py_mem.size))
     against = (grad, y_new)
