@@ -1,9 +1,9 @@
 """The runs whose bits every CPU must reproduce (``tests/test_portable.py``): jams in 2D (both
 protocols, alpha 2 and 2.5, and a certified one) and 3D, a compression and a shear of a jammed
-packing, a relaxation with each portable preconditioner solver. Run as ``python tests/golden.py``
-it prints one JSON object: each run's ``phi`` or energy (``repr``) and a SHA-256 of its exact
-float64 positions, radii and cell; ``--write`` stores it as ``tests/data/golden.json``, the
-values every machine must print."""
+packing, a relaxation with each portable preconditioner solver and with Newton-CG. Run as
+``python tests/golden.py`` it prints one JSON object: each run's ``phi`` or energy (``repr``) and
+a SHA-256 of its exact float64 positions, radii and cell; ``--write`` stores it as
+``tests/data/golden.json``, the values every machine must print."""
 
 from __future__ import annotations
 
@@ -61,6 +61,8 @@ def runs() -> dict[str, list[str]]:
     for solver in ("direct", "ic0"):  # AMG is this machine's (docs/decisions.md)
         relaxed = at.relax(start, hertz, at.Minimizer("lbfgs", "exp", solver=solver), rtol=1e-9)
         out[f"relax lbfgs exp {solver}"] = [repr(relaxed.energy), digest(relaxed.packing)]
+    newton = at.relax(start, hertz, at.Minimizer("newton"), rtol=1e-12)
+    out["relax newton"] = [repr(newton.energy), digest(newton.packing)]
     return out
 
 

@@ -6,7 +6,8 @@ on, and a libm or SIMD ``pow``, ``sin`` or ``cbrt`` rounds as the CPU's variant 
 chaotic relaxation end in another minimum on another machine. Here every result is a fixed
 sequence of correctly rounded operations (``+ - * /`` and ``sqrt``):
 
-* :func:`dot` and :func:`norm`: a sum in eight interleaved lanes, combined pairwise;
+* :func:`dot` and :func:`norm`: a sum in eight interleaved lanes, combined pairwise; :func:`matvec`
+  a dot product a row; :func:`solve_small`: Gaussian elimination for a small dense system;
 * :func:`transform`: points times a small matrix, ``(N, d) @ m.T``, each entry summed in order;
   :func:`outer_sum`: a sum of outer products (stress, fabric); :func:`upper_inverse`: the
   inverse of a cell matrix;
@@ -157,6 +158,48 @@ def dot(a, b):  # type: ignore[no-untyped-def]
 def norm(a):  # type: ignore[no-untyped-def]
     """Euclidean norm of a flat float64 vector, ``sqrt(dot(a, a))``."""
     return np.sqrt(dot(a, a))
+
+
+@_jit
+def matvec(m, v):  # type: ignore[no-untyped-def]
+    """``m @ v`` for a C-contiguous ``m (r, c)`` and ``v (c,)``: each entry a :func:`dot`."""
+    out = np.empty(m.shape[0])
+    for i in range(m.shape[0]):
+        out[i] = dot(m[i], v)
+    return out
+
+
+@_jit
+def solve_small(a, b):  # type: ignore[no-untyped-def]
+    """``a^-1 b`` for a small square ``a (n, n)`` and ``b (n, k)``: Gaussian elimination with
+    partial pivoting (the first row of largest magnitude), then back substitution, each sum in
+    order (LAPACK's ``gesv`` sums in its BLAS's order). ``a`` and ``b`` are not changed."""
+    n = a.shape[0]
+    lu = a.copy()
+    x = b.copy()
+    for col in range(n):
+        pivot = col
+        for row in range(col + 1, n):
+            if abs(lu[row, col]) > abs(lu[pivot, col]):
+                pivot = row
+        if pivot != col:
+            for j in range(n):
+                lu[col, j], lu[pivot, j] = lu[pivot, j], lu[col, j]
+            for j in range(x.shape[1]):
+                x[col, j], x[pivot, j] = x[pivot, j], x[col, j]
+        for row in range(col + 1, n):
+            factor = lu[row, col] / lu[col, col]
+            for j in range(col, n):
+                lu[row, j] -= factor * lu[col, j]
+            for j in range(x.shape[1]):
+                x[row, j] -= factor * x[col, j]
+    for row in range(n - 1, -1, -1):
+        for j in range(x.shape[1]):
+            acc = x[row, j]
+            for q in range(row + 1, n):
+                acc -= lu[row, q] * x[q, j]
+            x[row, j] = acc / lu[row, row]
+    return x
 
 
 def vdot(a: ArrayLike, b: ArrayLike) -> float:

@@ -101,9 +101,7 @@ class Minimizer:
         its BLAS's order, or another engine (``docs/decisions.md``, "Same input, same bits")."""
         if self.backend == "jax":
             return "the JAX engine: XLA compiles for each device"
-        base, precon = resolve_method(self.method, self.precon)
-        if base == "newton":
-            return "Newton-CG: its low-rank correction is formed with BLAS and LAPACK"
+        _, precon = resolve_method(self.method, self.precon)
         if precon == "none":
             return ""
         solver = resolve_solver(self.solver, n, dim, m_matrix=precon == "exp")

@@ -52,7 +52,7 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .._portable import vdot, vnorm
+from .._portable import matvec, solve_small, transform, vdot, vnorm
 from ..linalg import Factor, cholesky
 from ._step import advance
 from .result import MinimizeResult, Problem, Status, Tracker
@@ -273,11 +273,12 @@ class LaggedFactor:
         c: NDArray[np.float64] = np.zeros((count, d, count, d))
         c[np.arange(count), :, np.arange(count), :] = blocks
         c = c.reshape(d * count, d * count)
-        capacitance = np.eye(d * count) + c @ (0.5 * (x + x.T))
-        if not np.linalg.eigvals(capacitance).real.min() > 0.0:
+        capacitance = np.eye(d * count) + transform(0.5 * (x + x.T), c).T  # c @ sym(x)
+        if not np.linalg.eigvals(capacitance).real.min() > 0.0:  # a verdict, not a value
             self._correction = None
             return False
-        self._correction = (new, lo, hi, w, np.linalg.solve(capacitance, c).T)
+        g = np.ascontiguousarray(solve_small(capacitance, c).T)
+        self._correction = (new, lo, hi, np.ascontiguousarray(w), g)
         return True
 
     def _solve_columns(
@@ -312,7 +313,7 @@ class LaggedFactor:
         if self._correction is not None:
             _, lo, hi, w, g = self._correction
             points = z.reshape(-1, w.shape[1] // lo.size)
-            z -= w @ (g @ (points[lo] - points[hi]).ravel())
+            z -= matvec(w, matvec(g, np.ascontiguousarray((points[lo] - points[hi]).ravel())))
         return z
 
 
