@@ -112,37 +112,36 @@ def measure(src: Path, quick: bool, repeats: int) -> dict[str, Any]:
     return dict(json.loads(done.stdout.splitlines()[-1]))
 
 
+def _row(label: str, a: dict[str, Any], b: dict[str, Any], digits: int) -> str:
+    """One markdown row: ``label``, the native run ``a`` against the portable run ``b``."""
+    per = (b["seconds"] / b["evaluations"]) / (a["seconds"] / a["evaluations"])
+    return (
+        f"| {label} | {a['iterations']} | {a['seconds']:.{digits}f} | {b['iterations']} | "
+        f"{b['seconds']:.{digits}f} | {b['seconds'] / a['seconds']:.2f} | {per:.2f} |"
+    )
+
+
 def ratio_rows(native: dict[str, Any], portable: dict[str, Any]) -> list[str]:
     """Markdown rows: each Table row and jam, native against portable."""
-    lines = []
-    for a, b in zip(native["table"], portable["table"], strict=True):
-        per = (b["seconds"] / b["evaluations"]) / (a["seconds"] / a["evaluations"])
-        lines.append(
-            f"| Table alpha {a['alpha']:g} case {a['case']} {a['method']} | {a['iterations']} | "
-            f"{a['seconds']:.3f} | {b['iterations']} | {b['seconds']:.3f} | "
-            f"{b['seconds'] / a['seconds']:.2f} | {per:.2f} |"
-        )
-    for a, b in zip(native["jam"], portable["jam"], strict=True):
-        per = (b["seconds"] / b["evaluations"]) / (a["seconds"] / a["evaluations"])
-        lines.append(
-            f"| jam N = {a['n']} seed 1 | {a['iterations']} | {a['seconds']:.2f} | "
-            f"{b['iterations']} | {b['seconds']:.2f} | {b['seconds'] / a['seconds']:.2f} | "
-            f"{per:.2f} |"
-        )
-    return lines
+    table = [
+        _row(f"Table alpha {a['alpha']:g} case {a['case']} {a['method']}", a, b, 3)
+        for a, b in zip(native["table"], portable["table"], strict=True)
+    ]
+    jams = [
+        _row(f"jam N = {a['n']} seed 1", a, b, 2)
+        for a, b in zip(native["jam"], portable["jam"], strict=True)
+    ]
+    return table + jams
 
 
 def summary(native: dict[str, Any], portable: dict[str, Any]) -> str:
     """The Table's totals: seconds, and seconds per evaluation, portable over native."""
-    sums = {
-        key: sum(r[key] for r in run["table"])
-        for run, key in ((native, "seconds"), (native, "evaluations"))
-    }
-    seconds = sum(r["seconds"] for r in portable["table"]) / sums["seconds"]
-    per = (
-        sum(r["seconds"] for r in portable["table"])
-        / sum(r["evaluations"] for r in portable["table"])
-    ) / (sums["seconds"] / sums["evaluations"])
+
+    def total(run: dict[str, Any], key: str) -> float:
+        return float(sum(r[key] for r in run["table"]))
+
+    seconds = total(portable, "seconds") / total(native, "seconds")
+    per = seconds * total(native, "evaluations") / total(portable, "evaluations")
     return (
         f"The Table in all: portable / native = {seconds:.2f} in seconds, {per:.2f} in seconds "
         "per evaluation."

@@ -549,6 +549,16 @@ def _slab(  # type: ignore[no-untyped-def]
     overlapping[s] = c
 
 
+@_jit
+def _slab_total(energies, overlapping, alpha):  # type: ignore[no-untyped-def]
+    """The slabs' energy (their ``alpha`` x energies summed in slab order, over ``alpha``) and
+    their overlapping pairs."""
+    energy = 0.0
+    for s in range(energies.size):
+        energy += energies[s]
+    return energy / alpha, overlapping.sum()
+
+
 @_jit_parallel
 def energy_gradient_slabs(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs):  # type: ignore[no-untyped-def]
     """:func:`energy_gradient_2d` (or 3d) on the threads: the pairs of the even slabs of the
@@ -567,10 +577,7 @@ def energy_gradient_slabs(x, radii, first, second, code, shift, typeid, kmat, al
                 x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs,
                 2 * half + parity, energies, overlapping,
             )  # fmt: skip
-    energy = 0.0
-    for s in range(count):
-        energy += energies[s]
-    return energy / alpha, overlapping.sum()
+    return _slab_total(energies, overlapping, alpha)
 
 
 @_jit
@@ -589,10 +596,7 @@ def energy_gradient_slabs_serial(  # type: ignore[no-untyped-def]
                 x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs,
                 2 * half + parity, energies, overlapping,
             )  # fmt: skip
-    energy = 0.0
-    for s in range(count):
-        energy += energies[s]
-    return energy / alpha, overlapping.sum()
+    return _slab_total(energies, overlapping, alpha)
 
 
 @_jit

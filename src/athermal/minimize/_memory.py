@@ -122,7 +122,7 @@ class Memory:
                 return
             self.gamma[slot] = self.sy[slot, slot] / ypy
         rows = self.order
-        products = np.array([[vdot(self.y[a], self.py[b]) for b in rows] for a in rows])
+        products = _products(self.y, self.py, rows)
         self.ypy[np.ix_(rows, rows)] = 0.5 * (products + products.T)
 
     def direction(self, grad: NDArray[np.float64], z: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -131,6 +131,16 @@ class Memory:
         arguments = (grad, z, *self.arrays(), out)
         direction_into(*arguments)
         return out
+
+
+@_jit
+def _products(y, py, rows):
+    """``y_a . P^-1 y_b`` ``(k, k)`` for the stored pairs ``rows`` (``dot``'s order)."""
+    out = np.empty((rows.size, rows.size))
+    for a in range(rows.size):
+        for b in range(rows.size):
+            out[a, b] = dot(y[rows[a]], py[rows[b]])
+    return out
 
 
 @_jit
