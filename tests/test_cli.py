@@ -285,7 +285,7 @@ def test_protocol_errors_are_one_line(tmp_path, capsys):
     code, out, err = run(
         capsys, "jam", "--n", "64", "--phi-init", "0.95", "-o", str(tmp_path / "x")
     )
-    assert code == 2 and out == "" and "phi_init" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and out == "" and "--phi-init" in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x").exists()
 
 
@@ -551,17 +551,32 @@ def test_unknown_option_is_named_by_its_subcommand(capsys):
 
 
 @pytest.mark.parametrize(
-    "command", ["random", "measure", "relax", "jam", "compress", "shear", "ensemble", "bench"]
+    "command",
+    ["random", "measure", "relax", "jam", "compress", "shear", "ensemble shear", "bench"],
 )
 def test_every_default_is_in_the_help(command, capsys):
     from athermal.cli.parser import build, subparser
 
-    parser = subparser(build(), command)
+    parser = build()
+    for word in command.split():
+        parser = subparser(parser, word)
     text = parser.format_help().replace("\n", " ")
     for action in parser._actions:
         if action.option_strings and action.default not in (None, False, "==SUPPRESS=="):
             help_text = " ".join(parser._get_formatter()._expand_help(action).split())
             assert "default" in help_text and help_text in " ".join(text.split()), action.dest
+
+
+def test_help_shows_each_default_once_and_an_ensemble_protocol_its_own_options():
+    from athermal.cli.parser import build, subparser
+
+    jam = " ".join(subparser(build(), "jam").format_help().split())
+    assert "(default: none, periodic)" in jam and "(default: )" not in jam
+    ensemble = subparser(build(), "ensemble")
+    own = " ".join(subparser(ensemble, "jam").format_help().split())
+    assert "--dphi" in own and "--strain" not in own and "--from" not in own
+    shear = " ".join(subparser(ensemble, "shear").format_help().split())
+    assert "--strain" in shear and "--shear-delta-phi" in shear
 
 
 @pytest.mark.parametrize(("dim", "n"), [(2, 128), (3, 256)])

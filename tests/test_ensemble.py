@@ -103,10 +103,10 @@ def test_without_dask_the_same_realizations_run_sequentially(reference, tmp_path
         return real_import(name, *args, **kwargs)
 
     monkeypatch.setattr(builtins, "__import__", no_dask)
-    with pytest.warns(UserWarning, match=r"athermal\[dask\]"):
+    with pytest.warns(UserWarning, match=r"Dask is not installed"):
         result = run_ensemble(SPEC, tmp_path, 2, seed=11)
     assert result.engine == "sequential" and numbers(result) == numbers(reference)[:2]
-    with pytest.raises(InputError, match="dask extra"):
+    with pytest.raises(InputError, match="Dask is not installed"):
         run_ensemble(SPEC, tmp_path / "b", 1, seed=11, scheduler="tcp://127.0.0.1:1")
 
 

@@ -109,6 +109,28 @@ BAD = [
     ["paper", "-o", "r.gsd"],
     ["paper", "-o", "old"],  # holds an earlier report, no --overwrite
     ["paper", "-o", "nodir/p"],
+    # an output that names a folder, or a folder no file can be made in
+    ["random", "-o", "."],
+    ["jam", "-o", "sub/"],
+    ["relax", "r.gsd", "-o", "sub"],
+    ["jam", "--table", "sub"],
+    ["random", "-o", "/proc/x.gsd"],
+    ["paper", "-o", "/proc/p"],
+    # a target out of reach
+    ["jam", "--dphi", "0.5"],  # past phi = 1 in one step
+    ["jam", "--n", "256", "--pressure", "1"],  # harmonic disks reach p ~ 0.1 below phi = 1
+    # options that would do nothing
+    ["relax", "r.gsd", "--cell", "shape"],
+    ["relax", "r.gsd", "--solver", "amg"],
+    ["relax", "r.gsd", "--A", "1"],
+    ["relax", "r.gsd", "--backend", "jax", "--solver", "direct", "--precon", "exp"],
+    ["jam", "--resume", "-o", "new.gsd"],
+    ["compress", "j.gsd", "--resume", "-o", "new.gsd"],
+    ["jam", "--dim", "3", "--picture", "p.png"],
+    ["jam", "--polydispersity", "0.2"],
+    ["jam", "--sizes", "uniform", "--size-ratio", "2"],
+    ["jam", "--pressure-rtol", "0.1"],
+    ["shear", "j.gsd", "--wall-layer", "0.1"],
 ]
 
 
@@ -129,6 +151,30 @@ def test_bad_input_is_refused_in_one_line_and_touches_nothing(files, argv, monke
     assert err.count("\n") == 1 and err.startswith(f"athermal {argv[0]}: error: ")
     assert "Traceback" not in err
     assert snapshot(files) == before
+
+
+def test_workers_without_dask_are_refused_before_any_work(files, monkeypatch, capsys):
+    import importlib.util
+
+    real = importlib.util.find_spec
+    monkeypatch.setattr(
+        importlib.util, "find_spec", lambda name, *a: None if name == "distributed" else real(name)
+    )
+    monkeypatch.chdir(files)
+    before = snapshot(files)
+    argv = ["ensemble", "jam", "--realizations", "2", "--workers", "2", "-o", "ens"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("athermal ensemble: error: --workers: Dask is not installed")
+    assert err.count("\n") == 1 and snapshot(files) == before
+
+
+def test_a_library_refusal_names_the_option(files, monkeypatch, capsys):
+    monkeypatch.chdir(files)
+    assert main(["jam", "--n", "64", "--dim", "3", "--phi-init", "0.75", "-o", "x.gsd"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("athermal jam: error: --phi-init: the start packing is jammed")
+    assert not (files / "x.gsd").exists() and not (files / "x.steps.gsd").exists()
 
 
 def test_a_second_writer_of_a_trajectory_is_refused_and_names_the_first(tmp_path):

@@ -15,6 +15,7 @@ per worker, one thread each); ``scheduler`` connects to an existing cluster inst
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import statistics
@@ -54,7 +55,10 @@ from .tables import Row
 
 Protocol = Literal["jam", "compress", "shear", "iterations"]
 PROTOCOLS: tuple[str, ...] = ("jam", "compress", "shear", "iterations")
-INSTALL_HINT = 'the dask extra is not installed (pip install "athermal[dask]")'
+INSTALL_HINT = (
+    "Dask is not installed (pip install 'dask[distributed]', or pip install -e '.[dask]' in "
+    "athermal's checkout)"
+)
 CONNECT_TIMEOUT = 5.0
 """Seconds an existing scheduler (``scheduler``, ``--scheduler``) has to answer."""
 
@@ -423,6 +427,8 @@ def run_ensemble(
         raise InputError(f"realizations: must be an integer >= 1, got {realizations!r}")
     if workers is not None and (int(workers) != workers or workers < 1):
         raise InputError(f"workers: must be an integer >= 1, got {workers!r}")
+    if workers is not None and importlib.util.find_spec("distributed") is None:
+        raise InputError(f"workers: {workers} worker processes need Dask; {INSTALL_HINT}")
     if batch is not None:
         jam = spec.jam
         check_batch(batch, jam.n, jam.dim, jam.minimizer.backend, workers, scheduler)

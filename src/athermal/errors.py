@@ -18,7 +18,10 @@ def one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
-JAX_MISSING = 'backend jax: JAX is not installed; install the extra: pip install "athermal[jax]"'
+JAX_MISSING = (
+    "backend jax: JAX is not installed; pip install jax (CPU; docs/howto/gpu.md for the CUDA "
+    "build), or pip install -e '.[jax]' in athermal's checkout"
+)
 """The one line for the JAX engine without JAX (:mod:`athermal.jaxengine`, ``--backend jax``)."""
 WALLS_NOT_ON_JAX = (
     "backend jax: the JAX engine has no walls yet; relax packings between walls on numba"

@@ -30,7 +30,6 @@ from .protocols import (
     EPSILON,
     JAM_PROTOCOL,
     JAMMING_MINIMIZER,
-    PHI_INIT,
     CompressionStep,
     JammingResult,
     JammingStep,
@@ -44,6 +43,7 @@ from .protocols import (
     log_spaced,
     scaling_exponents,
     shear_steps,
+    start_fraction,
 )
 from .protocols.compress import FIT_LOWER
 from .protocols.finite_strain import DEFAULT_STRAINS, StepStart
@@ -87,10 +87,10 @@ class JamSpec:
     ``n`` particles in ``dim`` dimensions, bidisperse 1:1 with radius ratio ``size_ratio``
     (or radii from the continuous distribution ``sizes`` of width ``polydispersity``, see
     :func:`~athermal.packing.random_packing`), contact exponent ``alpha`` and stiffness
-    ``stiffness``, placed at ``phi_init`` (default
-    :data:`PHI_INIT`), grown by ``dphi`` and bisected to ``epsilon`` (packing fraction) by the
-    bisection ``protocol`` (``seed`` or ``ohern``), relaxed by ``minimizer``, in the unit cell
-    with walls normal to the axes ``walls`` (``"y"``; default none, periodic).
+    ``stiffness``, placed at ``phi_init`` (default :func:`~athermal.protocols.start_fraction`),
+    grown by ``dphi`` and bisected to ``epsilon`` (packing fraction) by the bisection
+    ``protocol`` (``seed`` or ``ohern``), relaxed by ``minimizer``, in the unit cell with walls
+    normal to the axes ``walls`` (``"y"``; default none, periodic).
     """
 
     n: int = 1024
@@ -126,7 +126,7 @@ class JamSpec:
 
     def start(self, seed: int) -> Packing:
         """The random start packing of ``seed``."""
-        phi = PHI_INIT[self.dim] if self.phi_init is None else self.phi_init
+        phi = start_fraction(self.dim, bool(self.walls)) if self.phi_init is None else self.phi_init
         return random_packing(
             self.n,
             phi,

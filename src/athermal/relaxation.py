@@ -94,6 +94,15 @@ class Minimizer:
             raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
         if not self.A >= 0.0:
             raise InputError(f"A: must be >= 0, got {self.A!r}")
+        if self.A != 0.0 and precon != "exp":
+            raise InputError(f"A: the Exp preconditioner's parameter, and the precon is {precon}")
+        if self.solver != "auto" and self.backend == "jax":
+            raise InputError(
+                "solver: the JAX engine applies its preconditioner one way (a V-cycle on the "
+                "device), with no solver to choose"
+            )
+        if self.solver != "auto" and precon == "none":
+            raise InputError("solver: the preconditioner's linear solver, and the precon is none")
 
     def machine_dependence(self, n: int, dim: int) -> str:
         """Empty when this minimizer's relaxations of ``n`` particles in ``dim`` dimensions are

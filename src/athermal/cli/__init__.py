@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from ..errors import ConvergenceError, InputError
 from . import analysis, basic, protocols, studies
 from .common import NotConverged
-from .door import check_request
+from .door import check_request, flagged
 from .parser import build, subparser
 
 COMMANDS: dict[str, Callable[[argparse.Namespace], None]] = {
@@ -60,28 +60,54 @@ def _parse(argv: Sequence[str] | None) -> argparse.Namespace:
     argparse stops at a missing required argument before it names the unknown ones, so a
     misspelt ``--ouput`` would read as "-o required": a first pass with nothing required
     collects the unknown options, the second one parses with every rule. A request for help
-    skips the first pass, so that the usage shows the required options as required.
+    skips the first pass, so that the usage shows the required options as required. The
+    namespace's ``given`` holds the destinations of the options on the command line (as typed
+    or abbreviated), for the door's checks of options that would do nothing.
     """
     parser = build()
     words = sys.argv[1:] if argv is None else list(argv)
     if "-h" in words or "--help" in words:
         return parser.parse_args(words)
-    with _nothing_required(parser):
-        args, unknown = parser.parse_known_args(words)
+    with _nothing_required(parser), _no_defaults(parser):
+        given, unknown = parser.parse_known_args(words)
     if unknown:
-        where = parser if args.command is None else subparser(parser, args.command)
+        where = parser if given.command is None else subparser(parser, given.command)
+        if getattr(given, "protocol", None) is not None:  # ensemble PROTOCOL
+            where = subparser(where, given.protocol)
         where.error(f"unrecognized arguments: {' '.join(unknown)}")
-    return parser.parse_args(argv)
+    args = parser.parse_args(words)
+    args.given = frozenset(vars(given)) - {"command", "protocol", "default_precon"}
+    return args
+
+
+def _actions(parser: argparse.ArgumentParser) -> list[argparse.Action]:
+    """Every action of ``parser`` and of its subcommands, at any depth."""
+    actions = list(parser._actions)
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            actions += [a for sub in action.choices.values() for a in _actions(sub)]
+    return actions
+
+
+@contextmanager
+def _no_defaults(parser: argparse.ArgumentParser) -> Iterator[None]:
+    """No default for any argument of ``parser`` or its subcommands while inside: a namespace
+    parsed then holds only the arguments given."""
+    actions = [a for a in _actions(parser) if not isinstance(a, argparse._SubParsersAction)]
+    defaults = [a.default for a in actions]
+    for action in actions:
+        action.default = argparse.SUPPRESS
+    try:
+        yield
+    finally:
+        for action, default in zip(actions, defaults, strict=True):
+            action.default = default
 
 
 @contextmanager
 def _nothing_required(parser: argparse.ArgumentParser) -> Iterator[None]:
     """Every argument of ``parser`` and of its subcommands optional while inside."""
-    actions = list(parser._actions)
-    for action in parser._actions:
-        if isinstance(action, argparse._SubParsersAction):
-            actions += [a for sub in action.choices.values() for a in sub._actions]
-    required = [a for a in actions if a.required]
+    required = [a for a in _actions(parser) if a.required]
     for action in required:
         action.required = False
     try:
@@ -131,7 +157,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         return _interrupted(args)
     except (InputError, ConvergenceError) as exc:
-        print(f"athermal {args.command}: error: {exc}", file=sys.stderr)
+        text = flagged(str(exc), args) if isinstance(exc, InputError) else str(exc)
+        print(f"athermal {args.command}: error: {text}", file=sys.stderr)
         return 2 if isinstance(exc, InputError) else 3
     except NotConverged as exc:
         print(f"athermal {args.command}: {exc}", file=sys.stderr)

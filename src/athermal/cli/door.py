@@ -12,27 +12,27 @@ import importlib.util
 import math
 import os
 import stat
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 from ..bench import check_alphas
 from ..cell import wall_axes
-from ..ensemble import check_batch
+from ..ensemble import INSTALL_HINT, check_batch
 from ..enthalpy import ENTHALPY_METHODS
 from ..errors import JAX_MISSING, WALLS_NOT_ON_JAX, InputError
 from ..extended import half_steps
 from ..io import SEED_BOUND
 from ..packing import check_width
-from ..protocols import PHI_INIT, RESOLUTION
+from ..protocols import RESOLUTION, check_growth, start_fraction
+from ..protocols.jamming import JAMMED_PHI
 from ..relaxation import Minimizer
-from .common import precon_from
+from .common import minimizer_from, precon_from
 
 BYTES_PER_PARTICLE = 2000
 """Memory one particle costs a protocol run, an upper estimate (positions, radii, Verlet list of
 ~10 neighbours with images, gradients, L-BFGS memory of 10 pairs, the preconditioner's sparse
 factor): the door refuses an N that would not fit the machine's memory."""
-JAMMED_PHI = {2: 0.9, 3: 0.7}
-"""A packing fraction above jamming by dimension, where the door sizes the particles."""
 CUTOFF = 2.2
 """The Exp preconditioner's neighbour cutoff in units of the largest radius (the paper's)."""
 MAX_STEPS = 100_000
@@ -128,14 +128,16 @@ def _work(args: argparse.Namespace) -> None:
                 f"radius {r_max:.3g} at phi {JAMMED_PHI[args.dim]}; neighbour searches reach "
                 f"{CUTOFF:g} radii and must stay within half the cell): use more particles"
             )
-    if args.command == "jam":
-        start = args.phi_init if args.phi_init is not None else PHI_INIT[args.dim]
+    if args.command in ("jam", "ensemble"):
+        start = args.phi_init if getattr(args, "phi_init", None) is not None else None
+        start = start_fraction(args.dim, bool(args.walls)) if start is None else start
+        _library(check_growth, start, args.dphi, args.dim)
         if (1.0 - start) / args.dphi > MAX_STEPS:
             raise InputError(
                 f"--dphi: {args.dphi:g} needs ~{(1.0 - start) / args.dphi:.2g} growth steps to "
                 f"reach phi = 1 (at most {MAX_STEPS}); take a larger increment"
             )
-    if args.command in ("compress", "ensemble"):
+    if hasattr(args, "dphi_min"):  # compress, ensemble compress and shear
         if not args.dphi_min < args.dphi_max:
             raise InputError(f"--from {args.dphi_min:g} must be below --to {args.dphi_max:g}")
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
@@ -148,6 +150,10 @@ def _work(args: argparse.Namespace) -> None:
         )
     if getattr(args, "backend", "numba") == "jax":
         _jax(args)
+    if hasattr(args, "solver"):  # the minimizer's own checks (solver and A that apply, ...)
+        _library(minimizer_from, args)
+    elif hasattr(args, "method"):  # ensemble: method, preconditioner and engine
+        _library(Minimizer, args.method, precon_from(args), backend=args.backend)
     if args.command == "ensemble" and args.batch is not None:
         try:
             check_batch(args.batch, args.n, args.dim, args.backend, args.workers, args.scheduler)
@@ -197,7 +203,7 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError("--figure: D(omega) needs the full spectrum; drop --lowest")
         if args.lowest is not None and args.vectors > args.lowest:
             raise InputError(f"--vectors {args.vectors} exceeds --lowest {args.lowest}")
-    if args.command in ("shear", "ensemble"):
+    if hasattr(args, "strain"):  # shear, ensemble shear
         if args.step > args.strain:
             raise InputError(f"--step {args.step:g} exceeds --strain {args.strain:g}")
         if args.strain / args.step > MAX_STEPS:
@@ -206,13 +212,70 @@ def _work(args: argparse.Namespace) -> None:
             )
 
 
+def _library(check: Callable[..., object], *args: object, **kwargs: object) -> None:
+    """Run one of the library's own checks; its refusal names the command-line option."""
+    try:
+        check(*args, **kwargs)
+    except InputError as exc:
+        raise InputError(flagged(str(exc), None)) from None
+
+
+def flagged(message: str, args: argparse.Namespace | None) -> str:
+    """A library refusal (``name: what is wrong``) as the command line says it: ``--name: ...``
+    when ``name`` is one of the command's options (any option's name when ``args`` is None)."""
+    name, colon, rest = message.partition(": ")
+    if not colon or not name.isidentifier() or (args is not None and not hasattr(args, name)):
+        return message
+    if name in ("input", "inputs", "command", "protocol"):
+        return message
+    return f"{FLAGS.get(name, '--' + name.replace('_', '-'))}: {rest}"
+
+
+def _idle(args: argparse.Namespace) -> None:
+    """Options given that would do nothing here: refused, naming what they need."""
+    given: frozenset[str] = getattr(args, "given", frozenset())
+    needs = {
+        "cell": ("pressure", "relaxes the cell at a pressure; add --pressure"),
+        "pressure_rtol": ("pressure", "the accuracy of --pressure; add --pressure"),
+        "wall_layer": ("plane", "glues particles to the walls in plane shear; add --mode plane"),
+        "polydispersity": ("continuous", "the width of --sizes uniform or lognormal; add one"),
+        "size_ratio": ("bidisperse", "the bidisperse mixture's; drop --sizes"),
+        "picture": ("2D", "pictures are drawn in 2D only; drop --picture"),
+    }
+    have = {
+        "pressure": getattr(args, "pressure", None) is not None,
+        "plane": getattr(args, "mode", None) == "plane",
+        "continuous": getattr(args, "sizes", "bidisperse") != "bidisperse",
+        "bidisperse": getattr(args, "sizes", "bidisperse") == "bidisperse",
+        "2D": getattr(args, "dim", 2) == 2 or getattr(args, "picture", None) == "none",
+    }
+    for option, (need, what) in needs.items():
+        if option in given and not have[need]:
+            raise InputError(f"{FLAGS.get(option, '--' + option.replace('_', '-'))}: {what}")
+    if "resume" in given:
+        path = Path(_trajectory_of(args))
+        if not path.exists():
+            raise InputError(
+                f"--resume: nothing to resume ({path} does not exist); drop --resume to start"
+            )
+    if given & {"workers", "scheduler"} and importlib.util.find_spec("distributed") is None:
+        raise InputError(f"--{min(given & {'workers', 'scheduler'})}: {INSTALL_HINT}")
+
+
+def _trajectory_of(args: argparse.Namespace) -> str:
+    """The trajectory a protocol command appends to (``--resume`` continues it)."""
+    if args.command == "jam":
+        return str(args.trajectory or Path(args.output).with_suffix(".steps.gsd"))
+    return str(args.output)
+
+
 DETERMINISTIC_OPS = "--xla_gpu_deterministic_ops=true"
 """The XLA flag ``--deterministic`` sets: deterministic scatter-adds on a GPU."""
 
 
 def _jax(args: argparse.Namespace) -> None:
-    """``--backend jax``: JAX installed, a method and preconditioner the engine has, no
-    ``relax --pressure`` (the enthalpy runs on the numba engine)."""
+    """``--backend jax``: JAX installed, no walls, no ``relax --pressure`` (the enthalpy runs on
+    the numba engine)."""
     if importlib.util.find_spec("jax") is None:
         raise InputError(JAX_MISSING)
     if args.command == "relax" and args.pressure is not None:
@@ -223,8 +286,6 @@ def _jax(args: argparse.Namespace) -> None:
         flags = os.environ.get("XLA_FLAGS", "")
         if DETERMINISTIC_OPS not in flags:
             os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISTIC_OPS}".strip()
-    if args.command != "bench":
-        Minimizer(args.method, precon_from(args), backend="jax")  # type: ignore[arg-type]
 
 
 def _bench(args: argparse.Namespace) -> None:
@@ -293,22 +354,51 @@ def output_files(args: argparse.Namespace) -> dict[str, Path]:
     return out
 
 
+def _file_names(args: argparse.Namespace) -> None:
+    """Each file option names a file, not a folder."""
+    for option in ("output", "trajectory", "table", "picture", "figure", "forces_figure"):
+        value = getattr(args, option, None)
+        if value is None or (option == "output" and args.command in ("paper", "ensemble")):
+            continue
+        if option in ("picture", "figure") and value == "none":
+            continue
+        flag = "--" + option.replace("_", "-")
+        if str(value).strip() == "":
+            raise InputError(f"{flag}: an empty path")
+        if (
+            str(value).endswith(("/", os.sep))
+            or Path(value).name in ("", ".", "..")
+            or (Path(value).is_dir())
+        ):
+            raise InputError(f"{flag}: {value} is a folder; name a file in it")
+
+
+def _writable(option: str, path: Path, folder: Path) -> None:
+    """Refuse ``path`` when no file can be made in ``folder``: a file is made and removed there
+    (permissions, a read-only mount, a pseudo-filesystem such as /proc)."""
+    try:
+        handle, probe = tempfile.mkstemp(dir=folder, prefix=".athermal-")
+    except OSError as exc:
+        why = exc.strerror or type(exc).__name__
+        raise InputError(f"{option}: {path}: cannot write in the folder {folder} ({why})") from None
+    os.close(handle)
+    os.unlink(probe)
+
+
 def _paths(args: argparse.Namespace) -> None:
     """Every output: a new or regular file in a writable folder, distinct from the others and
     from the input; an existing one only with ``--overwrite`` (or ``--resume``)."""
+    _file_names(args)
     outputs = output_files(args)
     seen: dict[Path, str] = {}
     inputs = {Path(args.input).resolve()} if getattr(args, "input", None) else set()
     inputs |= {Path(path).resolve() for path in getattr(args, "inputs", ())}
     replace = getattr(args, "overwrite", False) or getattr(args, "resume", False)
     for option, path in outputs.items():
-        if str(path) in ("", "."):
-            raise InputError(f"{option}: an empty path")
         folder = path.parent if str(path.parent) else Path(".")
         if not folder.is_dir():
             raise InputError(f"{option}: {path}: the folder {folder} does not exist")
-        if not os.access(folder, os.W_OK):
-            raise InputError(f"{option}: {path}: the folder {folder} is not writable")
+        _writable(option, path, folder)
         if path.exists():
             if not stat.S_ISREG(path.stat().st_mode):
                 raise InputError(f"{option}: {path} exists and is not a regular file")
@@ -333,10 +423,12 @@ def _paths(args: argparse.Namespace) -> None:
         parent = target.parent if str(target.parent) else Path(".")
         if not target.exists() and not parent.is_dir():
             raise InputError(f"--output: the folder {parent} does not exist")
+        _writable("--output", target, target if target.exists() else parent)
 
 
 def check_request(args: argparse.Namespace) -> None:
     """Refuse a command whose options or outputs are wrong, before any work (module docstring)."""
     _options(args)
+    _idle(args)
     _work(args)
     _paths(args)

@@ -32,6 +32,7 @@ class _Help(argparse.HelpFormatter):
             or default is None
             or default is False
             or default is argparse.SUPPRESS
+            or default == ""
             or not action.option_strings
         ):
             return text
@@ -555,66 +556,7 @@ def build() -> argparse.ArgumentParser:
     )
     _quasi_static(she)
 
-    ens = sub.add_parser(
-        "ensemble",
-        help="many realizations of a protocol on Dask",
-        description="Run M realizations of jam, compress, shear or the iteration experiment, "
-        "realization k with the k-th child seed of SeedSequence(--seed), on a local Dask "
-        "cluster started here (--workers) or an existing one (--scheduler). Each realization "
-        "writes its trajectory and result into DIR; rerunning with the same DIR skips finished "
-        "ones; a summary (JSON, CSV, figure) aggregates them. Without the dask extra the "
-        "realizations run one after another.",
-    )
-    ens.add_argument(
-        "protocol",
-        choices=("jam", "compress", "shear", "iterations"),
-        help="what each realization runs: jam a packing; jam and compress it; jam, compress and "
-        "shear it; or the paper's iteration experiment. Each option below says which use it.",
-    )
-    run = ens.add_argument_group("the ensemble (every protocol)")
-    run.add_argument("--realizations", type=int, required=True, help="how many (M)")
-    run.add_argument(
-        "--workers",
-        type=int,
-        default=None,
-        help="local worker processes (default: one per core available)",
-    )
-    run.add_argument("--scheduler", default=None, help="address of an existing scheduler")
-    run.add_argument(
-        "--batch",
-        type=int,
-        default=None,
-        help="with --backend jax: relax B realizations at a time as one batch on the device "
-        "(in this process, no --workers / --scheduler)",
-    )
-    run.add_argument("--seed", type=int, default=0, help="root seed")
-    run.add_argument("-o", "--output", required=True, help="directory of the ensemble")
-    run.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    _json(run)
-    jamming = ens.add_argument_group("the packings and their jamming (every protocol)")
-    _packing(jamming)
-    jamming.add_argument("--alpha", type=float, default=2.0, help="contact exponent")
-    _jamming(jamming)
-    jamming.add_argument(
-        "--method", default="lbfgs", choices=METHODS, help="minimizer of every step"
-    )
-    jamming.add_argument(
-        "--precon",
-        default=None,
-        choices=PRECONDITIONERS,
-        help="preconditioner (default: exp; none with --method newton)",
-    )
-    ens.set_defaults(default_precon="exp")
-    _backend(jamming)
-    _compression_range(ens.add_argument_group("the compression (compress, shear)"))
-    shearing = ens.add_argument_group("the shear (shear)")
-    _shear_options(shearing)
-    shearing.add_argument(
-        "--shear-delta-phi",
-        type=float,
-        default=1e-2,
-        help="start from the compressed state nearest this phi - phi_c",
-    )
+    _ensemble(sub)
 
     pap = sub.add_parser(
         "paper",
@@ -670,6 +612,89 @@ def build() -> argparse.ArgumentParser:
     ben.add_argument("--quiet", action="store_true", help="no progress on stderr")
     _json(ben)
     return parser
+
+
+ENSEMBLE_PROTOCOLS = {
+    "jam": "jam a packing",
+    "compress": "jam a packing and compress it",
+    "shear": "jam, compress and shear a packing",
+    "iterations": "jam a packing and run the paper's iteration experiment on it",
+}
+"""What each realization of ``athermal ensemble PROTOCOL`` runs."""
+
+
+def _ensemble(sub: argparse._SubParsersAction) -> None:
+    """``athermal ensemble PROTOCOL``: one parser per protocol, each with only the options its
+    realizations use."""
+    ens = sub.add_parser(
+        "ensemble",
+        help="many realizations of a protocol on Dask",
+        description="Run M realizations of jam, compress, shear or the iteration experiment, "
+        "realization k with the k-th child seed of SeedSequence(--seed), on a local Dask "
+        "cluster started here (--workers) or an existing one (--scheduler). Each realization "
+        "writes its trajectory and result into DIR; rerunning with the same DIR skips finished "
+        "ones; a summary (JSON, CSV, figure) aggregates them. Without the dask extra the "
+        "realizations run one after another. 'athermal ensemble PROTOCOL --help' lists a "
+        "protocol's options.",
+    )
+    protocols = ens.add_subparsers(
+        dest="protocol", required=True, metavar="PROTOCOL", parser_class=_Parser
+    )
+    for name, what in ENSEMBLE_PROTOCOLS.items():
+        each = protocols.add_parser(
+            name,
+            help=what,
+            description=f"M realizations, each of which will {what}, on Dask (athermal "
+            "ensemble --help).",
+        )
+        each.set_defaults(default_precon="exp")
+        run = each.add_argument_group("the ensemble")
+        run.add_argument("--realizations", type=int, required=True, help="how many (M)")
+        run.add_argument(
+            "--workers",
+            type=int,
+            default=None,
+            help="local worker processes (the dask extra; default: one per core available)",
+        )
+        run.add_argument(
+            "--scheduler", default=None, help="address of an existing scheduler (the dask extra)"
+        )
+        run.add_argument(
+            "--batch",
+            type=int,
+            default=None,
+            help="with --backend jax: relax B realizations at a time as one batch on the device "
+            "(in this process, no --workers / --scheduler)",
+        )
+        run.add_argument("--seed", type=int, default=0, help="root seed")
+        run.add_argument("-o", "--output", required=True, help="directory of the ensemble")
+        run.add_argument("--quiet", action="store_true", help="no progress on stderr")
+        _json(run)
+        jamming = each.add_argument_group("the packings and their jamming")
+        _packing(jamming)
+        jamming.add_argument("--alpha", type=float, default=2.0, help="contact exponent")
+        _jamming(jamming)
+        jamming.add_argument(
+            "--method", default="lbfgs", choices=METHODS, help="minimizer of every step"
+        )
+        jamming.add_argument(
+            "--precon",
+            default=None,
+            choices=PRECONDITIONERS,
+            help="preconditioner (default: exp; none with --method newton)",
+        )
+        _backend(jamming)
+        if name in ("compress", "shear"):
+            _compression_range(each.add_argument_group("the compression"))
+        if name == "shear":
+            shearing = each.add_argument_group("the shear")
+            _shear_options(shearing)
+            shearing.add_argument(
+                "--shear-delta-phi",
+                type=float,
+                default=1e-2,
+                help="start from the compressed state nearest this phi - phi_c",
+            )
 
 
 def subparser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:

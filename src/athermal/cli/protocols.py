@@ -29,15 +29,15 @@ from ..packing import Packing
 from ..protocols import (
     EPSILON,
     JAMMING_SCHEME,
-    PHI_INIT,
     RESOLUTION,
     compression_steps,
     log_spaced,
     scaling_exponents,
     shear_steps,
+    start_fraction,
 )
 from ..protocols.compress import FIT_LAWS
-from ..protocols.pressure import pressure_search, warn_if_near_jamming
+from ..protocols.pressure import check_reachable, pressure_search, warn_if_near_jamming
 from ..protocols.shear import check_mode, rough_walls
 from ..tables import Row, write_table
 from .common import (
@@ -147,7 +147,9 @@ def jam(args: argparse.Namespace) -> None:
     """``athermal jam``: random packing, jamming by growth and bisection, the jammed packing."""
     t0 = time.perf_counter()
     model = model_from(args, None)
-    phi_init = PHI_INIT[args.dim] if args.phi_init is None else args.phi_init
+    phi_init = (
+        start_fraction(args.dim, bool(args.walls)) if args.phi_init is None else args.phi_init
+    )
     spec = JamSpec(
         n=args.n,
         dim=args.dim,
@@ -161,6 +163,8 @@ def jam(args: argparse.Namespace) -> None:
         minimizer=minimizer_from(args),
         walls=args.walls,
     )
+    if args.pressure is not None and not args.resume:  # before the first file
+        check_reachable(spec.start(args.seed), model, args.pressure, spec.minimizer)
     trajectory_path = args.trajectory or str(Path(args.output).with_suffix(".steps.gsd"))
     trajectory = _trajectory(
         args,

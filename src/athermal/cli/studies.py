@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 from ..experiments import CompressSpec, JamSpec, ShearSpec
 from ..relaxation import Minimizer
@@ -30,6 +31,18 @@ def paper(args: argparse.Namespace) -> None:
     )
 
 
+COMPRESS = {"delta_min": "dphi_min", "delta_max": "dphi_max", "per_decade": "per_decade"}
+"""The compression spec's fields by the options of ``ensemble compress`` and ``shear``."""
+SHEAR = {"mode": "mode", "strain": "strain", "step": "step", "delta_phi": "shear_delta_phi"}
+"""The shear spec's fields by the options of ``ensemble shear``."""
+
+
+def _given(args: argparse.Namespace, fields: dict[str, str]) -> dict[str, Any]:
+    """The spec fields of ``fields`` that the protocol's parser has options for (the others keep
+    the spec's defaults)."""
+    return {name: getattr(args, dest) for name, dest in fields.items() if hasattr(args, dest)}
+
+
 def ensemble(args: argparse.Namespace) -> None:
     """``athermal ensemble``: M realizations of a protocol on Dask."""
     from ..ensemble import EnsembleSpec, run_ensemble
@@ -47,19 +60,8 @@ def ensemble(args: argparse.Namespace) -> None:
             minimizer=Minimizer(args.method, precon_from(args), backend=args.backend),  # type: ignore[arg-type]
             walls=args.walls,
         ),
-        compress=CompressSpec(
-            delta_min=args.dphi_min,
-            delta_max=args.dphi_max,
-            per_decade=args.per_decade,
-            minimizer=Minimizer(backend=args.backend),
-        ),
-        shear=ShearSpec(
-            mode=args.mode,
-            strain=args.strain,
-            step=args.step,
-            delta_phi=args.shear_delta_phi,
-            minimizer=Minimizer(backend=args.backend),
-        ),
+        compress=CompressSpec(minimizer=Minimizer(backend=args.backend), **_given(args, COMPRESS)),
+        shear=ShearSpec(minimizer=Minimizer(backend=args.backend), **_given(args, SHEAR)),
     )
     progress = Progress(args.quiet)
     result = run_ensemble(

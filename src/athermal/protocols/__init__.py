@@ -24,9 +24,11 @@ from .jamming import (
     JammingResult,
     JammingStep,
     JamProtocol,
+    check_growth,
     check_jammed,
     jam,
     jamming_steps,
+    start_fraction,
 )
 from .pressure import PressureResult, PressureTrial, jam_to_pressure, pressure_search
 from .shear import SHEAR_MODES, ShearMode, ShearStep, shear_steps
@@ -54,6 +56,7 @@ __all__ = [
     "ScalingExponents",
     "ShearMode",
     "ShearStep",
+    "check_growth",
     "check_jammed",
     "compression_steps",
     "finite_strain_bulk",
@@ -66,4 +69,5 @@ __all__ = [
     "pressure_search",
     "scaling_exponents",
     "shear_steps",
+    "start_fraction",
 ]

@@ -56,6 +56,7 @@ distance in packing fraction ``d phi <delta / (r_i + r_j)>``, is at most ``OVERL
 
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from collections.abc import Callable, Iterator, Sequence
@@ -109,6 +110,13 @@ Packings that close to jamming balance their forces only to the round-off floor
 PHI_INIT = {2: 0.8, 3: 0.6}
 """Default start fraction by dimension: unjammed after relaxation (phi_c ~ 0.84 in 2D and
 ~0.64 in 3D for the bidisperse 1:1, 1.4 mixture)."""
+PHI_INIT_WALLS = {2: 0.7, 3: 0.5}
+"""Default start fraction between walls: the particles' centres keep a radius from a wall, so a
+packing between walls jams at a lower phi than a periodic one, the lower the fewer particles
+span the cell (3D, walls normal to z, N = 64: phi_c = 0.585 ... 0.593, below :data:`PHI_INIT`)."""
+JAMMED_PHI = {2: 0.9, 3: 0.7}
+"""A packing fraction above jamming by dimension: the growth must have a step between it and
+phi = 1 (:func:`check_growth`)."""
 TRIAL_RTOL = 1e-6
 """Default force tolerance of the trial steps, relative to the mean contact force at a step's
 start."""
@@ -147,6 +155,24 @@ def energy_threshold(dim: int, alpha: float) -> float:
     ``delta ~ <r> Delta phi / (d phi)`` and ``E / N ~ k <r>^alpha (Delta phi / (d phi))^alpha``,
     so states jammed by more than ~``RESOLUTION / 10`` lie above it."""
     return float(power(RESOLUTION / (10.0 * dim), alpha))
+
+
+def start_fraction(dim: int, walls: bool) -> float:
+    """The default start packing fraction in ``dim`` dimensions, periodic or between walls."""
+    return (PHI_INIT_WALLS if walls else PHI_INIT)[dim]
+
+
+def check_growth(phi_init: float, dphi: float, dim: int) -> None:
+    """:class:`InputError` when growth by ``dphi`` from ``phi_init`` has no step between
+    :data:`JAMMED_PHI` and phi = 1, where every packing of ``dim`` dimensions has jammed."""
+    last = phi_init + (math.ceil((1.0 - phi_init) / dphi) - 1) * dphi  # the last below 1
+    if last >= 1.0:  # (the quotient's round-off)
+        last -= dphi
+    if last < JAMMED_PHI[dim]:
+        raise InputError(
+            f"dphi: growth by {dphi:g} from phi {phi_init:g} has no step between "
+            f"{JAMMED_PHI[dim]:g} (where packings have jammed) and 1; take a smaller increment"
+        )
 
 
 def check_epsilon(epsilon: float) -> float:
@@ -432,6 +458,7 @@ def jamming_steps(
     ConvergenceError : a relaxation reached its iteration limit, or no jamming below phi = 1.
     """
     dphi = positive_scalar(dphi, "dphi")
+    check_growth(start.phi, dphi, start.dim)
     epsilon = check_epsilon(epsilon)
     choice(protocol, "protocol", JAM_PROTOCOLS)
     if energy_tol is None:

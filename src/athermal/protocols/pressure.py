@@ -42,6 +42,8 @@ STEP = 10.0**0.25
 MAX_PHI = 0.9999
 """The search does not go beyond this packing fraction (in 2D, harmonic disks with ``k = 1`` in
 the unit cell reach only ``p = 0.097`` at ``phi = 0.999``, measured at N = 256)."""
+REACH_RTOL = 1e-6
+"""Force tolerance of :func:`check_reachable`'s relaxation, x the mean contact force."""
 NEAR_JAMMING = 10.0
 """A ``UserWarning`` says when ``phi - phi_c`` is below this many ``epsilon`` of the jamming
 run: ``phi_c`` is then too coarse to measure the distance from jamming."""
@@ -214,6 +216,29 @@ def pressure_search(
     )
 
 
+def check_reachable(
+    start: Packing, model: ContactModel, target: float, minimizer: Minimizer | None = None
+) -> None:
+    """:class:`InputError` when the particles of ``start`` cannot reach pressure ``target``
+    below :data:`MAX_PHI`: ``start`` grown to :data:`MAX_PHI` and relaxed (a fraction of a
+    second at N = 1024) sets the reach, before any jamming. Packings that far above jamming
+    differ in pressure by ~1 % from one configuration to another (2D, N = 256 and 1024), so a
+    target just below the reach may still be out of the search's reach."""
+    grown = Packing(start.positions, start.radii_at(MAX_PHI), start.cell)
+    objective = Objective(grown, model)
+    result, _ = Relaxer(objective, minimizer or JAMMING_MINIMIZER).relax_to_minimum(
+        objective.x0,
+        gtol=force_tolerance(grown, model, REACH_RTOL),
+        what=f"the pressure reach at phi {MAX_PHI}",
+    )
+    reach = measure(result.packing, model).pressure
+    if target > reach:
+        raise InputError(
+            f"pressure: {target:g} is out of reach; these particles reach p = {reach:.3g} at "
+            f"phi = {MAX_PHI} (the contact stiffness sets the scale)"
+        )
+
+
 def jam_to_pressure(
     start: Packing,
     model: ContactModel,
@@ -241,6 +266,7 @@ def jam_to_pressure(
     (True, True)
     """
     target = positive_scalar(pressure, "pressure")
+    check_reachable(start, model, target, minimizer)
     jammed = jam(
         start,
         model,
