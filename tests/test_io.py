@@ -369,3 +369,30 @@ def test_files_get_the_umask_permissions_or_keep_those_they_replace(tmp_path):
     os.chmod(tmp_path / "one.gsd", 0o600)
     write_gsd(tmp_path / "one.gsd", packing)
     assert stat.S_IMODE((tmp_path / "one.gsd").stat().st_mode) == 0o600
+
+
+def test_a_killed_writers_temporary_file_is_swept_by_the_next_write(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    from athermal.atomic import _HOST, write_text
+
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        text=True,
+        capture_output=True,
+        check=True,
+    )
+    target = tmp_path / "t.gsd"
+    names = {
+        "dead": f".t.{_HOST}.{int(dead.stdout)}.0123abcd.tmp.gsd",
+        "alive": f".t.{_HOST}.{os.getpid()}.0123abcd.tmp.gsd",
+        "elsewhere": f".t.another-host.{int(dead.stdout)}.0123abcd.tmp.gsd",
+        "other target": f".u.{_HOST}.{int(dead.stdout)}.0123abcd.tmp.gsd",
+    }
+    for name in names.values():
+        (tmp_path / name).write_bytes(b"half a frame")
+    write_text(target, "done")
+    left = {p.name for p in tmp_path.iterdir()}
+    assert left == {"t.gsd", *names.values()} - {names["dead"]}

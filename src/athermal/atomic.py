@@ -6,7 +6,9 @@ it replaces (whatever mode the library that wrote the temporary file chose)."""
 
 from __future__ import annotations
 
+import glob
 import os
+import socket
 import stat
 import uuid
 from collections.abc import Callable, Iterator
@@ -33,6 +35,31 @@ def _fsync(path: Path) -> None:
         os.fsync(handle.fileno())
 
 
+_HOST = socket.gethostname().replace(".", "-")
+"""This machine's name as temporary files carry it (a folder may be shared by several)."""
+
+
+def _sweep(target: Path) -> None:
+    """Remove the temporary files of ``target`` left by writers of this machine that were
+    killed before they could (a Dask worker ended by Ctrl-C, a SIGKILL): each name carries its
+    writer's machine and process id."""
+    for stale in target.parent.glob(f".{glob.escape(target.stem)}.{_HOST}.*.tmp{target.suffix}"):
+        pid = stale.name[len(target.stem) + len(_HOST) + 3 :].split(".")[0]
+        if pid.isdigit() and not _alive(int(pid)):
+            stale.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process ``pid`` of this machine runs."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # another user's process
+        return True
+    return True
+
+
 @contextmanager
 def replacing(
     path: str | os.PathLike[str],
@@ -44,7 +71,10 @@ def replacing(
     replaces ``path``. An ``OSError`` or ``RuntimeError`` in the block becomes a
     :class:`FileFormatError` ``"{path}: {what} ({why(exc)})"``; the temporary file is removed."""
     target = Path(path)
-    temporary = target.with_name(f".{target.stem}.{uuid.uuid4().hex}.tmp{target.suffix}")
+    _sweep(target)
+    temporary = target.with_name(
+        f".{target.stem}.{_HOST}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp{target.suffix}"
+    )
     try:
         yield temporary
         _fsync(temporary)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import importlib.util
 import json
+import logging
 import os
 import statistics
 import time
@@ -687,7 +688,11 @@ def _compute(
         # 29.6 s against 26.4 s without it for one N = 1024 jamming realization
         with dask.config.set({"distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(
-                n_workers=count, threads_per_worker=1, processes=True, dashboard_address=None
+                n_workers=count,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,  # not a warning per task cancelled by Ctrl-C
             )
         client = Client(cluster)
         engine = f"dask LocalCluster, {count} worker processes"

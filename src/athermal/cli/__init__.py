@@ -120,6 +120,8 @@ def _nothing_required(parser: argparse.ArgumentParser) -> Iterator[None]:
 def _interrupted(args: argparse.Namespace) -> int:
     """Report an interrupted command in one line; its exit code, 130."""
     again = "; rerun with --resume to continue" if hasattr(args, "resume") else ""
+    if args.command == "ensemble":
+        again = "; rerun the same command to continue (finished realizations are kept)"
     print(f"athermal {args.command}: interrupted{again}", file=sys.stderr)
     return 130
 
