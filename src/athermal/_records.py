@@ -98,3 +98,25 @@ def from_numbers(cls: type[T], number: Callable[[str], float], **given: Any) -> 
         else:
             raise TypeError(f"{cls.__name__}.{name} ({hint}) is not a number: pass it")
     return cls(**values)
+
+
+def columns_as_text(cls: type, number: Callable[[str], float]) -> dict[str, str]:
+    """The ``Literal`` fields of ``cls`` (and tuples of them) read as ``number(name)`` (as
+    written by :func:`as_numbers`) and given as their table text."""
+    out: dict[str, str] = {}
+    for name, hint in _types(cls).items():
+        if (choices := _choices(hint)) is not None:
+            out[name] = choices[int(number(name))]
+        elif (choices := _item_choices(hint)) is not None:
+            bits = int(number(name))
+            out[name] = ";".join(c for k, c in enumerate(choices) if bits >> k & 1)
+    return out
+
+
+def number_names(cls: type) -> frozenset[str]:
+    """The fields of ``cls`` that :func:`as_numbers` writes (those with a column)."""
+    return frozenset(
+        name
+        for name, hint in _types(cls).items()
+        if hint in (bool, int, float) or _choices(hint) is not None or get_origin(hint) is tuple
+    )

@@ -18,7 +18,7 @@ from typing import Any, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from ._records import as_numbers, from_numbers
+from ._records import as_numbers, columns_as_text, from_numbers, number_names
 from .contact import ContactModel
 from .errors import FileFormatError, InputError
 from .io import Frame, append_gsd, claim, count_frames, read_gsd, write_gsd
@@ -48,6 +48,21 @@ def step_log(step: Step) -> dict[str, float]:
     if not np.isfinite(log.get(BRACKET, 0.0)):
         log[BRACKET] = NO_BRACKET
     return log
+
+
+def readable_log(log: Mapping[str, Any]) -> dict[str, Any]:
+    """A frame's log with the coded numbers of a protocol step as their table text (a jamming
+    step's ``phase`` by name, a compression step's ``events`` as ``a;b``, empty for none); the
+    log of any other frame as it is."""
+    out = dict(log)
+
+    def number(name: str) -> float:
+        return float(np.reshape(log[name], -1)[0])
+
+    for cls in (JammingStep, CompressionStep, ShearStep):
+        if number_names(cls) <= out.keys():
+            return out | columns_as_text(cls, number)
+    return out
 
 
 def _number(frame: Frame, name: str) -> float:

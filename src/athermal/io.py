@@ -314,10 +314,10 @@ def _hoomd_frame(
     """HOOMD-schema frame with the exact state in ``log/athermal/`` (arguments validated here)."""
     if not isinstance(packing, Packing):
         raise InputError(f"packing: expected a Packing, got {type(packing).__name__}")
-    log: dict[str, NDArray[np.generic]] = {
-        _LOG + "position": packing.positions,
-        _LOG + "radius": packing.radii,
-        _LOG + "cell": packing.cell.h,
+    log: dict[str, NDArray[np.generic]] = {  # contiguous: gsd warns on stdout otherwise
+        _LOG + "position": np.ascontiguousarray(packing.positions),
+        _LOG + "radius": np.ascontiguousarray(packing.radii),
+        _LOG + "cell": np.ascontiguousarray(packing.cell.h),
     }
     if packing.cell.walls:
         log[_LOG + "walls"] = np.array(packing.cell.walls, dtype=np.int8)
@@ -413,7 +413,7 @@ def _observable_array(name: str, value: ArrayLike) -> NDArray[np.float64]:
             f"observables[{name!r}]: shape {arr.shape} cannot be stored faithfully in GSD "
             "(use a scalar, a 1D array of length >= 2 or a 2D array with >= 2 columns)"
         )
-    return arr
+    return np.ascontiguousarray(arr)
 
 
 def _hoomd_positions(packing: Packing) -> NDArray[np.float32]:

@@ -23,6 +23,8 @@ from ..observables import measure
 from ..packing import Packing
 from ..plot import criticality_figure, modes_figure, save
 from ..protocols.finite_strain import finite_strain_bulk, finite_strain_shear
+from ..protocols.jamming import energy_threshold
+from ..relaxation import energy_scale
 from .common import check_certified, model_from
 from .printer import emit
 
@@ -35,6 +37,7 @@ def modes(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     frame = read_gsd(args.input, frame=args.frame)
     model = model_from(args, frame.model)
+    _warn_unless_relaxed(frame.packing, model, args.frame % count_frames(args.input), "modes")
     found = vibrational_modes(frame.packing, model, args.lowest, vectors=args.vectors)
     save_modes(args.output, found, seed=args.seed)
     omega = found.frequencies
@@ -53,7 +56,7 @@ def modes(args: argparse.Namespace) -> None:
         "omega_star_err": edge.error if edge else None,
         "omega_star_modes": edge.modes_below if edge else None,
         "plateau_density": edge.plateau if edge else None,
-        "seed": args.seed,
+        "bootstrap_seed": args.seed if edge else None,
         "mean_participation": float(np.mean(found.participation)),
         "bits": MODES_BITS,
         "output": args.output,
@@ -72,6 +75,11 @@ def modes(args: argparse.Namespace) -> None:
 FINITE_STEPS = 10
 """Quasi-static steps of ``moduli --finite-strain S``: strains ``S/10, 2S/10, ..., S`` (the
 paper's 1e-6 to 1e-5 in 10 steps for ``S = 1e-5``)."""
+FINITE_RTOL = 1e-12
+"""Force tolerance of those steps, x the mean contact force (floored at round-off): at the
+protocols' 1e-9 a step of 1e-8 in strain barely moves the linear start, and G came out 46 of
+its standard errors from the linear response at ``S = 1e-7`` (``docs/decisions.md``,
+"Finite-strain moduli")."""
 
 
 def moduli(args: argparse.Namespace) -> None:
@@ -92,7 +100,7 @@ def moduli(args: argparse.Namespace) -> None:
                 "--finite-strain: its simple shear would tilt the walls of this packing; "
                 "between walls normal to x or y the shear modulus is the biaxial one (drop it)"
             )
-        _warn_unless_relaxed(packing, model, k % count)
+        _warn_unless_relaxed(packing, model, k % count, "moduli")
         lr = linear_response(packing, model)
         logged = frame.log.get("delta_phi")
         p = measure(packing, model).pressure  # every contact, as compress's
@@ -114,8 +122,8 @@ def moduli(args: argparse.Namespace) -> None:
             strains = (
                 np.linspace(1.0, FINITE_STEPS, FINITE_STEPS) * args.finite_strain / FINITE_STEPS
             )
-            shear = finite_strain_shear(packing, model, strains)
-            bulk = finite_strain_bulk(packing, model, -strains)
+            shear = finite_strain_shear(packing, model, strains, rtol=FINITE_RTOL)
+            bulk = finite_strain_bulk(packing, model, -strains, rtol=FINITE_RTOL)
             row |= {
                 "shear_finite": shear.modulus,
                 "shear_finite_err": shear.stderr,
@@ -137,16 +145,29 @@ UNRELAXED = 1e-6
 force (linear response is exact at an energy minimum only)."""
 
 
-def _warn_unless_relaxed(packing: Packing, model: ContactModel, index: int) -> None:
-    """A warning when frame ``index`` is not at an energy minimum (:data:`UNRELAXED`)."""
+def _warn_unless_relaxed(packing: Packing, model: ContactModel, index: int, what: str) -> None:
+    """A warning when frame ``index`` is unjammed (its energy below the jamming protocol's
+    threshold: ``what`` is zero up to round-off) or not at an energy minimum
+    (:data:`UNRELAXED`)."""
     objective = Objective(packing, model)
-    _, grad = objective(objective.x0)
+    energy, grad = objective(objective.x0)
+    threshold = (
+        energy_threshold(packing.dim, model.alpha) * packing.n * energy_scale(packing.radii, model)
+    )
+    if energy <= threshold:
+        warnings.warn(
+            f"frame {index} is unjammed (E = {energy:.1e}, below the jamming threshold "
+            f"{threshold:.1e}): it has no rigid contact network, and its {what} are those of "
+            "round-off",
+            stacklevel=2,
+        )
+        return
     mean = objective.mean_contact_force(objective.x0)
     largest = objective.max_gradient(grad)
-    if mean > 0.0 and largest > UNRELAXED * mean:
+    if largest > UNRELAXED * mean:
         warnings.warn(
             f"frame {index} is not relaxed (largest force {largest / mean:.1e} of the mean "
-            "contact force): its moduli assume an energy minimum; relax it first",
+            f"contact force): its {what} assume an energy minimum; relax it first",
             stacklevel=2,
         )
 

@@ -9,7 +9,10 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from .. import bench as table1
+from ..checkpoint import readable_log
 from ..enthalpy import relax_at_pressure
 from ..forces import ForceStatistics, force_statistics
 from ..io import count_frames, read_gsd, write_gsd
@@ -48,6 +51,11 @@ def _observables(obs: Observables, as_json: bool) -> dict[str, Any]:
         "rattlers": obs.n_rattlers,
         "z (rattlers removed)": obs.z,
         "max |grad_i|": obs.max_gradient,
+        **(
+            {"wall pressure": "  ".join(f"{w} {p:.6g}" for w, p in obs.wall_pressure.items())}
+            if obs.walls
+            else {}
+        ),
     }
 
 
@@ -93,8 +101,12 @@ def measure_file(args: argparse.Namespace) -> None:
         for key, value in frame.log.items()
         if value.size <= 3 and key not in ("phi",)
     }
-    if not args.json:  # every digit; counts as integers
-        logged = {k: _exact(v) for k, v in logged.items()}
+    if not args.json:  # every digit; counts as integers; a step's codes as its table's text
+        text = readable_log(frame.log)
+        logged = {
+            k: _exact(v) if isinstance(text[k], np.ndarray) else text[k] or "none"
+            for k, v in logged.items()
+        }
     emit(
         {
             **_observables(obs, args.json),

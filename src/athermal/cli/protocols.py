@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import time
+import warnings
 from collections.abc import Callable, Iterable
 from dataclasses import asdict, replace
 from pathlib import Path
@@ -444,6 +445,13 @@ def shear(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     packing, model, frame, index = _start(args)
     check_mode(args.mode, args.strain, packing.cell, args.wall_layer)
+    logged_g = frame.log.get("shear_modulus")
+    if logged_g is not None and float(logged_g.reshape(-1)[0]) < 0.0:
+        warnings.warn(
+            f"frame {index} is unstable to shear at fixed cell (its logged shear modulus "
+            f"{float(logged_g.reshape(-1)[0]):.3g} < 0): the shear starts with a rearrangement",
+            stacklevel=2,
+        )
     frozen = None
     if args.mode == "plane":  # refused here, before the trajectory is claimed
         lower, upper = rough_walls(packing, args.wall_layer)
