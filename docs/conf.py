@@ -19,6 +19,7 @@ import athermal
 
 project = "athermal"
 author = "the athermal developers"
+copyright = f"2026, {author}"  # the footer's
 release = metadata.version("athermal")
 version = release
 extensions = ["myst_parser", "sphinx.ext.autodoc", "sphinx.ext.napoleon", "sphinx.ext.mathjax"]
@@ -30,6 +31,8 @@ napoleon_google_docstring = False
 autodoc_member_order = "bysource"
 html_theme = "furo"
 html_title = f"athermal {release}"
+html_static_path = ["_static"]
+html_css_files = ["wrap.css"]  # long code lines wrap in their boxes instead of being cut
 
 # Modules whose public names are not all re-exported by ``athermal``: their other names get a
 # section of their own on the API page.
@@ -54,7 +57,10 @@ def _home(name: str, obj: object) -> str:
     for info in pkgutil.walk_packages(athermal.__path__, "athermal."):
         if "__main__" in info.name:
             continue
-        module = importlib.import_module(info.name)
+        try:
+            module = importlib.import_module(info.name)
+        except ImportError:  # an extra's module (the JAX engine without JAX): not on the page
+            continue
         if getattr(module, name, None) is obj:
             docs = ModuleAnalyzer.for_module(info.name).find_attr_docs()
             if ("", name) in docs:

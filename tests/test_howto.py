@@ -36,6 +36,20 @@ def test_the_force_network_is_drawn_from_the_bonds_alone(tmp_path):
     assert (tmp_path / "network.png").stat().st_size > 0
 
 
+@pytest.mark.skipif(importlib.util.find_spec("ovito") is None, reason="ovito not installed")
+def test_ovito_renders_the_force_network_of_the_quick_start(tmp_path):
+    import ctypes.util
+
+    if ctypes.util.find_library("vulkan") is None:  # what docs/howto/files.md says it needs
+        pytest.skip("no Vulkan loader (apt-get install libvulkan1 mesa-vulkan-drivers)")
+    paste(Block("bash", "athermal jam -o jammed.gsd --quiet", ""), tmp_path)
+    (block,) = [b for b in blocks(HOWTO / "files.md") if "ovito" in b.code]
+    out = paste(block, tmp_path)
+    page = (HOWTO / "files.md").read_text()
+    assert f"It prints `{out.strip()}`" in page  # the numbers the page quotes
+    assert (tmp_path / "network-ovito.png").stat().st_size > 50_000
+
+
 @pytest.mark.skipif(importlib.util.find_spec("freud") is None, reason="freud not installed")
 @pytest.mark.filterwarnings("error")  # freud warns of nothing
 def test_the_freud_example_reads_a_file(tmp_path):

@@ -124,3 +124,30 @@ def test_ovito_reads_the_contact_network(jammed):
     topology = np.asarray(data.particles.bonds.topology)
     np.testing.assert_array_equal(topology, np.stack([contacts.i, contacts.j], axis=1))
     np.testing.assert_allclose(np.asarray(data.particles.bonds["force"]), contacts.force_magnitude)
+
+
+def test_freud_loses_contacts_of_a_jammed_packing_even_from_float64_positions(tmp_path):
+    """What docs/howto/files.md says: freud's distances are float32, so the bonds are the way."""
+    freud = pytest.importorskip("freud")
+    import athermal as at
+
+    model = ContactModel(2.0)
+    jammed = at.jam(at.random_packing(256, 0.8, seed=3), model).packing
+    path = tmp_path / "j.gsd"
+    write_gsd(path, jammed, model=model)
+    with gsd.hoomd.open(str(path)) as traj:
+        frame = traj[0]
+    x = frame.log["athermal/position"]
+    assert x.dtype == np.float64 and (x.min() < -0.5 or x.max() > 0.5)  # unwrapped
+    box = freud_box(freud, frame)
+    points = box.wrap(np.column_stack([x, np.zeros(len(x))]))
+    radii = frame.particles.diameter / 2.0
+    pairs = (
+        freud.locality.AABBQuery(box, points)
+        .query(points, {"r_max": 2.0 * radii.max(), "exclude_ii": True})
+        .toNeighborList()
+    )
+    i, j, dist = pairs.query_point_indices, pairs.point_indices, pairs.distances
+    assert dist.dtype == np.float32
+    touching = int(((i < j) & (radii[i] + radii[j] - dist > 0)).sum())
+    assert touching < 0.8 * frame.bonds.N  # 271 of 483 (the docs' figure)
