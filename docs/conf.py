@@ -8,6 +8,7 @@ build time from ``athermal.__all__`` and the docstrings, so it cannot fall behin
 from __future__ import annotations
 
 import importlib
+import importlib.util
 import inspect
 import pkgutil
 from importlib import metadata
@@ -51,20 +52,30 @@ MODULES = (
 )
 
 
+def _modules(path: list[str], prefix: str) -> list[str]:
+    """The modules of the package at ``path``, at any depth; without JAX not the JAX engine's
+    (the extra the docs extra does not install: importing it refuses)."""
+    found = []
+    for info in pkgutil.iter_modules(path, prefix):
+        if "__main__" in info.name:
+            continue
+        if info.name.startswith("athermal.jaxengine") and importlib.util.find_spec("jax") is None:
+            continue
+        found.append(info.name)
+        if info.ispkg:
+            found += _modules(importlib.import_module(info.name).__path__, info.name + ".")
+    return found
+
+
 def _home(name: str, obj: object) -> str:
     """The module that defines the constant ``name`` with its docstring (a constant carries no
     ``__module__``, and autodoc would show its type's docstring from any other)."""
-    for info in pkgutil.walk_packages(athermal.__path__, "athermal."):
-        if "__main__" in info.name:
-            continue
-        try:
-            module = importlib.import_module(info.name)
-        except ImportError:  # an extra's module (the JAX engine without JAX): not on the page
-            continue
+    for module_name in _modules(athermal.__path__, "athermal."):
+        module = importlib.import_module(module_name)
         if getattr(module, name, None) is obj:
-            docs = ModuleAnalyzer.for_module(info.name).find_attr_docs()
+            docs = ModuleAnalyzer.for_module(module_name).find_attr_docs()
             if ("", name) in docs:
-                return info.name
+                return module_name
     raise LookupError(f"the constant {name} has no docstring in the module that defines it")
 
 

@@ -470,7 +470,7 @@ def build() -> argparse.ArgumentParser:
         "--phi-init",
         type=float,
         default=None,
-        help="start packing fraction (default: 0.8 in 2D, 0.6 in 3D)",
+        help="start packing fraction (default: 0.8 in 2D, 0.6 in 3D; between walls 0.7, 0.5)",
     )
     _jamming(jam)
     jam.add_argument(
