@@ -232,7 +232,7 @@ def test_the_modes_command_writes_the_modes_and_the_figure(packing_2d, tmp_path,
     argv = ["modes", str(tmp_path / "p.gsd"), "-o", str(other), "--seed", "7", "--json"]
     assert main([*argv, "--figure", "none"]) == 0
     seeded = json.loads(capsys.readouterr().out)
-    assert seeded["seed"] == 7 and np.load(other)["bootstrap_seed"] == 7
+    assert seeded["bootstrap_seed"] == 7 and np.load(other)["bootstrap_seed"] == 7
     assert seeded["omega_star"] == report["omega_star"]
     assert seeded["omega_star_err"] != report["omega_star_err"]
     for argv, message in (

@@ -408,14 +408,18 @@ def test_nonaffine_displacement_is_the_relaxation_to_first_order():
 
 def test_linear_start_gives_the_same_modulus_in_fewer_iterations():
     p, model = relaxed(128, 0.87, 2, 2.0)
+    exact = linear_response(p, model)
     affine = finite_strain_shear(p, model, start="affine")
     linear = finite_strain_shear(p, model, start="linear")
-    assert linear.modulus == pytest.approx(affine.modulus, rel=1e-6)
+    for found, bulk in (
+        (affine, False),
+        (linear, False),
+        (finite_strain_bulk(p, model, start="affine"), True),
+        (finite_strain_bulk(p, model, start="linear"), True),
+    ):  # either start: the modulus at zero strain (measured 1.1e-6 and 4.6e-8 of G apart)
+        truth = exact.bulk if bulk else exact.shear
+        assert found.modulus == pytest.approx(truth, rel=2e-6)
     assert linear.iterations.sum() <= affine.iterations.sum()
-    bulk = finite_strain_bulk(p, model, start="linear")
-    assert bulk.modulus == pytest.approx(
-        finite_strain_bulk(p, model, start="affine").modulus, rel=1e-6
-    )
     with pytest.raises(InputError, match="start"):
         finite_strain_shear(p, model, start="predicted")  # type: ignore[arg-type]
 

@@ -129,7 +129,7 @@ def _work(args: argparse.Namespace) -> None:
                 f"{CUTOFF:g} radii and must stay within half the cell): use more particles"
             )
     if args.command in ("jam", "ensemble"):
-        start = args.phi_init if getattr(args, "phi_init", None) is not None else None
+        start = getattr(args, "phi_init", None)  # ensemble: the default
         start = start_fraction(args.dim, bool(args.walls)) if start is None else start
         _library(check_growth, start, args.dphi, args.dim)
         if (1.0 - start) / args.dphi > MAX_STEPS:
@@ -388,7 +388,6 @@ def _writable(option: str, path: Path, folder: Path) -> None:
 def _paths(args: argparse.Namespace) -> None:
     """Every output: a new or regular file in a writable folder, distinct from the others and
     from the input; an existing one only with ``--overwrite`` (or ``--resume``)."""
-    _file_names(args)
     outputs = output_files(args)
     seen: dict[Path, str] = {}
     inputs = {Path(args.input).resolve()} if getattr(args, "input", None) else set()
@@ -429,6 +428,7 @@ def _paths(args: argparse.Namespace) -> None:
 def check_request(args: argparse.Namespace) -> None:
     """Refuse a command whose options or outputs are wrong, before any work (module docstring)."""
     _options(args)
+    _file_names(args)
     _idle(args)
     _work(args)
     _paths(args)

@@ -97,8 +97,8 @@ def finite_strain_shear(
     ----------
     packing : a relaxed configuration (the fit assumes it is at a minimum).
     model : contact law.
-    strains : ``(k,)`` total shear strains, ``k >= 4``, of one sign, strictly increasing in
-        magnitude (default: the paper's 1e-6 to 1e-5 in 10 steps).
+    strains : ``(k,)`` total shear strains, ``k >= 2`` (a cubic from ``k = 3``), of one sign,
+        strictly increasing in magnitude (default: the paper's 1e-6 to 1e-5 in 10 steps).
     minimizer : how each step is relaxed (default :data:`FINITE_STRAIN_MINIMIZER`, truncated
         Newton); its iteration limit is fatal (:class:`~athermal.errors.ConvergenceError`).
     rtol : tolerance relative to the mean contact force at the start of each relaxation,
@@ -146,8 +146,9 @@ def finite_strain_bulk(
     ----------
     packing : a relaxed configuration (the fit assumes it is at a minimum).
     model : contact law.
-    strains : ``(k,)`` total strains, ``k >= 4``, each > -1, of one sign, strictly increasing in
-        magnitude (default: compression by 1e-6 to 1e-5 in 10 steps).
+    strains : ``(k,)`` total strains, ``k >= 2`` (a cubic from ``k = 3``), each > -1, of one
+        sign, strictly increasing in magnitude (default: compression by 1e-6 to 1e-5 in 10
+        steps).
     minimizer, rtol, start : as in :func:`finite_strain_shear`.
     """
     strain = _check_strains(strains, lower=-1.0)
@@ -166,12 +167,10 @@ def finite_strain_bulk(
 
 
 def _check_strains(strains: ArrayLike, lower: float) -> NDArray[np.float64]:
-    """``strains`` as ``(k,)`` float64: k >= 4, finite, > ``lower``, one sign, increasing size."""
+    """``strains`` as ``(k,)`` float64: k >= 2, finite, > ``lower``, one sign, increasing size."""
     values = float_array(strains, "strains", (None,))
-    if values.size < FIT_DEGREE + 1:
-        raise InputError(
-            f"strains: need at least {FIT_DEGREE + 1} for a fit with an error, got {values.size}"
-        )
+    if values.size < 2:
+        raise InputError(f"strains: need at least 2 for a fit with an error, got {values.size}")
     if np.any(values <= lower):
         raise InputError(f"strains: every strain must be > {lower}, got min {values.min()}")
     if np.any(values == 0.0) or not (np.all(values > 0.0) or np.all(values < 0.0)):
@@ -263,13 +262,15 @@ def _linear_start(
 
 
 def _fit_tangent(x: NDArray[np.float64], y: NDArray[np.float64]) -> tuple[float, float]:
-    """The slope at ``x = 0`` of the least-squares polynomial of degree :data:`FIT_DEGREE`
-    through ``(n,)`` points, n > :data:`FIT_DEGREE` + 1, and its standard error."""
+    """The slope at ``x = 0`` of the least-squares polynomial through ``(n,)`` points, n >= 3,
+    and its standard error: of degree :data:`FIT_DEGREE`, or ``n - 2`` where fewer points leave
+    no residual to estimate the error from."""
+    degree = min(FIT_DEGREE, x.size - 2)
     scale = float(np.max(np.abs(x)))
     t = x / scale  # the normal equations in O(1) numbers
-    design = np.stack([t**k for k in range(FIT_DEGREE + 1)], axis=1)
+    design = np.stack([t**k for k in range(degree + 1)], axis=1)
     gram = np.linalg.inv(design.T @ design)
     coef = gram @ (design.T @ y)
     resid = y - design @ coef
-    variance = float(resid @ resid) / (x.size - FIT_DEGREE - 1)
+    variance = float(resid @ resid) / (x.size - degree - 1)
     return float(coef[1]) / scale, float(np.sqrt(variance * gram[1, 1])) / scale
