@@ -1,4 +1,5 @@
 import json
+import re
 import subprocess
 import sys
 
@@ -70,6 +71,17 @@ def test_measure_human_output_and_model_override(tmp_path, capsys):
     _, a2, _ = run(capsys, "measure", str(path), "--json")
     _, a3, _ = run(capsys, "measure", str(path), "--json", "--alpha", "3")
     assert json.loads(a2)["energy"] != json.loads(a3)["energy"]
+
+
+def test_measure_prints_a_steps_codes_as_text_and_the_wall_pressures(tmp_path, capsys):
+    jam = ["jam", "--n", "64", "--seed", "1", "--picture", "none", "--quiet"]
+    assert main([*jam, "-o", str(tmp_path / "j.gsd")]) == 0
+    _, out, _ = run(capsys, "measure", str(tmp_path / "j.steps.gsd"), "--frame", "1")
+    assert re.search(r"^  phase +increment$", out, re.M)  # not its index among the phases
+    assert main([*jam, "--walls", "y", "-o", str(tmp_path / "w.gsd")]) == 0
+    capsys.readouterr()
+    _, out, _ = run(capsys, "measure", str(tmp_path / "w.gsd"))
+    assert re.search(r"^wall pressure +y- \S+  y\+ \S+$", out, re.M)
 
 
 @pytest.mark.parametrize(

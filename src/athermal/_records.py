@@ -88,11 +88,8 @@ def from_numbers(cls: type[T], number: Callable[[str], float], **given: Any) -> 
     for name, hint in _types(cls).items():
         if name in values:
             continue
-        if (choices := _choices(hint)) is not None:
-            values[name] = choices[int(number(name))]
-        elif (choices := _item_choices(hint)) is not None:
-            bits = int(number(name))
-            values[name] = tuple(c for k, c in enumerate(choices) if bits >> k & 1)
+        if (choice := _decoded(hint, number, name)) is not None:
+            values[name] = choice
         elif hint in (bool, int, float):
             values[name] = hint(number(name))
         else:
@@ -105,12 +102,21 @@ def columns_as_text(cls: type, number: Callable[[str], float]) -> dict[str, str]
     written by :func:`as_numbers`) and given as their table text."""
     out: dict[str, str] = {}
     for name, hint in _types(cls).items():
-        if (choices := _choices(hint)) is not None:
-            out[name] = choices[int(number(name))]
-        elif (choices := _item_choices(hint)) is not None:
-            bits = int(number(name))
-            out[name] = ";".join(c for k, c in enumerate(choices) if bits >> k & 1)
+        choice = _decoded(hint, number, name)
+        if choice is not None:
+            out[name] = choice if isinstance(choice, str) else ";".join(choice)
     return out
+
+
+def _decoded(hint: Any, number: Callable[[str], float], name: str) -> str | tuple[str, ...] | None:
+    """Field ``name`` read as ``number(name)``: a ``Literal``'s choice, or the choices whose
+    bits are set for a tuple of them (:func:`as_numbers`); None for a field of another type."""
+    if (choices := _choices(hint)) is not None:
+        return choices[int(number(name))]
+    if (choices := _item_choices(hint)) is not None:
+        bits = int(number(name))
+        return tuple(c for k, c in enumerate(choices) if bits >> k & 1)
+    return None
 
 
 def number_names(cls: type) -> frozenset[str]:
