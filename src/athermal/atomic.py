@@ -44,7 +44,7 @@ def _sweep(target: Path) -> None:
     killed before they could (a Dask worker ended by Ctrl-C, a SIGKILL): each name carries its
     writer's machine and process id."""
     for stale in target.parent.glob(f".{glob.escape(target.stem)}.{_HOST}.*.tmp{target.suffix}"):
-        pid = stale.name[len(target.stem) + len(_HOST) + 3 :].split(".")[0]
+        pid = stale.name.removeprefix(f".{target.stem}.{_HOST}.").split(".")[0]
         if pid.isdigit() and not _alive(int(pid)):
             stale.unlink(missing_ok=True)
 

@@ -76,9 +76,8 @@ FINITE_STEPS = 10
 """Quasi-static steps of ``moduli --finite-strain S``: strains ``S/10, 2S/10, ..., S`` (the
 paper's 1e-6 to 1e-5 in 10 steps for ``S = 1e-5``)."""
 FINITE_RTOL = 1e-12
-"""Force tolerance of those steps, x the mean contact force (floored at round-off): at the
-protocols' 1e-9 a step of 1e-8 in strain barely moves the linear start, and G came out 46 of
-its standard errors from the linear response at ``S = 1e-7`` (``docs/decisions.md``,
+"""Force tolerance of those steps, x the mean contact force (floored at round-off): tight
+enough that a step of a small strain leaves its linear start (``docs/decisions.md``,
 "Finite-strain moduli")."""
 
 

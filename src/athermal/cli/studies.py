@@ -37,7 +37,7 @@ SHEAR = {"mode": "mode", "strain": "strain", "step": "step", "delta_phi": "shear
 """The shear spec's fields by the options of ``ensemble shear``."""
 
 
-def _given(args: argparse.Namespace, fields: dict[str, str]) -> dict[str, Any]:
+def _spec_options(args: argparse.Namespace, fields: dict[str, str]) -> dict[str, Any]:
     """The spec fields of ``fields`` that the protocol's parser has options for (the others keep
     the spec's defaults)."""
     return {name: getattr(args, dest) for name, dest in fields.items() if hasattr(args, dest)}
@@ -47,6 +47,7 @@ def ensemble(args: argparse.Namespace) -> None:
     """``athermal ensemble``: M realizations of a protocol on Dask."""
     from ..ensemble import EnsembleSpec, run_ensemble
 
+    engine = Minimizer(backend=args.backend)  # the compression's and shear's
     spec = EnsembleSpec(
         args.protocol,
         jam=JamSpec(
@@ -60,8 +61,8 @@ def ensemble(args: argparse.Namespace) -> None:
             minimizer=Minimizer(args.method, precon_from(args), backend=args.backend),  # type: ignore[arg-type]
             walls=args.walls,
         ),
-        compress=CompressSpec(minimizer=Minimizer(backend=args.backend), **_given(args, COMPRESS)),
-        shear=ShearSpec(minimizer=Minimizer(backend=args.backend), **_given(args, SHEAR)),
+        compress=CompressSpec(minimizer=engine, **_spec_options(args, COMPRESS)),
+        shear=ShearSpec(minimizer=engine, **_spec_options(args, SHEAR)),
     )
     progress = Progress(args.quiet)
     result = run_ensemble(

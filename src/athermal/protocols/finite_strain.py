@@ -31,11 +31,10 @@ DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
 """The paper's strains ``(10,)``: 1e-6 to 1e-5 in 10 quasi-static steps (read-only)."""
 DEFAULT_STRAINS.setflags(write=False)
 FIT_DEGREE = 3
-"""Degree of the polynomial whose slope at zero strain is the modulus. A straight line's slope is
-the chord's over the strains, biased by the stress's curvature: measured (2D, N = 1024,
-Delta phi = 1e-2, strains to 2e-6 ... 3e-5 in 10 steps), its bias was 10.7 of its own standard
-errors at every largest strain, a parabola's 5.8, a cubic's 2.4 (``docs/decisions.md``,
-"Finite-strain moduli")."""
+"""Degree of the polynomial whose slope at zero strain is the modulus: a straight line's slope is
+the chord's over the strains, which the stress's curvature biases; the cubic is the lowest degree
+whose bias stays within ~2 of its own standard errors (``docs/decisions.md``, "Finite-strain
+moduli")."""
 StepStart = Literal["linear", "affine"]
 STEP_STARTS: tuple[str, ...] = ("linear", "affine")
 FINITE_STRAIN_MINIMIZER = Minimizer("newton")

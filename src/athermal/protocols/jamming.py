@@ -113,7 +113,7 @@ PHI_INIT = {2: 0.8, 3: 0.6}
 PHI_INIT_WALLS = {2: 0.7, 3: 0.5}
 """Default start fraction between walls: the particles' centres keep a radius from a wall, so a
 packing between walls jams at a lower phi than a periodic one, the lower the fewer particles
-span the cell (3D, walls normal to z, N = 64: phi_c = 0.585 ... 0.593, below :data:`PHI_INIT`)."""
+span the cell (measured below :data:`PHI_INIT` in 3D: ``docs/commands.md``, ``jam``)."""
 JAMMED_PHI = {2: 0.9, 3: 0.7}
 """A packing fraction above jamming by dimension: the growth must have a step between it and
 phi = 1 (:func:`check_growth`)."""

@@ -220,10 +220,10 @@ def check_reachable(
     start: Packing, model: ContactModel, target: float, minimizer: Minimizer | None = None
 ) -> None:
     """:class:`InputError` when the particles of ``start`` cannot reach pressure ``target``
-    below :data:`MAX_PHI`: ``start`` grown to :data:`MAX_PHI` and relaxed (a fraction of a
-    second at N = 1024) sets the reach, before any jamming. Packings that far above jamming
-    differ in pressure by ~1 % from one configuration to another (2D, N = 256 and 1024), so a
-    target just below the reach may still be out of the search's reach."""
+    below :data:`MAX_PHI`: ``start`` grown to :data:`MAX_PHI` and relaxed sets the reach, before
+    any jamming. Configurations that far above jamming differ a little in pressure, so a target
+    just below the reach may still be out of the search's reach (measured: ``docs/commands.md``,
+    "Every command")."""
     grown = Packing(start.positions, start.radii_at(MAX_PHI), start.cell)
     objective = Objective(grown, model)
     result, _ = Relaxer(objective, minimizer or JAMMING_MINIMIZER).relax_to_minimum(
