@@ -442,7 +442,7 @@ def test_deterministic_asks_xla_for_its_deterministic_scatter(tmp_path, capsys, 
     """``--deterministic`` sets XLA's flag before JAX starts (it is refused without
     ``--backend jax``: the numba engine is the same bits everywhere already)."""
     from athermal.cli import main
-    from athermal.cli.door import DETERMINISTIC_OPS
+    from athermal.engines.jax import DETERMINISTIC_OPS
 
     start = str(tmp_path / "p.gsd")
     assert main(["random", "--n", "64", "--phi", "0.86", "-o", start]) == 0

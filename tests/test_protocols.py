@@ -309,27 +309,29 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
     from athermal.errors import ConvergenceError
     from athermal.objective import Objective
 
+    from athermal.engines import numba
+
     packing, model = random_packing(64, 0.9, seed=1), ContactModel(2.0)
-    real = relaxation.minimize_objective
+    real = numba.run
     calls = []
 
-    def failing_lbfgs(objective, method, **kw):
+    def failing_lbfgs(objective, method, x, precon, **kw):
         calls.append(method)
         if method == "lbfgs":
-            first = real(objective, method, **{**kw, "maxiter": 5})
+            first = real(objective, method, x, precon, **{**kw, "maxiter": 5})
             return dataclasses.replace(
                 first, converged=False, status=Status.LINE_SEARCH_FAILED, message="x"
             )
-        return real(objective, method, **kw)
+        return real(objective, method, x, precon, **kw)
 
-    monkeypatch.setattr(relaxation, "minimize_objective", failing_lbfgs)
+    monkeypatch.setattr(numba, "run", failing_lbfgs)
     relaxer = relaxation.Relaxer(Objective(packing, model), Minimizer("lbfgs"))
     result = relaxer.relax(relaxer.objective.x0, gtol=1e-12)
     assert calls == ["lbfgs", "fire"] and result.converged and result.max_gradient <= 1e-12
     assert result.method == "lbfgs+fire" and "FIRE after" in result.message
     assert result.iterations == result.history_energy.size - 1 > 5
 
-    monkeypatch.setattr(relaxation, "minimize_objective", real)
+    monkeypatch.setattr(numba, "run", real)
     with pytest.raises(ConvergenceError, match="did not converge"):
         relaxation.Relaxer(Objective(packing, model), Minimizer("lbfgs", maxiter=3)).relax(
             relaxer.objective.x0, gtol=1e-14

@@ -20,12 +20,13 @@ from importlib import resources
 import numpy as np
 import scipy.optimize
 
+from . import engines
 from .cell import Cell, simple_shear
 from .contact import ContactModel
 from .errors import InputError
 from .objective import Objective
 from .packing import Packing
-from .relaxation import RTOL, Backend, Minimizer, relax_objective
+from .relaxation import RTOL, Minimizer, relax_objective
 
 CASES = (1, 2, 3)
 ALPHAS = (2.0, 2.5)
@@ -44,13 +45,22 @@ METHODS = (
 )
 """The Table's methods (their :attr:`~athermal.relaxation.Minimizer.name` labels its rows);
 P-L-BFGS twice, with the solver ``auto`` takes (the incomplete factor) and the exact one."""
-JAX_METHODS = (
-    Minimizer("lbfgs"),
-    Minimizer("lbfgs", "exp"),
-    Minimizer("cg", "exp"),
-    Minimizer("fire"),
-)
-"""The methods of the Table on the JAX engine (``backend="jax"``: their names end in ``(jax)``)."""
+
+
+def methods_on(backend: str) -> tuple[Minimizer, ...]:
+    """The Table's :data:`METHODS` that the engine ``backend`` runs, on it (on another engine
+    than the default their names end in ``(backend)``)."""
+    if backend == engines.DEFAULT:
+        return METHODS
+    found = []
+    for method in METHODS:
+        try:
+            found.append(replace(method, backend=backend))
+        except InputError:  # what the engine has not (its capabilities)
+            continue
+    return tuple(found)
+
+
 LABELS = (*(m.name for m in METHODS), SCIPY)
 RENAMED = {"P-L-BFGS (A=0)": "P-L-BFGS"}
 """Labels of earlier versions, still accepted (with a DeprecationWarning)."""
@@ -169,20 +179,20 @@ def table1(
     labels: Sequence[str] | None = None,
     repeats: int = 3,
     progress: Callable[[Row], None] | None = None,
-    backend: Backend = "numba",
+    backend: str = engines.DEFAULT,
 ) -> list[Row]:
     """All rows of the Table; ``labels`` picks methods by name (default all, :data:`LABELS`;
-    on the JAX engine :data:`JAX_METHODS` and scipy's reference), ``progress`` sees each row.
-    On the JAX engine each method runs once more first, untimed (its loops compile then)."""
+    on another engine :func:`methods_on` and scipy's reference), ``progress`` sees each row.
+    On an engine that compiles per size (its ``warm_up`` capability) each method runs once
+    more first, untimed."""
     if labels is not None:
         for old in set(labels) & set(RENAMED):
             warnings.warn(
                 f"methods: {old!r} is now called {RENAMED[old]!r}", DeprecationWarning, stacklevel=2
             )
         labels = [RENAMED.get(label, label) for label in labels]
-    methods: tuple[Minimizer, ...] = METHODS
-    if backend == "jax":
-        methods = tuple(replace(m, backend="jax") for m in JAX_METHODS)
+    engine = engines.engine(backend)
+    methods = methods_on(backend)
     by_label: dict[str, Minimizer | None] = {m.name: m for m in methods}
     by_label[SCIPY] = None
     unknown = set(labels or ()) - set(by_label)
@@ -192,7 +202,7 @@ def table1(
         raise InputError(f"repeats: must be >= 1, got {repeats}")
     alphas = check_alphas(alphas)
     chosen = [label for label in by_label if labels is None or label in labels]
-    warm = 1 if backend == "jax" else 0
+    warm = 1 if engine.capabilities.warm_up else 0
     rows = []
     for alpha in alphas:
         base, model = reference_packing(alpha), ContactModel(alpha)

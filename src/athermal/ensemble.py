@@ -30,6 +30,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from . import engines
 from ._validate import choice
 from .atomic import write_text
 from .checkpoint import Trajectory, jamming_step, run_id
@@ -112,9 +113,9 @@ LATER_FIELDS: dict[tuple[str, ...], Any] = {
     ("jam", "sizes"): "bidisperse",
     ("jam", "polydispersity"): POLYDISPERSITY,
     ("jam", "walls"): "",
-    ("jam", "minimizer", "backend"): "numba",
-    ("compress", "minimizer", "backend"): "numba",
-    ("shear", "minimizer", "backend"): "numba",
+    ("jam", "minimizer", "backend"): engines.DEFAULT,
+    ("compress", "minimizer", "backend"): engines.DEFAULT,
+    ("shear", "minimizer", "backend"): engines.DEFAULT,
 }
 """Spec fields (their path: section, ..., name) that joined after the first ensembles, with
 their defaults."""
@@ -419,8 +420,8 @@ def run_ensemble(
     retries : how often Dask retries a realization whose worker failed.
     progress : called with a line of text as realizations finish.
     batch : run ``batch`` realizations at a time in this process, their relaxations as one
-        batch on the JAX engine's device (:class:`athermal.jaxengine.Batcher`; the spec's
-        minimizer must have ``backend="jax"``; no ``workers`` or ``scheduler`` then).
+        batch on the engine's device (:meth:`athermal.engines.Engine.batcher`; the spec's
+        minimizer's engine must run batches; no ``workers`` or ``scheduler`` then).
     """
     t0 = time.perf_counter()
     say = progress or (lambda text: None)
@@ -602,17 +603,18 @@ def check_batch(
     scheduler: str | None = None,
 ) -> None:
     """Refuse a batch of ``batch`` packings of ``n`` particles in ``dim`` dimensions that
-    cannot run: not on the JAX engine (``backend``), with worker processes, or larger than the
-    device's memory (naming what it would need)."""
+    cannot run: on an engine without batches (``backend``), with worker processes, or larger
+    than the device's memory (naming what it would need)."""
     if int(batch) != batch or batch < 1:
         raise InputError(f"batch: must be an integer >= 1, got {batch!r}")
-    if backend != "jax":
-        raise InputError("batch: batches run on the JAX engine; add backend jax (--backend jax)")
+    try:
+        engine = engines.check(backend, batch=True)
+    except InputError as exc:
+        raise InputError(f"batch: {exc}") from None
     if workers is not None or scheduler is not None:
         raise InputError("batch: a batch runs in this process; drop workers / scheduler")
-    from .jaxengine import device_bytes, member_bytes
-
-    need, have = batch * member_bytes(n, dim), device_bytes()
+    member, have = engine.batch_bytes(n, dim)
+    need = batch * member
     if need > have:
         raise InputError(
             f"batch: {batch} packings of N = {n} need about {need / 2**30:.1f} GiB of device "
@@ -630,12 +632,11 @@ def _compute_batched(
     say: Callable[[str], None],
 ) -> str:
     """Run the realizations ``todo``, ``batch`` at a time in threads of this process, their
-    relaxations batched on the JAX engine's device; the engine's name."""
+    relaxations batched on the engine's device; where they ran."""
     from concurrent.futures import ThreadPoolExecutor, as_completed
 
-    from .jaxengine import Batcher, jax
-
-    batcher = Batcher(batch)
+    engine = engines.engine(spec.jam.minimizer.backend)
+    batcher = engine.batcher(batch)
 
     def one(k: int) -> Realization:
         with batcher.member():
@@ -646,10 +647,9 @@ def _compute_batched(
             result = future.result()
             results[result.index] = result
             say(f"realization {result.index} done (phi_c {result.phi_c:.7f})")
-    device = jax.devices()[0]
     return (
-        f"JAX engine on {device.platform} ({getattr(device, 'device_kind', device)}), batches "
-        f"of {batch}: {batcher.calls} batched calls, {batcher.members} member loops"
+        f"{engine.describe()}, batches of {batch}: {batcher.calls} batched calls, "
+        f"{batcher.members} member loops"
     )
 
 

@@ -23,11 +23,3 @@ JAX_MISSING = (
     "build), or pip install -e '.[jax]' in athermal's checkout"
 )
 """The one line for the JAX engine without JAX (:mod:`athermal.jaxengine`, ``--backend jax``)."""
-WALLS_NOT_ON_JAX = (
-    "backend jax: the JAX engine has no walls yet; relax packings between walls on numba"
-)
-"""The one line for a packing between walls sent to the JAX engine."""
-FROZEN_NOT_ON_JAX = (
-    "backend jax: the JAX engine holds no particle fixed; relax with frozen particles on numba"
-)
-"""The one line for frozen particles (rough walls) sent to the JAX engine."""

@@ -10,22 +10,24 @@ packing at the result (:class:`Relaxation`).
 
 from __future__ import annotations
 
-import importlib.util
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, cast
+from functools import cached_property
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
+from . import engines
 from . import minimize as library
 from ._portable import power
 from ._validate import choice
 from .cell import Cell
 from .contact import ContactModel, Contacts, find_contacts
-from .errors import FROZEN_NOT_ON_JAX, JAX_MISSING, ConvergenceError, InputError
-from .linalg import SOLVERS, SolverName, available, resolve_solver
+from .engines.numba import run
+from .errors import ConvergenceError, InputError
+from .linalg import SOLVERS, SolverName
 from .minimize import NEWTON_TAKES_NO_PRECON, MinimizeResult, Preconditioner, Status
 from .moduli import stability
 from .objective import Objective
@@ -34,13 +36,13 @@ from .precon import PRECONDITIONERS, PreconName, make_preconditioner
 
 Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
-Backend = Literal["numba", "jax"]
-BACKENDS: tuple[str, ...] = ("numba", "jax")
 _ALIASES: dict[str, tuple[str, PreconName]] = {"plbfgs": ("lbfgs", "exp"), "pcg": ("cg", "exp")}
 _NAMES = {"lbfgs": "L-BFGS", "cg": "FR-CG", "fire": "FIRE", "newton": "Newton-CG"}
 RTOL = 1e-9
 """The paper's tolerance: ``max_i |grad_i| <= RTOL`` x the mean contact force at the start of a
 relaxation (the Table, every quasi-static step)."""
+MAXITER = 1_000_000
+"""Iteration limit of one relaxation unless the caller gives another (every door)."""
 
 
 def resolve_method(method: str, precon: PreconName = "none") -> tuple[str, PreconName]:
@@ -68,81 +70,82 @@ class Minimizer:
     solver : ``auto``, ``direct``, ``amg`` or ``ic0`` for the preconditioner's linear solves.
     maxiter : iteration limit of one relaxation; a protocol that reaches it stops with a
         :class:`~athermal.errors.ConvergenceError`.
-    backend : the engine: ``numba`` (CPU) or ``jax`` (:mod:`athermal.jaxengine`, the extra
-        ``athermal[jax]``; ``lbfgs``, ``cg``, ``fire``, ``plbfgs``, ``pcg``, preconditioners
-        ``none`` and ``exp``, FIRE without one; ``solver`` does not apply there).
+    maxiter : iteration limit of one relaxation (default :data:`MAXITER`); a protocol that
+        reaches it stops with a :class:`~athermal.errors.ConvergenceError`.
+    backend : the engine's name (:mod:`athermal.engines`): ``numba`` (CPU, every method) or
+        ``jax`` (the extra ``athermal[jax]``), or one registered by the user; what the engine
+        cannot do is refused here, by its capabilities.
     """
 
     method: Method = "lbfgs"
     precon: PreconName = "none"
     A: float = 0.0
     solver: SolverName = "auto"
-    maxiter: int = 1_000_000
-    backend: Backend = "numba"
+    maxiter: int = MAXITER
+    backend: str = engines.DEFAULT
 
     def __post_init__(self) -> None:
-        base, precon = resolve_method(self.method, self.precon)
         choice(self.solver, "solver", SOLVERS)
-        choice(self.backend, "backend", BACKENDS)
-        if self.backend == "jax":
-            if importlib.util.find_spec("jax") is None:
-                raise InputError(JAX_MISSING)
-            from . import jaxengine  # the extra, there: imported when asked for
-
-            jaxengine.check_supported(base, precon)
+        base, precon = self.base, self.preconditioner
         if int(self.maxiter) != self.maxiter or self.maxiter < 1:
             raise InputError(f"maxiter: must be an integer >= 1, got {self.maxiter!r}")
         if not self.A >= 0.0:
             raise InputError(f"A: must be >= 0, got {self.A!r}")
         if self.A != 0.0 and precon != "exp":
             raise InputError(f"A: the Exp preconditioner's parameter, and the precon is {precon}")
-        if self.solver != "auto" and self.backend == "jax":
-            raise InputError(
-                "solver: the JAX engine applies its preconditioner one way (a V-cycle on the "
-                "device), with no solver to choose"
-            )
         if self.solver != "auto" and precon == "none":
             raise InputError("solver: the preconditioner's linear solver, and the precon is none")
+        engines.check(self.backend, base, precon, self.solver)
+
+    @cached_property
+    def _resolved(self) -> tuple[str, PreconName]:
+        """:func:`resolve_method` of ``method`` and ``precon``, once."""
+        return resolve_method(self.method, self.precon)
+
+    @property
+    def base(self) -> str:
+        """The base method: ``lbfgs``, ``cg``, ``fire`` or ``newton``."""
+        return self._resolved[0]
+
+    @property
+    def preconditioner(self) -> PreconName:
+        """The preconditioner's name, with the one ``plbfgs`` and ``pcg`` imply."""
+        return self._resolved[1]
+
+    @property
+    def engine(self) -> engines.Engine:
+        """The engine named ``backend``."""
+        return engines.engine(self.backend)
 
     def machine_dependence(self, n: int, dim: int) -> str:
         """Empty when this minimizer's relaxations of ``n`` particles in ``dim`` dimensions are
         the same bits on every CPU, else what makes them this machine's: a solver that sums in
         its BLAS's order, or another engine (``docs/decisions.md``, "Same input, same bits")."""
-        if self.backend == "jax":
-            return "the JAX engine: XLA compiles for each device"
-        _, precon = resolve_method(self.method, self.precon)
-        if precon == "none":
-            return ""
-        solver = resolve_solver(self.solver, n, dim, m_matrix=precon == "exp")
-        if solver == "amg":
-            return "AMG: pyamg's setup and coarse solve call BLAS"
-        if solver == "direct" and not available("cholespy"):
-            return "SciPy's SuperLU (cholespy missing) calls BLAS"
-        return ""
+        return self.engine.machine_dependence(self.preconditioner, self.solver, n, dim)
 
     @property
     def label(self) -> str:
         """Machine label ``method`` or ``method+precon``, e.g. ``lbfgs+exp`` (``--json``), with
-        ``/jax`` on the JAX engine."""
-        base, precon = resolve_method(self.method, self.precon)
+        ``/engine`` on another engine than the default (``lbfgs+exp/jax``)."""
+        base, precon = self._resolved
         label = base if precon == "none" else f"{base}+{precon}"
-        return f"{label}/jax" if self.backend == "jax" else label
+        return label if self.backend == engines.DEFAULT else f"{label}/{self.backend}"
 
     @property
     def name(self) -> str:
         """Display name as in the paper: ``L-BFGS``, ``P-L-BFGS``, ``P-FR-CG``, ``contact
         P-L-BFGS``, ``FIRE``; a non-zero ``A`` or a chosen solver is added in brackets."""
-        base, precon = resolve_method(self.method, self.precon)
+        base, precon = self._resolved
         name = _NAMES[base]
         if precon == "exp":
             name = f"P-{name}"
         elif precon == "contact":
             name = f"contact P-{name}"
         extras = [f"A={self.A:g}"] if precon == "exp" and self.A != 0.0 else []
-        if precon != "none" and self.solver != "auto" and self.backend == "numba":
+        if precon != "none" and self.solver != "auto":
             extras.append(self.solver)
-        if self.backend == "jax":
-            extras.append("jax")
+        if self.backend != engines.DEFAULT:
+            extras.append(self.backend)
         return f"{name} ({', '.join(extras)})" if extras else name
 
 
@@ -172,33 +175,34 @@ def minimize_objective(
     solver: SolverName = "auto",
     gtol: float | None = None,
     rtol: float | None = None,
-    maxiter: int = 100_000,
+    maxiter: int = MAXITER,
     etol: float = 0.0,
     memory: int = 10,
     cg_variant: Literal["fr", "pr+"] = "fr",
 ) -> Relaxation:
-    """Relax ``objective`` from ``x0`` to ``max_i |grad_i| <= gtol``.
+    """Relax ``objective`` from ``x0`` to ``max_i |grad_i| <= gtol`` on the numba engine,
+    without the hand-overs of :class:`Relaxer`.
 
-    Parameters
-    ----------
-    method : ``lbfgs``, ``cg``, ``fire``, ``newton``, or the paper's ``plbfgs`` / ``pcg``
-        (``newton`` takes no ``precon``: its inner CG uses its own factored Hessian).
-    x0 : the start ``(N d,)`` in the objective's internal order; default ``objective.x0``.
-    precon : preconditioner name, or a ready :class:`~athermal.minimize.Preconditioner`
-        (reused across calls, e.g. by the quasi-static protocols).
-    A, solver : parameter of the Exp weights and the linear solver (``direct`` Cholesky,
-        ``amg``, incomplete Cholesky ``ic0``, or ``auto`` by size), used when ``precon`` is a
-        name.
-    gtol, rtol : absolute tolerance on ``max_i |grad_i|``, or relative to the mean contact
-        force at the start (give exactly one).
-    maxiter : iteration limit (non-convergence is reported in the result).
-    etol : the run also stops, converged, once the energy is ``<= etol`` (absolute, energy
-        units; default 0: only an exactly zero energy). The jamming protocol uses it to end the
-        relaxation of an unjammed packing.
-    memory : L-BFGS memory ``m``.
-    cg_variant : ``fr`` (Fletcher-Reeves) or ``pr+`` (Polak-Ribiere+).
+        Parameters
+        ----------
+        method : ``lbfgs``, ``cg``, ``fire``, ``newton``, or the paper's ``plbfgs`` / ``pcg``
+            (``newton`` takes no ``precon``: its inner CG uses its own factored Hessian).
+        x0 : the start ``(N d,)`` in the objective's internal order; default ``objective.x0``.
+        precon : preconditioner name, or a ready :class:`~athermal.minimize.Preconditioner`
+            (reused across calls, e.g. by the quasi-static protocols).
+        A, solver : parameter of the Exp weights and the linear solver (``direct`` Cholesky,
+            ``amg``, incomplete Cholesky ``ic0``, or ``auto`` by size), used when ``precon`` is a
+            name.
+        gtol, rtol : absolute tolerance on ``max_i |grad_i|``, or relative to the mean contact
+            force at the start (give exactly one).
+        maxiter : iteration limit (non-convergence is reported in the result).
+        etol : the run also stops, converged, once the energy is ``<= etol`` (absolute, energy
+            units; default 0: only an exactly zero energy). The jamming protocol uses it to end the
+            relaxation of an unjammed packing.
+        memory : L-BFGS memory ``m``.
+        cg_variant : ``fr`` (Fletcher-Reeves) or ``pr+`` (Polak-Ribiere+).
 
-    The result's ``status`` (:class:`~athermal.minimize.Status`) says why the run stopped.
+        The result's ``status`` (:class:`~athermal.minimize.Status`) says why the run stopped.
     """
     start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
     if start.shape != (objective.n_dof,):
@@ -216,21 +220,17 @@ def minimize_objective(
             if isinstance(precon, str)
             else precon
         )
-    options: dict[str, Any] = {}
-    if base == "fire" and pre is None:
-        options["curvature"] = objective.curvature_bound(start)
     rebuilds = objective.n_rebuilds
-    result = library.minimize(
+    result = run(
         objective,
+        base,
         start,
-        method=cast(library.Method, base),
-        precon=pre,
+        pre,
         gtol=tol,
-        maxiter=maxiter,
         etol=etol,
+        maxiter=maxiter,
         memory=memory,
         cg_variant=cg_variant,
-        options=options,
     )
     return Relaxation.of(result, objective, objective.n_rebuilds - rebuilds)
 
@@ -244,24 +244,14 @@ def relax_objective(
     maxiter: int | None = None,
     x0: NDArray[np.float64] | None = None,
 ) -> Relaxation:
-    """:func:`minimize_objective` from ``x0`` with the method, preconditioner, ``A``, solver
-    and (unless given) ``maxiter`` of ``how``, on its engine (``how.backend``)."""
-    if how.backend == "jax":
-        start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
-        tol = objective.tolerance(gtol, rtol, start)
-        limit = how.maxiter if maxiter is None else maxiter
-        return _on_device(objective, engine_for(objective, how), how.method, start, tol, 0.0, limit)
-    return minimize_objective(
-        objective,
-        how.method,
-        x0=x0,
-        precon=how.precon,
-        A=how.A,
-        solver=how.solver,
-        gtol=gtol,
-        rtol=rtol,
-        maxiter=how.maxiter if maxiter is None else maxiter,
-    )
+    """One minimization of ``objective`` from ``x0`` (default ``objective.x0``) by ``how`` on
+    its engine, to ``gtol`` or ``rtol`` as in :func:`minimize_objective`, within ``maxiter``
+    iterations (default the minimizer's), without the hand-overs of :class:`Relaxer`."""
+    start = objective.x0 if x0 is None else np.asarray(x0, dtype=np.float64)
+    tol = objective.tolerance(gtol, rtol, start)
+    relaxer = Relaxer(objective, how)
+    limit = how.maxiter if maxiter is None else maxiter
+    return relaxer._minimize(relaxer.method, start, None, tol, 0.0, limit)
 
 
 def relax(
@@ -319,20 +309,27 @@ class Relaxer:
     stops because no Wolfe step exists (it happens within a few times ``gtol`` of a minimum
     near jamming, where the energy differences of a step are at round-off), FIRE, which needs
     no line search, finishes the relaxation from there; a Newton-CG relaxation that has not
-    converged in :data:`NEWTON_PATIENCE` iterations goes on with P-L-BFGS (Exp). The result
-    counts every part.
+    converged in :data:`NEWTON_PATIENCE` iterations goes on with P-L-BFGS (Exp); each on an
+    engine that runs it (its capabilities). The result counts every part.
     """
 
     def __init__(self, objective: Objective, minimizer: Minimizer) -> None:
         self.objective = objective
         self.minimizer = minimizer
-        self.method, name = resolve_method(minimizer.method, minimizer.precon)
-        self.engine = engine_for(objective, minimizer) if minimizer.backend == "jax" else None
-        self.precon = (
-            make_preconditioner(name, objective, A=minimizer.A, solver=minimizer.solver)
-            if self.engine is None
-            else None
+        self.method = minimizer.base
+        engine = engines.check(
+            minimizer.backend,
+            walls=bool(objective.cell.walls),
+            frozen=objective.frozen is not None,
         )
+        self.session = engine.bind(
+            objective, minimizer.preconditioner, A=minimizer.A, solver=minimizer.solver
+        )
+        caps = engine.capabilities
+        self.to_fire = "fire" in caps.methods
+        """Whether a failed line search goes on with FIRE (the engine runs it)."""
+        self.to_plbfgs = "lbfgs" in caps.methods and "exp" in caps.preconditioners
+        """Whether a crawling Newton-CG goes on with P-L-BFGS (the engine runs it)."""
 
     def relax(
         self,
@@ -366,13 +363,12 @@ class Relaxer:
         energy ``<= etol`` within ``maxiter`` iterations (default the minimizer's), handing
         over as the class says; the result says whether it converged."""
         maxiter = self.minimizer.maxiter if maxiter is None else maxiter
-        patience = NEWTON_PATIENCE if self.method == "newton" else maxiter
-        result = self._minimize(self.method, x, self.precon, gtol, etol, min(patience, maxiter))
+        patience = NEWTON_PATIENCE if self.method == "newton" and self.to_plbfgs else maxiter
+        result = self._minimize(self.method, x, None, gtol, etol, min(patience, maxiter))
         if result.status is Status.ITERATION_LIMIT and patience < maxiter:
-            exp = make_preconditioner("exp", self.objective, solver=self.minimizer.solver)
-            result = self._go_on(result, "lbfgs", "P-L-BFGS", exp, gtol, etol, maxiter)
-        if result.status is Status.LINE_SEARCH_FAILED:
-            result = self._go_on(result, "fire", "FIRE", self.precon, gtol, etol, maxiter)
+            result = self._go_on(result, "lbfgs", "P-L-BFGS", "exp", gtol, etol, maxiter)
+        if result.status is Status.LINE_SEARCH_FAILED and self.to_fire:
+            result = self._go_on(result, "fire", "FIRE", None, gtol, etol, maxiter)
         return result
 
     def relax_to_minimum(
@@ -470,13 +466,14 @@ class Relaxer:
         first: Relaxation,
         method: Literal["lbfgs", "fire"],
         label: str,
-        precon: Preconditioner | None,
+        precon: str | None,
         gtol: float,
         etol: float,
         maxiter: int,
     ) -> Relaxation:
         """Relax on from where ``first`` stopped by ``method`` (called ``label`` in the message)
-        with ``precon``, within what is left of ``maxiter``; the result counts both."""
+        with the preconditioner named ``precon`` (None: the relaxer's own), within what is left
+        of ``maxiter``; the result counts both."""
         rest = self._minimize(
             method, first.x, precon, gtol, etol, max(1, maxiter - first.iterations)
         )
@@ -494,8 +491,7 @@ class Relaxer:
             neighbor_rebuilds=first.neighbor_rebuilds + rest.neighbor_rebuilds,
             # a preconditioner counts its builds over its life: add the first run's only when
             # it had another one (Newton's own factor, before the Exp of the hand-over)
-            precon_builds=rest.precon_builds
-            + (first.precon_builds if precon is not self.precon else 0),
+            precon_builds=rest.precon_builds + (first.precon_builds if precon is not None else 0),
             linear_iterations=first.linear_iterations + rest.linear_iterations,
         )
 
@@ -503,52 +499,18 @@ class Relaxer:
         self,
         method: str,
         x: NDArray[np.float64],
-        precon: Preconditioner | None,
+        precon: str | None,
         gtol: float,
         etol: float,
         maxiter: int,
     ) -> Relaxation:
-        """One minimization by ``method`` from ``x`` on this relaxer's engine (``precon`` is
-        the CPU engine's; the JAX engine holds its own)."""
-        if self.engine is not None:
-            return _on_device(self.objective, self.engine, method, x, gtol, etol, maxiter)
-        return minimize_objective(
-            self.objective,
-            cast(Method, method),
-            x0=x,
-            precon=precon if precon is not None else "none",
-            gtol=gtol,
-            etol=etol,
-            maxiter=maxiter,
+        """One minimization by the base ``method`` from ``x`` on this relaxer's engine, with
+        its own preconditioner (``precon`` None) or a fresh one named ``precon``."""
+        rebuilds = self.session.n_rebuilds
+        result = self.session.minimize(
+            method, x, gtol=gtol, etol=etol, maxiter=maxiter, precon=precon
         )
-
-
-def engine_for(objective: Objective, how: Minimizer) -> Any:
-    """The JAX engine (:class:`athermal.jaxengine.Engine`) for ``objective`` with the
-    preconditioner of ``how``; imported here, when asked for, since JAX is an extra."""
-    from . import jaxengine
-
-    if objective.frozen is not None:
-        raise InputError(FROZEN_NOT_ON_JAX)
-    _, precon = resolve_method(how.method, how.precon)
-    return jaxengine.Engine(objective, cast(Literal["none", "exp"], precon), A=how.A)
-
-
-def _on_device(
-    objective: Objective,
-    engine: Any,
-    method: str,
-    x: NDArray[np.float64],
-    gtol: float,
-    etol: float,
-    maxiter: int,
-) -> Relaxation:
-    """:meth:`athermal.jaxengine.Engine.minimize` by the base ``method`` (``plbfgs`` is
-    ``lbfgs`` on an engine with the Exp preconditioner) as a :class:`Relaxation`."""
-    base, _ = resolve_method(method)
-    rebuilds = engine.n_rebuilds
-    result = engine.minimize(base, x, gtol=gtol, etol=etol, maxiter=maxiter)
-    return Relaxation.of(result, objective, engine.n_rebuilds - rebuilds)
+        return Relaxation.of(result, self.objective, self.session.n_rebuilds - rebuilds)
 
 
 def _summed(first: Relaxation, then: Relaxation) -> Relaxation:

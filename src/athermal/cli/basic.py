@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from .. import bench as table1
+from .. import engines
 from ..checkpoint import readable_log
 from ..enthalpy import relax_at_pressure
 from ..forces import ForceStatistics, force_statistics
@@ -198,7 +199,9 @@ def bench(args: argparse.Namespace) -> None:
     if args.quick:
         args.cases, args.alphas, args.repeats = [3], [2.0], 1
         args.methods = [
-            f"{label} (jax)" if args.backend == "jax" and label != table1.SCIPY else label
+            f"{label} ({args.backend})"
+            if args.backend != engines.DEFAULT and label != table1.SCIPY
+            else label
             for label in table1.QUICK_LABELS
         ]
     show = not args.quiet and sys.stderr.isatty()

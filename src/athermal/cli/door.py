@@ -16,11 +16,12 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
+from .. import engines
 from ..bench import check_alphas
 from ..cell import wall_axes
 from ..ensemble import INSTALL_HINT, check_batch
 from ..enthalpy import ENTHALPY_METHODS
-from ..errors import JAX_MISSING, WALLS_NOT_ON_JAX, InputError
+from ..errors import InputError
 from ..extended import half_steps
 from ..io import SEED_BOUND
 from ..packing import check_width
@@ -143,13 +144,8 @@ def _work(args: argparse.Namespace) -> None:
         count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
-    if getattr(args, "deterministic", False) and args.backend != "jax":
-        raise InputError(
-            "--deterministic: only with --backend jax (the numba engine gives the same bits "
-            "everywhere already)"
-        )
-    if getattr(args, "backend", "numba") == "jax":
-        _jax(args)
+    if hasattr(args, "backend"):
+        _engine(args)
     if hasattr(args, "solver"):  # the minimizer's own checks (solver and A that apply, ...)
         _library(minimizer_from, args)
     elif hasattr(args, "method"):  # ensemble: method, preconditioner and engine
@@ -269,23 +265,17 @@ def _trajectory_of(args: argparse.Namespace) -> str:
     return str(args.output)
 
 
-DETERMINISTIC_OPS = "--xla_gpu_deterministic_ops=true"
-"""The XLA flag ``--deterministic`` sets: deterministic scatter-adds on a GPU."""
-
-
-def _jax(args: argparse.Namespace) -> None:
-    """``--backend jax``: JAX installed, no walls, no ``relax --pressure`` (the enthalpy runs on
-    the numba engine)."""
-    if importlib.util.find_spec("jax") is None:
-        raise InputError(JAX_MISSING)
-    if args.command == "relax" and args.pressure is not None:
-        raise InputError("--backend jax: --pressure runs on the numba engine; drop one of them")
-    if getattr(args, "walls", ""):
-        raise InputError(WALLS_NOT_ON_JAX)
-    if args.deterministic:  # read by XLA when JAX starts its first computation, not before
-        flags = os.environ.get("XLA_FLAGS", "")
-        if DETERMINISTIC_OPS not in flags:
-            os.environ["XLA_FLAGS"] = f"{flags} {DETERMINISTIC_OPS}".strip()
+def _engine(args: argparse.Namespace) -> None:
+    """``--backend``: the engine can run here and do what the command asks (walls, ``relax
+    --pressure``'s enthalpy, ``--deterministic``, which it is then asked for)."""
+    engine = engines.check(
+        args.backend,
+        walls=bool(getattr(args, "walls", "")),
+        enthalpy=args.command == "relax" and args.pressure is not None,
+        deterministic=args.deterministic,
+    )
+    if args.deterministic:  # read by the engine's compiler when it starts, not before
+        engine.make_deterministic()
 
 
 def _bench(args: argparse.Namespace) -> None:

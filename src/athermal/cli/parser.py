@@ -9,7 +9,7 @@ import argparse
 import re
 from typing import Any, NoReturn
 
-from .. import bench
+from .. import bench, engines
 from ..certify import TARGET
 from ..criticality import FORCE_WINDOW, GAP_WINDOW
 from ..enthalpy import CELL_FREEDOMS
@@ -17,7 +17,7 @@ from ..linalg import SOLVERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..precon import PRECONDITIONERS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
-from ..relaxation import BACKENDS, METHODS, RTOL
+from ..relaxation import METHODS, RTOL
 
 
 class _Help(argparse.HelpFormatter):
@@ -128,10 +128,14 @@ def _minimizer(
 def _backend(parser: Options) -> None:
     parser.add_argument(
         "--backend",
-        default="numba",
-        choices=BACKENDS,
-        help="engine: numba (CPU) or jax (the extra athermal[jax]; lbfgs, cg, fire, plbfgs, "
-        "pcg; no --solver)",
+        default=engines.DEFAULT,
+        choices=engines.names(),
+        help="engine: "
+        + "; ".join(
+            f"{name} ({', '.join(engines.capabilities_of(name).methods)})"
+            for name in engines.names()
+        )
+        + " (jax: the extra athermal[jax], no --solver)",
     )
     parser.add_argument(
         "--deterministic",

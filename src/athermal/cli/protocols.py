@@ -19,10 +19,11 @@ from typing import Any, Generic, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from .. import engines
 from ..certify import CertifiedPacking, bisect_jamming_point, certify
 from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
 from ..contact import ContactModel, find_contacts
-from ..errors import WALLS_NOT_ON_JAX, ConvergenceError, InputError
+from ..errors import ConvergenceError, InputError
 from ..experiments import JamSpec, jam_packing
 from ..io import Frame, count_frames, read_gsd, write_gsd
 from ..observables import Observables, measure
@@ -129,7 +130,7 @@ def _trajectory(
             "alpha": model.alpha,
             "stiffness": model.kmat.tolist(),
             "minimizer": [args.method, precon_from(args), args.A, args.solver, args.maxiter]
-            + (["jax"] if args.backend == "jax" else []),
+            + ([] if args.backend == engines.DEFAULT else [args.backend]),
             **parameters,
         },
     )
@@ -359,8 +360,8 @@ def _start(args: argparse.Namespace) -> tuple[Packing, ContactModel, Frame, int]
     frame = read_gsd(args.input, frame=index)
     model = model_from(args, frame.model)
     find_contacts(frame.packing, model)  # refuses coincident particles before any work
-    if getattr(args, "backend", "numba") == "jax" and frame.packing.cell.walls:
-        raise InputError(WALLS_NOT_ON_JAX)
+    if hasattr(args, "backend"):
+        engines.check(args.backend, walls=bool(frame.packing.cell.walls))
     return frame.packing, model, frame, index
 
 

@@ -32,10 +32,7 @@ jax.config.update("jax_enable_x64", True)
 
 from ._batch import Batcher, device_bytes, member_bytes  # noqa: E402
 from ._engine import (  # noqa: E402
-    ENGINE_METHODS,
-    ENGINE_PRECONDITIONERS,
     Engine,
-    check_supported,
 )
 from ._pairs import (  # noqa: E402
     Pairs,
@@ -48,15 +45,12 @@ from ._pairs import (  # noqa: E402
 from ._precon import Hierarchy  # noqa: E402
 
 __all__ = [
-    "ENGINE_METHODS",
-    "ENGINE_PRECONDITIONERS",
     "Batcher",
     "Engine",
     "Hierarchy",
     "Pairs",
     "block_max",
     "capacity_for",
-    "check_supported",
     "device_bytes",
     "device_pairs",
     "energy_gradient",

@@ -12,7 +12,6 @@ import jax.numpy as jnp
 import numpy as np
 from numpy.typing import NDArray
 
-from ..errors import WALLS_NOT_ON_JAX, InputError
 from ..minimize import MinimizeResult, Status
 from ..minimize.cg import C2 as CG_C2
 from ..minimize.fire import ALPHA_START, default_timesteps
@@ -37,24 +36,6 @@ from ._loops import (
 )
 from ._pairs import Pairs, block_max, capacity_for, device_pairs, energy_gradient
 from ._precon import Hierarchy, apply
-
-ENGINE_METHODS: tuple[str, ...] = ("fire", "lbfgs", "cg")
-ENGINE_PRECONDITIONERS: tuple[str, ...] = ("none", "exp")
-
-
-def check_supported(method: str, precon: str) -> None:
-    """Refuse (:class:`InputError`) a base ``method`` and ``precon`` the engine has not:
-    :data:`ENGINE_METHODS` with :data:`ENGINE_PRECONDITIONERS`, FIRE without one."""
-    if (
-        method not in ENGINE_METHODS
-        or precon not in ENGINE_PRECONDITIONERS
-        or (method == "fire" and precon != "none")
-    ):
-        raise InputError(
-            "backend jax: lbfgs, cg, fire, plbfgs or pcg, with precon none or exp (fire "
-            f"without one); got {method} with {precon}"
-        )
-
 
 apply_compiled = jax.jit(apply)
 PAIRS = {2: 3, 3: 6}
@@ -90,9 +71,6 @@ class Engine:
         *,
         A: float = 0.0,
     ) -> None:
-        check_supported("lbfgs", precon)
-        if objective.cell.walls:
-            raise InputError(WALLS_NOT_ON_JAX)
         self.objective = objective
         self.alpha = float(objective.model.alpha)
         inner = objective.packing(objective.x0, internal=True)
@@ -202,12 +180,15 @@ class Engine:
         maxiter: int = 100_000,
         memory: int = 10,
         polak: bool = False,
+        precon: str | None = None,
     ) -> MinimizeResult:
         """Minimize from ``x0`` ``(N d,)`` (internal order) by ``method`` (``fire``, always
         without the preconditioner; ``lbfgs``; ``cg``, with ``polak`` Polak-Ribiere+) to
         ``max_i |grad_i| <= gtol`` or energy ``<= etol`` within ``maxiter`` iterations; the
-        result as the CPU engine's."""
-        check_supported(method, "none")
+        result as the CPU engine's. The engine holds one preconditioner: ``precon`` (an
+        :class:`~athermal.engines.Session`'s choice of another) must be None."""
+        if precon is not None:
+            raise ValueError(f"the JAX engine holds its own preconditioner; got {precon}")
         t0 = time.perf_counter()
         obj = self.objective
         positions = self._positions(x0)
