@@ -80,3 +80,8 @@ def test_packings_between_walls(tmp_path):
     out = paste(read, tmp_path)
     assert "walls y" in out and "sigma_yy = 0.001000000" in out
     assert "plane shear: tau" in out and "at strain 0.02" in out
+
+
+def test_the_engine_page_registers_an_engine_that_jams(tmp_path):
+    (block,) = blocks(HOWTO / "engine.md")
+    assert paste(block, tmp_path).strip() == block.printed.strip()
