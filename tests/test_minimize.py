@@ -542,12 +542,12 @@ def test_only_the_exp_factor_is_solved_in_compiled_code():
         assert (pre.compiled_solver() is not None) is compiled
 
 
-def test_the_old_top_level_call_still_works_with_a_deprecation_warning():
+def test_athermal_minimize_is_the_minimizer_package_and_refuses_an_objective():
+    """The deprecated top-level function that shadowed the package is gone: ``athermal.minimize``
+    is the package, whose ``minimize`` names the replacement for an objective."""
     import athermal
+    import athermal.minimize as library
 
-    obj = Objective(overlapped(), ContactModel(2.0))
-    with pytest.warns(DeprecationWarning, match="athermal.relax"):
-        old = athermal.minimize(obj, "lbfgs", rtol=1e-9)
-    new = minimize_objective(Objective(overlapped(), ContactModel(2.0)), "lbfgs", rtol=1e-9)
-    assert old.converged and old.iterations == new.iterations and old.energy == new.energy
-    np.testing.assert_array_equal(old.packing.positions, new.packing.positions)
+    assert athermal.minimize is library and callable(library.minimize)
+    with pytest.raises(InputError, match="minimize_objective"):
+        library.minimize(Objective(overlapped(), ContactModel(2.0)), "lbfgs")

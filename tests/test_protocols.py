@@ -306,10 +306,9 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
     """A line-search failure near the minimum is handed to FIRE; counts add up, the message
     says so, and a plain non-convergence still raises."""
     from athermal import relaxation
+    from athermal.engines import numba
     from athermal.errors import ConvergenceError
     from athermal.objective import Objective
-
-    from athermal.engines import numba
 
     packing, model = random_packing(64, 0.9, seed=1), ContactModel(2.0)
     real = numba.run

@@ -28,7 +28,7 @@ from .protocols import (
     scaling_exponents,
     shear_steps,
 )
-from .relaxation import Relaxation, minimize, relax
+from .relaxation import Relaxation, relax
 
 __all__ = [
     "Cell",
@@ -71,7 +71,6 @@ __all__ = [
     "linear_response",
     "log_spaced",
     "measure",
-    "minimize",
     "polydisperse_radii",
     "pure_shear",
     "random_packing",

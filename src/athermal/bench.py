@@ -158,7 +158,7 @@ def run(start: Packing, model: ContactModel, method: Minimizer | None) -> Row:
             gmax / f0,
             gmax <= RTOL * f0,
         )
-    out = relax_objective(objective, method, rtol=RTOL, maxiter=50_000)
+    out = relax_objective(objective, method, rtol=RTOL)
     seconds = time.perf_counter() - t0
     return Row(
         0,

@@ -10,17 +10,14 @@ packing at the result (:class:`Relaxation`).
 
 from __future__ import annotations
 
-import warnings
-from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import Any, Literal
+from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from . import engines
-from . import minimize as library
 from ._portable import power
 from ._validate import choice
 from .cell import Cell
@@ -531,10 +528,9 @@ def round_off_floor(contacts: Contacts, cell: Cell) -> float:
     An overlap carries an absolute error ``~eps_mach L`` from the coordinates (``L`` the largest
     cell width), which the contact stiffness ``kappa = k (alpha-1) delta^(alpha-2)`` turns into
     a force error, on top of the relative rounding of the force ``f = k delta^(alpha-1)``
-    itself. Measured (N = 256, from the jamming point to Delta phi = 1e-2, alpha = 2 and 2.5):
-    L-BFGS and FIRE stall at 0.25-0.6 x ``eps (L kappa_max + f_max)``. For Hertzian contacts
-    near jamming this is far below a floor in units of ``k <r>^(alpha-1)``: the stiffness
-    vanishes with the overlap.
+    itself (where L-BFGS and FIRE stall against it: ``docs/decisions.md``, section "Protocol
+    constants"). For Hertzian contacts near jamming this is far below a floor in units of
+    ``k <r>^(alpha-1)``: the stiffness vanishes with the overlap.
     """
     if contacts.i.size == 0:
         return 0.0
@@ -559,24 +555,3 @@ def force_tolerance(packing: Packing, model: ContactModel, rtol: float) -> float
 def energy_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
     """``k_max <r>^alpha``: the energy of an overlap of one mean radius (energy units)."""
     return float(model.kmat.max()) * float(power(np.mean(radii), model.alpha))
-
-
-def minimize(
-    fun: Callable[[NDArray[np.float64]], tuple[float, NDArray[np.float64]]] | Objective,
-    *args: Any,
-    **kwargs: Any,
-) -> MinimizeResult:
-    """``athermal.minimize``: :func:`athermal.minimize.minimize` (``fun(x) -> (f, grad)``,
-    ``x0``); the old call on an :class:`~athermal.objective.Objective`, ``minimize(objective,
-    method, ...)``, still works for one release, with a DeprecationWarning: it is
-    :func:`minimize_objective` (or :func:`relax` on a packing)."""
-    if isinstance(fun, Objective):
-        warnings.warn(
-            "athermal.minimize(objective, method, ...) is deprecated: use "
-            "athermal.relax(packing, model, Minimizer(...)) or "
-            "athermal.relaxation.minimize_objective(objective, method, ...)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return minimize_objective(fun, *args, **kwargs)
-    return library.minimize(fun, *args, **kwargs)

@@ -22,7 +22,7 @@ from ..objective import Objective
 from ..observables import Observables, measure
 from ..packing import random_packing
 from ..plot import force_distribution_figure, save
-from ..relaxation import RTOL, relax_objective
+from ..relaxation import RTOL, force_tolerance, relax_objective
 from .common import (
     NotConverged,
     bits,
@@ -143,9 +143,10 @@ def relax(args: argparse.Namespace) -> None:
     at_pressure: dict[str, Any] = {}
     res: MinimizeResult
     if args.pressure is None:
-        relaxed = relax_objective(
-            Objective(frame.packing, model), minimizer_from(args), gtol=args.gtol, rtol=rtol
-        )
+        # relative to the start's forces, floored at round-off (a packing at its jamming point
+        # has forces far below what float64 resolves at its overlaps)
+        gtol = args.gtol if rtol is None else force_tolerance(frame.packing, model, rtol)
+        relaxed = relax_objective(Objective(frame.packing, model), minimizer_from(args), gtol=gtol)
         res, final = relaxed, relaxed.packing
     else:
         found = relax_at_pressure(

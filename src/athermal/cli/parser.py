@@ -17,7 +17,7 @@ from ..linalg import SOLVERS
 from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..precon import PRECONDITIONERS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
-from ..relaxation import METHODS, RTOL
+from ..relaxation import MAXITER, METHODS, RTOL
 
 
 class _Help(argparse.HelpFormatter):
@@ -98,9 +98,7 @@ def _model(parser: argparse.ArgumentParser, *, from_file: bool) -> None:
     _json(parser)
 
 
-def _minimizer(
-    parser: argparse.ArgumentParser, what: str, maxiter: int = 100_000, precon: str = "none"
-) -> None:
+def _minimizer(parser: argparse.ArgumentParser, what: str, precon: str = "none") -> None:
     parser.add_argument(
         "--method",
         default="lbfgs",
@@ -121,7 +119,7 @@ def _minimizer(
         choices=SOLVERS,
         help="linear solver of the preconditioner (ic0: incomplete Cholesky)",
     )
-    parser.add_argument("--maxiter", type=int, default=maxiter, help="iteration limit")
+    parser.add_argument("--maxiter", type=int, default=MAXITER, help="iteration limit")
     _backend(parser)
 
 
@@ -188,7 +186,7 @@ def _quasi_static(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--rtol", type=float, default=RTOL, help="force tolerance, x the mean contact force"
     )
-    _minimizer(parser, "of every step", 1_000_000)
+    _minimizer(parser, "of every step")
     _protocol_outputs(parser)
     _model(parser, from_file=True)
 
@@ -506,7 +504,7 @@ def build() -> argparse.ArgumentParser:
         help="PNG of the jammed packing with its contact forces (2D; default: the output "
         "with .png; 'none' for no picture)",
     )
-    _minimizer(jam, "of every step", 1_000_000, "exp")
+    _minimizer(jam, "of every step", "exp")
     _protocol_outputs(jam)
     _model(jam, from_file=False)
 

@@ -45,18 +45,13 @@ linear-response shear modulus, unstable to shear at fixed cell (Dagois-Bohy et a
 095703 (2012): physical near jamming, where ``p N^2`` is small)."""
 MAX_SPLITS = 4
 """A compression step whose pressure drops (or that unjams) is redone in halves, down to
-``2^MAX_SPLITS`` substeps: a one-shot relaxation can jump out of a stable basin (measured: from a
-packing 5.6e-5 above jamming, L-BFGS and CG relaxed the growth to 1e-4 into an unjammed state,
-while FIRE and ten L-BFGS substeps followed the basin to p = 4.1e-5). A drop that persists at
-the finest substep is an instability of the packing (reported)."""
+``2^MAX_SPLITS`` substeps: a one-shot relaxation can jump out of a stable basin. A drop that
+persists at the finest substep is an instability of the packing (reported). Measurements:
+``docs/decisions.md``, section "Protocol constants"."""
 UNJAMMED_FORCE = 1e3
 """A relaxed step counts as unjammed when its mean contact force is at most this many times the
 force tolerance it was relaxed to: such forces are the residual the minimizer may leave, not a
-load. Seen (N = 1024, alpha = 2, realization 2 of root seed 0 compressed from 1e-4 to 1e-3 above
-``phi_c``, ``benchmarks/spectrum.py``): a packing that rearranged into a looser one over 8
-substeps stopped at p = 1.5e-12, its mean contact force 4.8e-14 only 6.7 times the tolerance of
-its last substep, and was reported jammed with a pressure drop (a shear step of 1e-6 then
-relaxed it to zero energy); the jammed steps of that compression carried 5e6-7e8 times theirs."""
+load (the case that set it: ``docs/decisions.md``, section "Protocol constants")."""
 UNJAMMED_DROP = 1e-3
 """With a loose ``rtol`` a jammed step's forces are only ``~1 / rtol`` times its tolerance, so the
 factor :data:`UNJAMMED_FORCE` is capped at ``UNJAMMED_DROP / rtol``: an unjammed step's forces

@@ -130,18 +130,12 @@ ISOSTATIC_SLACK = 4
 """Contacts above isostatic, ``N_c - N_iso``, that :func:`check_jammed` accepts on top of those
 the packing's own overlap implies (:func:`isostatic_allowance`)."""
 ISOSTATIC_SPREAD = 2.0
-""":func:`isostatic_allowance` accepts this many times the mean extra contacts of the overlap.
-Single packings scatter about the mean by about the mean: measured at N = 4096 (2D, alpha = 2,
-epsilon = 1e-6, 20 packings, 10 on AMD EPYC and 10 on Intel Xeon), ``N_c - N_iso`` = 0-8 where
-the mean law gives 1.6-5.8; one packing had 8 at an overlap of 2.7e-7 (law 3.6), and
-decompressed step by step towards its own jamming point (unjammed 3-4e-7 below) its excess fell
-8, 7, 7, 6, 5, 4, 4: a sound network with more contacts than the mean, not contacts of
-round-off (its weakest force is 1e-3 of the mean)."""
+""":func:`isostatic_allowance` accepts this many times the mean extra contacts of the overlap:
+single packings scatter about the mean by about the mean (measured: ``docs/decisions.md``,
+section "Protocol constants")."""
 Z_SLOPE = {2: 3.5, 3: 7.7}
-"""``z - z_iso ~ Z_SLOPE sqrt(Delta phi)`` above jamming, by dimension. Measured: 2D 3.44 (pooled
-fit, N = 1024, 5 seeds, Delta phi 1e-6 ... 1e-1, ``benchmarks/results/protocols/scaling_n1024_a2
-.md``); 3D 4.1 ... 7.7 rising from Delta phi = 1e-6 to 1e-4 (N = 1024, one seed), its largest
-taken."""
+"""``z - z_iso ~ Z_SLOPE sqrt(Delta phi)`` above jamming, by dimension (the measured slopes, in
+3D the largest: ``docs/decisions.md``, section "Protocol constants")."""
 OVERLAP_SLACK = 2.0
 """Largest mean overlap, as a packing-fraction distance over ``epsilon``, that
 :func:`check_jammed` accepts."""
@@ -529,8 +523,8 @@ def _check_resume(steps: Sequence[JammingStep], start: Packing) -> None:
 
 def overlap_distance(contacts: Contacts, packing: Packing) -> float:
     """``d phi <delta / (r_i + r_j)>``: the mean overlap as a distance above jamming in packing
-    fraction (radii grown by ``1 + s`` raise ``phi`` by ``d phi s``). Measured: packings jammed
-    within ``epsilon`` by :func:`jamming_steps` have 0.3-0.4 ``epsilon`` at alpha = 2 and 2.5."""
+    fraction (radii grown by ``1 + s`` raise ``phi`` by ``d phi s``; what packings jammed by
+    :func:`jamming_steps` have: ``docs/decisions.md``, section "Protocol constants")."""
     if contacts.i.size == 0:
         return 0.0
     radii_sum = packing.radii[contacts.i] + packing.radii[contacts.j]
