@@ -28,7 +28,7 @@ iterations).
 Results: ``benchmarks/results/<name>.md`` and ``.json``.
 
 A profiler of the minimizers' insides, this is the one benchmark that reaches into them: it
-wraps functions and methods of ``athermal.objective``, ``athermal.precon`` and
+wraps functions and methods of ``athermal.model.objective``, ``athermal.engines.precon`` and
 ``athermal.minimize.lbfgs`` / ``cg`` with ``unittest.mock.patch.object`` for the run (no public
 hook reports where an iteration's time goes) and uses the private name ``_rebuild``;
 ``benchmarks/README.md`` lists it. It follows those modules when they change.
@@ -48,18 +48,18 @@ from unittest import mock
 
 import numpy as np
 
-from athermal.bench import make_case, reference_packing
-from athermal.contact import ContactModel
-from athermal.objective import Objective
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
 from athermal.relaxation import RTOL, Minimizer, relax_objective
+from athermal.studies.bench import make_case, reference_packing
 from benchmarks.machine import ROOT, pin, save
 
 # athermal.minimize is also a function name: the modules by import_module
-contact_module = import_module("athermal.contact")
+contact_module = import_module("athermal.model.contact")
 cg_module = import_module("athermal.minimize.cg")
 lbfgs_module = import_module("athermal.minimize.lbfgs")
-objective_module = import_module("athermal.objective")
-precon_module = import_module("athermal.precon")
+objective_module = import_module("athermal.model.objective")
+precon_module = import_module("athermal.engines.precon")
 
 METHODS = (
     Minimizer("lbfgs"),

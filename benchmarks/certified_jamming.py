@@ -23,7 +23,7 @@ from typing import Any
 
 from athermal.certify import bisect_jamming_point, certify
 from athermal.errors import ConvergenceError, InputError
-from athermal.experiments import JamSpec, jam_packing
+from athermal.studies.experiments import JamSpec, jam_packing
 from benchmarks.machine import ROOT, pin, save
 
 EPSILON = 1e-12

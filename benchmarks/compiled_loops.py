@@ -1,6 +1,6 @@
 """The compiled minimizer loops against the Python ones, on the jamming protocol.
 
-Each realization is jammed (``athermal.experiments.jam_packing``, the protocol's defaults:
+Each realization is jammed (``athermal.studies.experiments.jam_packing``, the protocol's defaults:
 P-L-BFGS with the Exp preconditioner's incomplete factor) alternately with the compiled loops
 (L-BFGS iterations and line searches in compiled code, :mod:`athermal.minimize.lbfgs`) and with
 the Python loops (the objective's compiled search hidden, so that the minimizers evaluate
@@ -23,8 +23,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from athermal.experiments import JamSpec, child_seeds, jam_packing
-from athermal.objective import Objective
+from athermal.model.objective import Objective
+from athermal.studies.experiments import JamSpec, child_seeds, jam_packing
 from benchmarks.machine import ROOT, pin, save
 
 

@@ -1,10 +1,12 @@
 """The critical exponents of weak forces and small gaps at jamming, over certified packings.
 
-For each N, packings of seeds ``0 .. K-1`` are jammed (:func:`athermal.experiments.jam_packing`:
+For each N, packings of seeds ``0 .. K-1`` are jammed
+(:func:`athermal.studies.experiments.jam_packing`:
 2D, bidisperse, alpha = 2, epsilon = 1e-6, ``ohern``) and certified
 (:func:`athermal.certify.certify`); each certified packing is kept as a GSD file in the cache
 directory (a rerun reuses it). Their forces and gaps are pooled
-(:func:`athermal.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and ``gamma``
+(:func:`athermal.certify.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and
+``gamma``
 fitted over the default windows and over a scan of others, so that the dependence on the window
 is shown beside the value. With ``--epsilon E`` below 1e-9 each jamming point is bracketed to E
 in double-double (:func:`athermal.certify.bisect_jamming_point`) and the certified packing at its
@@ -28,7 +30,7 @@ from typing import Any
 import numpy as np
 
 from athermal.certify import bisect_jamming_point, certify
-from athermal.criticality import (
+from athermal.certify.criticality import (
     FORCE_WINDOW,
     GAMMA,
     GAP_WINDOW,
@@ -38,10 +40,10 @@ from athermal.criticality import (
     weak_forces_and_gaps,
 )
 from athermal.errors import ConvergenceError, InputError
-from athermal.experiments import JamSpec, jam_packing
 from athermal.io import read_gsd, write_gsd
-from athermal.plot import criticality_figure, save
 from athermal.protocols import EPSILON, RESOLUTION
+from athermal.studies.experiments import JamSpec, jam_packing
+from athermal.studies.plot import criticality_figure, save
 from benchmarks.machine import ROOT, pin
 from benchmarks.machine import save as save_results
 

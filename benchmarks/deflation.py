@@ -30,10 +30,10 @@ import scipy.linalg
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from athermal.cell import simple_shear
-from athermal.fitting import fit_power_law
-from athermal.objective import Objective
-from athermal.precon import ExpPreconditioner
+from athermal.analysis.fitting import fit_power_law
+from athermal.engines.precon import ExpPreconditioner
+from athermal.model.cell import simple_shear
+from athermal.model.objective import Objective
 from athermal.relaxation import force_tolerance, minimize_objective
 from benchmarks.machine import save
 from benchmarks.spectrum import DELTA_PHIS, MODEL, ZERO, arguments, compressed_states, hessian

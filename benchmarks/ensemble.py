@@ -20,8 +20,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from athermal.ensemble import EnsembleSpec, run_ensemble
-from athermal.experiments import JamSpec
+from athermal.studies.ensemble import EnsembleSpec, run_ensemble
+from athermal.studies.experiments import JamSpec
 from benchmarks.machine import ROOT, save
 
 

@@ -39,14 +39,14 @@ from typing import Any
 
 import numpy as np
 
-from athermal import jaxengine
-from athermal.bench import ALPHAS, CASES, make_case, reference_packing
-from athermal.contact import ContactModel
-from athermal.ensemble import EnsembleSpec, run_ensemble
-from athermal.experiments import JamSpec
-from athermal.objective import Objective
-from athermal.packing import Packing
+from athermal.engines.jax import device as jaxengine
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing
 from athermal.relaxation import Minimizer, relax
+from athermal.studies.bench import ALPHAS, CASES, make_case, reference_packing
+from athermal.studies.ensemble import EnsembleSpec, run_ensemble
+from athermal.studies.experiments import JamSpec
 from benchmarks.machine import ROOT, save
 from benchmarks.scale import start_packing
 

@@ -31,8 +31,8 @@ import numpy as np
 
 from athermal.atomic import write_text
 from athermal.errors import ConvergenceError
-from athermal.experiments import JamSpec, jam_packing
 from athermal.protocols import JAM_PROTOCOLS
+from athermal.studies.experiments import JamSpec, jam_packing
 from benchmarks.machine import ROOT, pin, save
 
 ROUND_OFF = 1e-12

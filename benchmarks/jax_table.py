@@ -18,10 +18,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from athermal import jaxengine
-from athermal.bench import ALPHAS, CASES, make_case, reference_packing
-from athermal.contact import ContactModel
+from athermal.engines.jax import device as jaxengine
+from athermal.model.contact import ContactModel
 from athermal.relaxation import Minimizer, relax
+from athermal.studies.bench import ALPHAS, CASES, make_case, reference_packing
 from benchmarks.machine import ROOT, pin, save
 
 NUMBA = (Minimizer("plbfgs"), Minimizer("pcg"))

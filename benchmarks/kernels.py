@@ -43,9 +43,9 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 from numpy.typing import NDArray  # noqa: E402
 
-from athermal.contact import ContactModel, energy_gradient  # noqa: E402
-from athermal.neighbors import NeighborList, build_neighbor_list  # noqa: E402
-from athermal.packing import Packing, random_packing  # noqa: E402
+from athermal.model.contact import ContactModel, energy_gradient  # noqa: E402
+from athermal.model.neighbors import NeighborList, build_neighbor_list  # noqa: E402
+from athermal.model.packing import Packing, random_packing  # noqa: E402
 from benchmarks.machine import ROOT, pin, save  # noqa: E402
 
 SIZES_2D = (4096, 65536, 262144, 1048576)

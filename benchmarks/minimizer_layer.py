@@ -1,6 +1,6 @@
 """The Table's trajectories and speed before and after a change to the minimizers (issue 36).
 
-Runs every Table method (:data:`athermal.bench.LABELS`) on cases 1-3 at alpha = 2 and 2.5,
+Runs every Table method (:data:`athermal.studies.bench.LABELS`) on cases 1-3 at alpha = 2 and 2.5,
 ``--repeats`` times each (pinned, median seconds), and records per row the iterations, the
 evaluations, the final energy (its exact bits, ``float.hex``) and ms per iteration. With
 ``--before A.json ... --after B.json ...`` it writes the table of the two sides instead (the
@@ -28,7 +28,7 @@ import statistics
 from pathlib import Path
 from typing import Any
 
-from athermal.bench import ALPHAS, CASES, LABELS, table1
+from athermal.studies.bench import ALPHAS, CASES, LABELS, table1
 from benchmarks.machine import ROOT, pin, save
 
 

@@ -34,16 +34,16 @@ from unittest import mock
 import numpy as np
 from numpy.typing import NDArray
 
-from athermal.cell import simple_shear
-from athermal.contact import ContactModel
-from athermal.experiments import JamSpec, child_seeds, compression_steps
-from athermal.moduli import nonaffine_displacement
-from athermal.objective import MAX_STEP_FACTOR, Objective
-from athermal.packing import Packing
+from athermal.analysis.moduli import nonaffine_displacement
+from athermal.model.cell import simple_shear
+from athermal.model.contact import ContactModel
+from athermal.model.objective import MAX_STEP_FACTOR, Objective
+from athermal.model.packing import Packing
 from athermal.protocols import CompressionStep, shear_steps
 from athermal.relaxation import Minimizer, Relaxer, force_tolerance
+from athermal.studies.experiments import JamSpec, child_seeds, compression_steps
 from benchmarks.machine import pin, save
-from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
+from benchmarks.physics import EPSILON, GROWTH, RESULTS, jammed
 
 OUTPUT = RESULTS / "negative_curvature"
 # the module, not the function athermal.minimize.newton that the package exports
@@ -59,7 +59,8 @@ def linear_start(
     relaxed: Packing, deformation: NDArray[np.float64], model: ContactModel
 ) -> Packing:
     """``relaxed`` deformed affinely by ``deformation`` ``(d, d)`` and moved by the
-    linear-response displacement (:func:`athermal.moduli.nonaffine_displacement`); the affine
+    linear-response displacement (:func:`athermal.analysis.moduli.nonaffine_displacement`); the
+    affine
     start alone where that displacement is not finite or moves a particle more than
     ``MAX_STEP_FACTOR`` mean radii. The same start as ``finite_strain_shear(start="linear")``."""
     deformed = relaxed.deform(deformation)

@@ -23,16 +23,16 @@ import sys
 import time
 from pathlib import Path
 
-from athermal.cell import simple_shear
-from athermal.contact import ContactModel, find_contacts
-from athermal.experiments import JamSpec, child_seeds, compression_steps
-from athermal.objective import Objective
-from athermal.packing import Packing
+from athermal.model.cell import simple_shear
+from athermal.model.contact import ContactModel, find_contacts
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing
 from athermal.protocols import finite_strain_shear
 from athermal.protocols.finite_strain import DEFAULT_STRAINS
 from athermal.relaxation import Minimizer, force_tolerance, minimize_objective
+from athermal.studies.experiments import JamSpec, child_seeds, compression_steps
 from benchmarks.machine import pin, save
-from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
+from benchmarks.physics import EPSILON, GROWTH, RESULTS, jammed
 
 DELTA_PHIS = (1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1)
 GAMMAS = (1e-6, 1e-8)

@@ -2,17 +2,21 @@
 ``docs/modes.md``.
 
 For each N and start seed the packing is jammed by the defaults of
-:class:`athermal.experiments.JamSpec` (alpha = 2, the default protocol and epsilon), compressed
+:class:`athermal.studies.experiments.JamSpec` (alpha = 2, the default protocol and epsilon),
+compressed
 from its own phi_c through the Delta phi values (one :func:`athermal.compression_steps` run,
 each state from the previous one), and at the jammed packing and every compressed state the
-full spectrum is taken (:func:`athermal.modes.vibrational_modes`, as ``athermal modes`` does)
-and :func:`athermal.modes.plateau_edge` gives omega* ± its bootstrap error and the modes below
+full spectrum is taken (:func:`athermal.analysis.modes.vibrational_modes`, as ``athermal modes``
+does)
+and :func:`athermal.analysis.modes.plateau_edge` gives omega* ± its bootstrap error and the modes
+below
 omega*. The table gives per N and Delta phi each seed's omega* ± err (modes below), the mean
 and sample sd over seeds, the mean error, its ratio to the sd and the mean ``z - z_iso``.
 
 omega* is *resolved* at a Delta phi when at least ``--min-modes`` (default 3) modes lie below
 it on every seed and no seed's state unjammed; the exponent of omega* against Delta phi is
-fitted per N (:func:`athermal.fitting.fit_power_law`) to the mean over seeds at the resolved
+fitted per N (:func:`athermal.analysis.fitting.fit_power_law`) to the mean over seeds at the
+resolved
 Delta phi (at least 3 of them), and to each seed alone over the same Delta phi.
 
 Run from the repository root (each worker pinned to its own core)::
@@ -44,11 +48,11 @@ from typing import Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 from athermal import ContactModel, Packing, compression_steps, measure  # noqa: E402
+from athermal.analysis.fitting import fit_power_law  # noqa: E402
+from athermal.analysis.modes import plateau_edge, vibrational_modes  # noqa: E402
 from athermal.errors import ConvergenceError, InputError  # noqa: E402
-from athermal.experiments import JamSpec, jam_packing  # noqa: E402
-from athermal.fitting import fit_power_law  # noqa: E402
-from athermal.modes import plateau_edge, vibrational_modes  # noqa: E402
 from athermal.protocols import isostatic_z  # noqa: E402
+from athermal.studies.experiments import JamSpec, jam_packing  # noqa: E402
 from benchmarks.machine import ROOT, pin, save  # noqa: E402
 
 DELTA_PHIS = [1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1]
@@ -266,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     spec = JamSpec()
     epsilon = spec.epsilon if args.epsilon is None else args.epsilon
     markdown = (
-        "# omega* against Delta phi (`athermal.modes.plateau_edge`)\n\n"
+        "# omega* against Delta phi (`athermal.analysis.modes.plateau_edge`)\n\n"
         f"{spec.dim}D bidisperse disks, alpha = {spec.alpha:g}, jammed by `JamSpec` defaults "
         f"(protocol {spec.protocol}, epsilon {epsilon:g}) from seeds "
         f"{', '.join(map(str, args.seeds))}, compressed from each packing's phi_c to Delta phi "

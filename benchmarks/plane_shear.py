@@ -2,7 +2,7 @@
 macroscopic friction of frictionless disks.
 
 For each seed a bidisperse packing of N disks is jammed between walls normal to y in the unit
-cell (:func:`athermal.experiments.jam_packing`, epsilon = 1e-6), compressed to
+cell (:func:`athermal.studies.experiments.jam_packing`, epsilon = 1e-6), compressed to
 ``phi_c + --delta-phi`` and relaxed, then sheared by moving the upper wall along x
 (:func:`athermal.protocols.shear.shear_steps`, ``mode="plane"``: the particles within one
 largest diameter of each wall glued to it) in steps of ``--step`` to ``--strain``, each step
@@ -36,9 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from athermal.experiments import JamSpec, jam_packing
 from athermal.protocols.shear import plane_tractions, rough_walls, shear_steps
 from athermal.relaxation import Minimizer, relax
+from athermal.studies.experiments import JamSpec, jam_packing
 from benchmarks.machine import ROOT, pin, save
 
 

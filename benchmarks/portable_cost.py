@@ -7,7 +7,7 @@ width — and BLAS dot products), checked out into a temporary git worktree. Eac
 own subprocess with its own fresh numba cache (compiled once, untimed, by a warm-up), pinned to
 one core:
 
-1. the Table (:func:`athermal.bench.table1`, alpha 2 and 2.5, cases 1-3, the methods below),
+1. the Table (:func:`athermal.studies.bench.table1`, alpha 2 and 2.5, cases 1-3, the methods below),
    median of ``--repeats``;
 2. ``jam`` of ``random_packing(N, 0.8, seed)`` at N = 1024 and 4096 (harmonic, the defaults).
 
@@ -61,7 +61,7 @@ def child(src: Path, quick: bool, repeats: int) -> dict[str, Any]:
     """The measurements of the build in ``src`` (run in the subprocess)."""
     load_tree(src)
     import athermal as at
-    from athermal.bench import table1
+    from athermal.studies.bench import table1
     from benchmarks.machine import pin
 
     pin(0)

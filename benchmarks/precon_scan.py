@@ -24,12 +24,17 @@ from pathlib import Path
 
 import numpy as np
 
-from athermal.bench import RTOL, make_case, reference_packing
-from athermal.contact import ContactModel
-from athermal.objective import Objective
-from athermal.packing import Packing
-from athermal.precon import R_CUT_FACTOR, SINE_AMPLITUDE, ContactPreconditioner, ExpPreconditioner
+from athermal.engines.precon import (
+    R_CUT_FACTOR,
+    SINE_AMPLITUDE,
+    ContactPreconditioner,
+    ExpPreconditioner,
+)
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing
 from athermal.relaxation import minimize_objective
+from athermal.studies.bench import RTOL, make_case, reference_packing
 from benchmarks.machine import ROOT, pin, save
 
 

@@ -22,14 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from athermal import plot
+from athermal.analysis.fitting import fit_jamming_point, fit_power_law
+from athermal.analysis.forces import force_statistics
+from athermal.analysis.modes import plateau_frequency, vibrational_modes
+from athermal.analysis.moduli import linear_response
 from athermal.errors import ConvergenceError, InputError
-from athermal.experiments import JamSpec, child_seeds, jam_packing
-from athermal.fitting import fit_jamming_point, fit_power_law
-from athermal.forces import force_statistics
-from athermal.modes import plateau_frequency, vibrational_modes
-from athermal.moduli import linear_response
 from athermal.protocols import isostatic_z, pressure_search
+from athermal.studies import plot
+from athermal.studies.experiments import JamSpec, child_seeds, jam_packing
 from benchmarks.machine import pin, save
 
 RESULTS = Path(__file__).resolve().parent / "results" / "pressure"
@@ -156,7 +156,7 @@ def main() -> None:
         "among non-rattlers; G and B by linear response; the spectrum of the stiffness matrix "
         "(rattlers removed, dense): its zero modes (2 = the translations) and negative ones, "
         "omega* where the count of modes below omega falls to half the plateau's "
-        "(`athermal.modes.plateau_frequency`, docs/modes.md)."
+        "(`athermal.analysis.modes.plateau_frequency`, docs/modes.md)."
         " Mean ± sd over the seeds that reached the pressure. A pressure drop is a trial whose "
         "pressure fell although phi rose: a plastic rearrangement on the way, which moves that "
         "packing's jamming point (Delta phi stays measured from the jamming run's).",

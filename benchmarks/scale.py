@@ -1,11 +1,12 @@
 """B4: scale — a Case 1+3 analogue on a tiled packing, N = 4096 to 1,048,576, four minimizers.
 
 The start is made quickly, without relaxing a random packing: the relaxed N = 4096 Table
-packing (:func:`athermal.bench.reference_packing`) is tiled k x k into a box k times wider
+packing (:func:`athermal.studies.bench.reference_packing`) is tiled k x k into a box k times wider
 (k = 1, 4, 8, 16: N = 4096, 65536, 262144, 1048576), which is a relaxed packing of the big box.
 Its copies are identical, so the Table's Case 3 perturbation breaks the symmetry (every
 coordinate displaced by U[-a, a], a = 1e-4 mean diameters, ``default_rng(20240601)``) and Case
-1's radii growth x (1 + 5e-5) follows (both by :func:`athermal.bench.make_case`). k = 1 uses the
+1's radii growth x (1 + 5e-5) follows (both by :func:`athermal.studies.bench.make_case`). k = 1
+uses the
 same recipe, so the growth with N is measured on one definition.
 
 L-BFGS, P-L-BFGS (Exp) with the direct, the AMG and the incomplete-Cholesky (``ic0``) solver, and
@@ -41,13 +42,13 @@ from typing import Any
 
 import numpy as np
 
-from athermal.bench import make_case, reference_packing
-from athermal.cell import Cell
-from athermal.contact import ContactModel
-from athermal.objective import Objective
-from athermal.packing import Packing
-from athermal.precon import make_preconditioner
+from athermal.engines.precon import make_preconditioner
+from athermal.model.cell import Cell
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing
 from athermal.relaxation import RTOL, Minimizer, minimize_objective
+from athermal.studies.bench import make_case, reference_packing
 from benchmarks.machine import ROOT, pin, save
 
 METHODS = {

@@ -5,7 +5,7 @@ For jammed packings of the iteration experiment (``--cache``, realizations of ro
 compressed to each Delta phi:
 
 1. the generalized eigenvalues of ``H v = lambda P v`` at the relaxed state (dense, ``N d``
-   square), ``H`` the Hessian (:meth:`athermal.objective.Objective.hessian`), for ``P = I``
+   square), ``H`` the Hessian (:meth:`athermal.model.objective.Objective.hessian`), for ``P = I``
    (L-BFGS, FIRE), the Exp preconditioner (A = 0, P-L-BFGS) and the contact preconditioner;
    without the zero modes (translations, rattlers: :data:`ZERO`; their count is checked
    against ``d (n_rattlers + 1)``), the smallest ``lambda_min``, the largest ``lambda_max`` and
@@ -41,21 +41,21 @@ import scipy.sparse as sp
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from athermal import plot
-from athermal.cell import simple_shear
-from athermal.contact import ContactModel, find_contacts
-from athermal.experiments import JamSpec, child_seeds, compression_steps
-from athermal.fitting import fit_power_law
+from athermal.analysis.fitting import fit_power_law
+from athermal.analysis.observables import rattlers
+from athermal.engines.precon import ContactPreconditioner, ExpPreconditioner
 from athermal.minimize.newton import SHIFT_MIN
-from athermal.objective import Objective
-from athermal.observables import rattlers
-from athermal.packing import Packing
-from athermal.precon import ContactPreconditioner, ExpPreconditioner
+from athermal.model.cell import simple_shear
+from athermal.model.contact import ContactModel, find_contacts
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing
 from athermal.protocols.compress import CompressionStep
 from athermal.relaxation import force_tolerance, minimize_objective
+from athermal.studies import plot
+from athermal.studies.experiments import JamSpec, child_seeds, compression_steps
 from benchmarks.machine import pin, save
 from benchmarks.newton_diagnostics import pair_set
-from benchmarks.studies import EPSILON, GROWTH, RESULTS, jammed
+from benchmarks.physics import EPSILON, GROWTH, RESULTS, jammed
 
 MODEL = ContactModel(2.0)
 """The contact law of the packings (harmonic)."""
@@ -77,7 +77,7 @@ rattlers): round-off leaves them below 1e-14 of it here, the softest physical mo
 
 
 def n_rattlers(packing: Packing, model: ContactModel) -> int:
-    """The rattlers of ``packing`` (:func:`~athermal.observables.rattlers`)."""
+    """The rattlers of ``packing`` (:func:`~athermal.analysis.observables.rattlers`)."""
     return int(rattlers(find_contacts(packing, model), packing.n, packing.dim).sum())
 
 

@@ -1,6 +1,7 @@
 """B1: the paper's Table — minimizers and preconditioners on the three benchmark cases.
 
-The cases and methods live in :mod:`athermal.bench` (also run by ``athermal bench``); this script
+The cases and methods live in :mod:`athermal.studies.bench` (also run by ``athermal bench``); this
+script
 adds what a results file needs: the machine, the commit, one pinned core and atomic writes
 (:mod:`machine`).
 
@@ -24,7 +25,7 @@ import sys
 from dataclasses import asdict
 from pathlib import Path
 
-from athermal.bench import (
+from athermal.studies.bench import (
     ALPHAS,
     CASES,
     LABELS,

@@ -1,7 +1,8 @@
 """The energy+gradient and the neighbour list on many cores: the slab kernel on 1 ... T numba
 threads against the one-thread kernel, in the same run
-(:func:`athermal.contact.energy_gradient_slabs`), and the neighbour-list build on 1 ... T threads
-(:func:`athermal.neighbors.collect_chunks` from ``PARALLEL_BUILD`` particles).
+(:func:`athermal.model.contact.energy_gradient_slabs`), and the neighbour-list build on 1 ... T
+threads
+(:func:`athermal.model.neighbors.collect_chunks` from ``PARALLEL_BUILD`` particles).
 
 For each size a bidisperse random packing (``random_packing(N, phi, dim=d, seed=1)``, phi = 0.84
 in 2D, 0.64 in 3D, alpha = 2) and its neighbour list (default skin) are built once; then, in
@@ -32,8 +33,8 @@ import numba
 import numpy as np
 
 from athermal import ContactModel, random_packing
-from athermal.contact import energy_gradient, energy_gradient_contacts
-from athermal.neighbors import build_neighbor_list
+from athermal.model.contact import energy_gradient, energy_gradient_contacts
+from athermal.model.neighbors import build_neighbor_list
 from benchmarks.machine import ROOT, save
 
 

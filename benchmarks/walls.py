@@ -1,6 +1,7 @@
 """Packings jammed between flat walls: the boundary layer the paper's periodic cell avoids.
 
-For each seed a bidisperse packing of N disks is jammed (:func:`athermal.experiments.jam_packing`,
+For each seed a bidisperse packing of N disks is jammed
+(:func:`athermal.studies.experiments.jam_packing`,
 the defaults: ``ohern``, epsilon = 1e-6) in the unit cell with walls normal to y, and, for the
 reference, in the periodic unit cell from the same seed. Reported:
 
@@ -31,10 +32,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from athermal.contact import find_contacts
-from athermal.experiments import JamSpec, jam_packing
-from athermal.observables import stress
-from athermal.walls import wall_pressures
+from athermal.analysis.observables import stress
+from athermal.model.contact import find_contacts
+from athermal.model.walls import wall_pressures
+from athermal.studies.experiments import JamSpec, jam_packing
 from benchmarks.machine import ROOT, pin, save
 
 INTERIOR = 5.0

@@ -16,10 +16,10 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from athermal.analysis.fitting import fit_power_law
 from athermal.errors import InputError
-from athermal.experiments import CompressSpec, JamSpec, compress, jam_packing
-from athermal.fitting import fit_power_law
 from athermal.protocols.compress import FIT_LAWS, fit_points, pooled_fit
+from athermal.studies.experiments import CompressSpec, JamSpec, compress, jam_packing
 from benchmarks.machine import ROOT, pin, save
 
 SYMBOLS = dict(zip(FIT_LAWS, ("p", "G", "z"), strict=True))

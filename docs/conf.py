@@ -38,17 +38,17 @@ html_css_files = ["wrap.css"]  # long code lines wrap in their boxes instead of 
 # Modules whose public names are not all re-exported by ``athermal``: their other names get a
 # section of their own on the API page.
 MODULES = (
-    "athermal.cell",
+    "athermal.model.cell",
     "athermal.protocols",
-    "athermal.moduli",
-    "athermal.walls",
+    "athermal.analysis.moduli",
+    "athermal.model.walls",
     "athermal.enthalpy",
     "athermal.certify",
-    "athermal.cage",
-    "athermal.criticality",
-    "athermal.extended",
-    "athermal.plot",
-    "athermal.paper",
+    "athermal.certify.cage",
+    "athermal.certify.criticality",
+    "athermal.certify.extended",
+    "athermal.studies.plot",
+    "athermal.studies.paper",
 )
 
 
@@ -59,7 +59,10 @@ def _modules(path: list[str], prefix: str) -> list[str]:
     for info in pkgutil.iter_modules(path, prefix):
         if "__main__" in info.name:
             continue
-        if info.name.startswith("athermal.jaxengine") and importlib.util.find_spec("jax") is None:
+        if (
+            info.name.startswith("athermal.engines.jax.")
+            and importlib.util.find_spec("jax") is None
+        ):
             continue
         found.append(info.name)
         if info.ispkg:

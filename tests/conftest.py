@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from athermal.cell import Cell
-from athermal.moduli import nonaffine_displacement, nonrattler_contacts
-from athermal.neighbors import build_neighbor_list
-from athermal.packing import Packing
+from athermal.analysis.moduli import nonaffine_displacement, nonrattler_contacts
+from athermal.model.cell import Cell
+from athermal.model.neighbors import build_neighbor_list
+from athermal.model.packing import Packing
 
 DATA = Path(str(resources.files("athermal.data")))  # reference configurations, with provenance
 

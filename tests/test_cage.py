@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 import athermal as at
-from athermal.cage import CLEARANCE, free_place, free_places, nearest_clear
 from athermal.certify import GAP_REACH, _free_rattlers
-from athermal.extended import NearPairs
+from athermal.certify.cage import CLEARANCE, free_place, free_places, nearest_clear
+from athermal.certify.extended import NearPairs
 
 
 def clear(move, offsets, reach):

@@ -3,8 +3,8 @@ from itertools import product
 import numpy as np
 import pytest
 
-from athermal.cell import Cell, isotropic, pure_shear, simple_shear
 from athermal.errors import InputError
+from athermal.model.cell import Cell, isotropic, pure_shear, simple_shear
 
 
 def tilted(dim: int, tilt: float) -> Cell:
@@ -105,7 +105,7 @@ def test_cell_is_immutable():
 def test_narrowest_width_is_the_lattice_s_whatever_its_basis(h):
     """A sheared copy of the unit cell (the same lattice) is as wide as the unit cell, though
     the faces of its ``h`` lie closer: a particle that fits one fits the other."""
-    from athermal.packing import Packing
+    from athermal.model.packing import Packing
 
     sheared = Cell(np.array(h))
     assert sheared.widths.min() < 0.2

@@ -10,6 +10,7 @@ import pytest
 
 import athermal as at
 import athermal.cli.analysis as analysis
+from athermal.analysis.observables import rattlers
 from athermal.certify import (
     GAP_REACH,
     TARGET,
@@ -20,11 +21,10 @@ from athermal.certify import (
     contact_network,
     toward_jamming,
 )
+from athermal.certify.extended import NearPairs
 from athermal.cli import main
 from athermal.errors import InputError
-from athermal.extended import NearPairs
-from athermal.neighbors import build_neighbor_list
-from athermal.observables import rattlers
+from athermal.model.neighbors import build_neighbor_list
 from decimal_reference import decimal_sums
 
 DATA = Path(__file__).parent / "data"

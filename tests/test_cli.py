@@ -8,7 +8,7 @@ import pytest
 
 from athermal.cli import main
 from athermal.io import read_gsd, write_gsd
-from athermal.packing import random_packing
+from athermal.model.packing import random_packing
 
 CONTRACT_MEASURE_KEYS = {
     "n",
@@ -209,7 +209,7 @@ CONTRACT_JAM_KEYS = {
 
 def test_jam_compress_shear_chain_writes_files_tables_and_contract_keys(tmp_path, capsys):
     from athermal.io import count_frames
-    from athermal.tables import read_table
+    from athermal.studies.tables import read_table
 
     jammed, steps = tmp_path / "j.gsd", tmp_path / "steps.gsd"
     code, out, err = run(
@@ -342,8 +342,8 @@ def test_progress_goes_to_a_terminal_stderr_only_and_json_stays_clean(tmp_path, 
 def test_compress_refuses_a_start_not_at_its_jamming_point_unless_asked(tmp_path, capsys):
     """Unjammed, unrelaxed or far above its phi_c: exit 2, one line, nothing written; with
     --from-unjammed the compression runs with one warning that says why."""
-    from athermal.contact import ContactModel
-    from athermal.objective import Objective
+    from athermal.model.contact import ContactModel
+    from athermal.model.objective import Objective
     from athermal.relaxation import minimize_objective
 
     model = ContactModel(2.0)
@@ -460,8 +460,8 @@ def test_measure_of_a_sheared_copy_of_the_unit_cell_equals_the_unit_cell_s(tmp_p
     the file is athermal's (exact float64 state) or a plain HOOMD one (box tilt xy = 7)."""
     import gsd.hoomd
 
-    from athermal.cell import Cell
-    from athermal.packing import Packing
+    from athermal.model.cell import Cell
+    from athermal.model.packing import Packing
 
     square = random_packing(64, 0.86, seed=4)
     sheared = Packing(square.positions, square.radii, Cell(np.array([[1.0, 7.0], [0.0, 1.0]])))
@@ -508,7 +508,7 @@ def test_list_valued_and_odd_numeric_options_are_checked_at_the_door(
     tmp_path, capsys, monkeypatch, argv, message
 ):
     """Refused in one line naming the flag, before any work (the Table never starts)."""
-    from athermal import bench
+    from athermal.studies import bench
 
     def no_work(*args, **kwargs):
         raise AssertionError("the Table ran")
@@ -545,7 +545,7 @@ def test_ensemble_with_an_unreachable_scheduler_leaves_nothing_behind(
     tmp_path, capsys, monkeypatch
 ):
     pytest.importorskip("dask.distributed")
-    monkeypatch.setattr("athermal.ensemble.CONNECT_TIMEOUT", 0.5)
+    monkeypatch.setattr("athermal.studies.ensemble.CONNECT_TIMEOUT", 0.5)
     out = tmp_path / "E"
     argv = ["ensemble", "jam", "--realizations", "2", "--scheduler", "tcp://127.0.0.1:1"]
     code, stdout, err = run(capsys, *argv, "-o", str(out), "--quiet")
@@ -611,7 +611,7 @@ def test_jam_a_polydisperse_packing_and_resume_only_the_same_sizes(tmp_path, cap
 def test_moduli_by_finite_strain_agree_with_linear_response(tmp_path, capsys):
     """A packing well above jamming: the quasi-static measurement to 1e-5 gives the linear
     response's B and G to first order in the strain."""
-    from athermal.contact import ContactModel
+    from athermal.model.contact import ContactModel
     from athermal.relaxation import relax
 
     packing = relax(random_packing(128, 0.9, seed=2), ContactModel(2.0), rtol=1e-12).packing

@@ -4,8 +4,10 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-from athermal.cell import Cell, pure_shear, simple_shear
-from athermal.contact import (
+from athermal.analysis.observables import stress
+from athermal.errors import InputError
+from athermal.model.cell import Cell, pure_shear, simple_shear
+from athermal.model.contact import (
     ContactModel,
     assemble_blocks,
     contact_blocks,
@@ -17,10 +19,8 @@ from athermal.contact import (
     strain_derivative,
     total_energy,
 )
-from athermal.errors import InputError
-from athermal.neighbors import build_neighbor_list
-from athermal.observables import stress
-from athermal.packing import Packing, random_packing
+from athermal.model.neighbors import build_neighbor_list
+from athermal.model.packing import Packing, random_packing
 
 ALPHAS = [2.0, 2.5, 3.0, 2.7]
 CELLS = {
@@ -270,7 +270,7 @@ def test_the_slab_kernel_matches_one_thread_whatever_the_threads(dim, walls):
     no particle."""
     import numba
 
-    from athermal.contact import energy_gradient_contacts
+    from athermal.model.contact import energy_gradient_contacts
 
     cell = Cell(np.eye(dim), walls)
     p = random_packing(4096 if dim == 2 else 8000, 0.86 if dim == 2 else 0.66, cell=cell, seed=2)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import athermal as at
+from athermal.analysis.observables import rattlers
 from athermal.certify import (
     GAP_REACH,
     bisect_jamming_point,
@@ -15,15 +16,14 @@ from athermal.certify import (
     contact_network,
     toward_jamming,
 )
-from athermal.cli import main
-from athermal.criticality import (
+from athermal.certify.criticality import (
     critical_exponents,
     fit_truncated_power_law,
     weak_forces_and_gaps,
 )
+from athermal.certify.extended import NearPairs
+from athermal.cli import main
 from athermal.errors import InputError
-from athermal.extended import NearPairs
-from athermal.observables import rattlers
 
 DATA = Path(__file__).parent / "data"
 

@@ -146,7 +146,7 @@ def test_what_the_third_engine_has_not_is_refused_by_its_capabilities(scipy_engi
         engines.check("scipy", deterministic=True)
     frozen = np.zeros(64, dtype=bool)
     frozen[:4] = True
-    from athermal.objective import Objective
+    from athermal.model.objective import Objective
 
     objective = Objective(random_packing(64, 0.88, seed=1), ContactModel(2.0), frozen=frozen)
     with pytest.raises(InputError, match="holds no particle fixed"):
@@ -169,7 +169,7 @@ class LbfgsOnly(ScipyEngine):
 
 def test_an_engine_without_fire_gets_no_hand_over_to_it(scipy_engine):
     """The relaxer hands a failed line search to FIRE only on an engine that runs FIRE."""
-    from athermal.objective import Objective
+    from athermal.model.objective import Objective
 
     engines.register("scipy-lbfgs", LbfgsOnly)
     try:

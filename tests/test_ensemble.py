@@ -9,9 +9,9 @@ import time
 
 import pytest
 
-from athermal.ensemble import EnsembleSpec, Realization, run_ensemble
 from athermal.errors import InputError
-from athermal.experiments import JamSpec, child_seeds
+from athermal.studies.ensemble import EnsembleSpec, Realization, run_ensemble
+from athermal.studies.experiments import JamSpec, child_seeds
 
 distributed = pytest.importorskip("dask.distributed")
 
@@ -112,7 +112,7 @@ def test_without_dask_the_same_realizations_run_sequentially(reference, tmp_path
 
 @pytest.mark.slow
 def test_a_shear_ensemble_records_every_section_and_reads_back(tmp_path):
-    from athermal.experiments import CompressSpec, ShearSpec
+    from athermal.studies.experiments import CompressSpec, ShearSpec
 
     spec = EnsembleSpec(
         "shear",
@@ -150,9 +150,9 @@ def test_a_shear_ensemble_records_every_section_and_reads_back(tmp_path):
 def test_a_scheduler_that_does_not_answer_leaves_nothing_behind(tmp_path, monkeypatch):
     """Reached before the directory is touched: a new one is not created, an existing one
     keeps exactly what it held."""
-    import athermal.ensemble
+    import athermal.studies.ensemble
 
-    monkeypatch.setattr(athermal.ensemble, "CONNECT_TIMEOUT", 0.5)
+    monkeypatch.setattr(athermal.studies.ensemble, "CONNECT_TIMEOUT", 0.5)
     new, kept = tmp_path / "new", tmp_path / "kept"
     kept.mkdir()
     (kept / "notes.txt").write_text("mine\n")

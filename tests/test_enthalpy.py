@@ -5,13 +5,13 @@ free."""
 import numpy as np
 import pytest
 
-from athermal.contact import ContactModel, find_contacts, total_energy
+from athermal.analysis.moduli import linear_response, stability
+from athermal.analysis.observables import isostatic_contacts, measure
 from athermal.enthalpy import Enthalpy, relax_at_pressure
 from athermal.errors import InputError
-from athermal.moduli import linear_response, stability
-from athermal.objective import Objective
-from athermal.observables import isostatic_contacts, measure
-from athermal.packing import random_packing
+from athermal.model.contact import ContactModel, find_contacts, total_energy
+from athermal.model.objective import Objective
+from athermal.model.packing import random_packing
 
 
 @pytest.mark.parametrize("dim", [2, 3])

@@ -7,12 +7,12 @@ import numba
 import numpy as np
 import pytest
 
-from athermal import extended
-from athermal.cell import Cell
-from athermal.contact import ContactModel
+from athermal.certify import extended
 from athermal.errors import InputError
-from athermal.neighbors import build_neighbor_list
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell
+from athermal.model.contact import ContactModel
+from athermal.model.neighbors import build_neighbor_list
+from athermal.model.packing import Packing, random_packing
 from decimal_reference import decimal_sums, exact
 
 

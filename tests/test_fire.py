@@ -12,13 +12,13 @@ from numpy.typing import NDArray
 from athermal import ContactModel, InputError, find_contacts, random_packing
 from athermal.minimize import Hooks, MinimizeResult
 from athermal.minimize.fire import default_timesteps, fire
-from athermal.objective import Objective
+from athermal.model.objective import Objective
 
 Function = Callable[[NDArray[np.float64]], tuple[float, NDArray[np.float64]]]
 
 
 class FakeObjective:
-    """The interface of :class:`~athermal.objective.Objective` around a plain function.
+    """The interface of :class:`~athermal.model.objective.Objective` around a plain function.
 
     Records every point it evaluates; caches the last one like the real objective.
     """

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
 
+from athermal.analysis.fitting import fit_power_law
 from athermal.errors import InputError
-from athermal.fitting import fit_power_law
 
 
 def test_exact_power_law_is_recovered_with_zero_error():
@@ -32,7 +32,7 @@ def test_window_and_non_positive_points_are_left_out():
 
 
 def test_jamming_point_and_exponent_are_recovered_from_an_offset_power_law():
-    from athermal.fitting import fit_jamming_point
+    from athermal.analysis.fitting import fit_jamming_point
 
     dphi = np.logspace(-7, -1, 25)
     phi = 0.84 + 3e-6 + dphi  # the data start 3e-6 above the true jamming point
@@ -115,7 +115,7 @@ def test_pooled_fits_of_an_ensemble_leave_out_unjammed_steps():
     """The ensemble's pooled fit takes each row as the realizations' own fits do: a step that
     unjammed (all rattlers, a pressure of round-off) is no data point of ``p ~ Delta phi``, nor
     is any later step of that compression."""
-    from athermal.ensemble import CompressionRecord, pooled_exponent
+    from athermal.studies.ensemble import CompressionRecord, pooled_exponent
 
     def rows(pressures, unjammed=()):
         return tuple(

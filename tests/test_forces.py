@@ -6,12 +6,7 @@ import json
 import numpy as np
 import pytest
 
-from athermal.cell import Cell
-from athermal.cli import main
-from athermal.contact import ContactModel
-from athermal.ensemble import EnsembleSpec, Realization, run_ensemble
-from athermal.experiments import JamSpec
-from athermal.forces import (
+from athermal.analysis.forces import (
     EDGES,
     FORCE_BIN,
     anisotropy,
@@ -20,11 +15,16 @@ from athermal.forces import (
     force_statistics,
     histogram_density,
 )
+from athermal.analysis.observables import measure
+from athermal.cli import main
 from athermal.io import write_gsd
-from athermal.objective import Objective
-from athermal.observables import measure
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 from athermal.relaxation import minimize_objective
+from athermal.studies.ensemble import EnsembleSpec, Realization, run_ensemble
+from athermal.studies.experiments import JamSpec
 
 
 @pytest.fixture(scope="module")

@@ -6,10 +6,10 @@ import gsd.hoomd
 import numpy as np
 import pytest
 
-from athermal.cell import simple_shear
-from athermal.contact import ContactModel, find_contacts
 from athermal.io import write_gsd
-from athermal.packing import random_packing
+from athermal.model.cell import simple_shear
+from athermal.model.contact import ContactModel, find_contacts
+from athermal.model.packing import random_packing
 
 F32 = 2e-6  # relative precision of HOOMD's float32 chunks
 
@@ -94,7 +94,7 @@ def jammed(tmp_path_factory):
 def test_the_bonds_are_the_contacts_at_the_jamming_point(jammed):
     """Any GSD reader gets athermal's float64 contact list as bonds, with each contact's overlap
     and force and the rattlers, where the float32 positions lose contacts."""
-    from athermal.observables import rattlers
+    from athermal.analysis.observables import rattlers
 
     path, packing, model = jammed
     with gsd.hoomd.open(str(path)) as traj:

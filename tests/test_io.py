@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import athermal.atomic
-from athermal.cell import Cell, simple_shear
-from athermal.contact import ContactModel
 from athermal.errors import FileFormatError, InputError
 from athermal.io import append_gsd, count_frames, read_gsd, write_gsd
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell, simple_shear
+from athermal.model.contact import ContactModel
+from athermal.model.packing import Packing, random_packing
 
 
 def sheared_unwrapped(dim: int, seed: int, n: int = 64) -> Packing:
@@ -341,7 +341,7 @@ def test_failed_write_leaves_the_existing_file_and_no_temporary(tmp_path, monkey
 
 
 def test_a_particle_far_outside_the_cell_is_written_with_its_contacts(tmp_path):
-    from athermal.contact import find_contacts
+    from athermal.model.contact import find_contacts
 
     packing = random_packing(64, 0.6, dim=3, seed=1)
     moved = packing.positions.copy()

@@ -12,19 +12,19 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as sla
 
-from athermal.cell import simple_shear
-from athermal.contact import ContactModel, find_contacts
+from athermal.analysis.observables import stress
+from athermal.engines.precon import ExpPreconditioner
 from athermal.errors import InputError
 from athermal.minimize._wolfe import GO_ON
 from athermal.minimize.linesearch import strong_wolfe as cpu_search
-from athermal.objective import Objective
-from athermal.observables import stress
-from athermal.packing import Packing, random_packing
-from athermal.precon import ExpPreconditioner
+from athermal.model.cell import simple_shear
+from athermal.model.contact import ContactModel, find_contacts
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 from athermal.relaxation import Minimizer, relax
 
-je = pytest.importorskip("athermal.jaxengine")
-from athermal.jaxengine import _precon, _search  # noqa: E402
+je = pytest.importorskip("athermal.engines.jax.device")
+from athermal.engines.jax import _precon, _search  # noqa: E402 (after the skip without JAX)
 
 
 def on_device(packing: Packing, model: ContactModel, x: np.ndarray | None = None):
@@ -98,8 +98,8 @@ def pair_set(first, second, shift, count, positions):
 def test_the_device_cell_list_is_the_brute_force_list(dim, phi, shear):
     """In square and sheared cells, 2D and 3D, from unwrapped positions: the same pairs at the
     same distances as the O(N^2) search over images."""
-    from athermal.jaxengine import _cells
-    from athermal.neighbors import brute_force_pairs
+    from athermal.engines.jax import _cells
+    from athermal.model.neighbors import brute_force_pairs
 
     packing = random_packing(400, phi, dim=dim, seed=3)
     if shear:
@@ -139,7 +139,7 @@ def test_an_overflowing_cell_list_is_built_again_never_used():
 
 
 def test_a_small_cell_takes_the_host_list():
-    from athermal.jaxengine import _cells
+    from athermal.engines.jax import _cells
 
     packing = random_packing(16, 0.85, seed=1)
     assert (
@@ -320,10 +320,10 @@ def test_what_the_engine_has_not_is_refused(method, precon):
 
 def test_without_jax_the_engine_says_how_to_install_it(monkeypatch):
     monkeypatch.setitem(sys.modules, "jax", None)
-    for name in [m for m in sys.modules if m.startswith("athermal.jaxengine")]:
+    for name in [m for m in sys.modules if m.startswith("athermal.engines.jax.device")]:
         monkeypatch.delitem(sys.modules, name)
     with pytest.raises(InputError, match=r"JAX is not installed; pip install jax"):
-        importlib.import_module("athermal.jaxengine")
+        importlib.import_module("athermal.engines.jax.device")
 
 
 def test_relax_backend_jax_on_the_command_line(tmp_path, capsys):

@@ -87,10 +87,55 @@ def test_the_walker_sees_a_forbidden_import():
     found = imported(
         "from ..objective import Objective\n"
         "from .. import packing\n"
-        "import athermal.contact\n"
-        "from athermal.neighbors import NeighborList\n"
+        "import athermal.model.contact\n"
+        "from athermal.model.neighbors import NeighborList\n"
         "from .result import Status\n",
         ("minimize",),
     )
-    assert {"objective", "packing", "contact", "neighbors"} <= found
+    assert {"objective", "packing", "model.contact", "model.neighbors"} <= found
     assert {m for m in found if not outside(m)} == {"minimize.result"}
+
+
+def rooms() -> dict[str, set[str]]:
+    """The package's rooms (a subpackage, or a module at the top) and the rooms each imports."""
+    graph: dict[str, set[str]] = {}
+    for path in PACKAGE.rglob("*.py"):
+        parts = path.relative_to(PACKAGE).with_suffix("").parts
+        if parts[0] in ("__init__", "__main__"):
+            continue
+        graph.setdefault(parts[0], set()).update(
+            m.split(".")[0] for m in athermal_modules(path) if m.split(".")[0] != parts[0]
+        )
+    return {room: {d for d in deps if d in graph} for room, deps in graph.items()}
+
+
+def floors(graph: dict[str, set[str]]) -> dict[str, int]:
+    """Each room's floor: one above the highest room it imports (ground: 1); raises on a
+    cycle."""
+    found: dict[str, int] = {}
+
+    def floor(room: str, path: tuple[str, ...]) -> int:
+        if room in path:
+            raise AssertionError(f"import cycle: {' -> '.join((*path, room))}")
+        if room not in found:
+            found[room] = 1 + max((floor(d, (*path, room)) for d in graph[room]), default=0)
+        return found[room]
+
+    for room in graph:
+        floor(room, ())
+    return found
+
+
+def test_the_house_has_no_cycle_and_its_floors():
+    """The picture of ``docs/decisions.md`` ("The house"): 20 rooms on 11 floors, the command
+    line alone at the top, the ground floor importing nothing of athermal."""
+    graph = rooms()
+    level = floors(graph)
+    assert len(graph) <= 20 and max(level.values()) <= 11
+    assert [r for r in level if level[r] == max(level.values())] == ["cli"]
+    assert all(not graph[r] for r in ("errors", "_jit", "_records"))
+
+
+def test_the_floor_walker_sees_a_cycle():
+    with pytest.raises(AssertionError, match="import cycle: a -> b -> a"):
+        floors({"a": {"b"}, "b": {"a"}})

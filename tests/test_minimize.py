@@ -3,16 +3,16 @@ import importlib
 import numpy as np
 import pytest
 
-from athermal.cell import Cell
-from athermal.contact import ContactModel
 from athermal.errors import InputError
 from athermal.minimize import Function, Hooks, Status
 from athermal.minimize._step import advance
 from athermal.minimize.cg import cg
 from athermal.minimize.lbfgs import lbfgs
 from athermal.minimize.newton import newton
-from athermal.objective import Objective
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 from athermal.relaxation import minimize_objective
 
 
@@ -369,7 +369,7 @@ def test_a_compiled_search_out_of_reach_leaves_the_last_point_it_evaluated():
     evaluated (the one the objective takes back as its cached evaluation)."""
     from athermal.minimize import _wolfe
     from athermal.minimize.linesearch import C1, EPS
-    from athermal.objective import energy_search
+    from athermal.model.objective import energy_search
 
     objective = Objective(random_packing(96, 0.88, seed=7), ContactModel(2.0))
     x = objective.x0
@@ -417,7 +417,7 @@ def test_compiled_iterations_hand_over_and_match_the_python_loop(method, precon,
     compiled functions, and CG hands its slope ``g.p`` on instead of forming it again), every
     iterate in the history, and each point handed back to the objective as the last one
     evaluated has that energy and gradient."""
-    from athermal.precon import ExpPreconditioner
+    from athermal.engines.precon import ExpPreconditioner
 
     compiled_module = importlib.import_module("athermal.minimize._compiled")
 
@@ -533,7 +533,7 @@ def test_a_function_below_zero_is_minimized_not_stopped_at_zero():
 def test_only_the_exp_factor_is_solved_in_compiled_code():
     """An incomplete factor of the contact preconditioner (an N d system) is solved from
     Python; the Exp one (N rows, d columns) in the compiled loops."""
-    from athermal.precon import ContactPreconditioner, ExpPreconditioner
+    from athermal.engines.precon import ContactPreconditioner, ExpPreconditioner
 
     obj = Objective(overlapped(), ContactModel(2.0))
     for kind, compiled in ((ContactPreconditioner, False), (ExpPreconditioner, True)):

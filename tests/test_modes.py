@@ -7,20 +7,20 @@ import json
 import numpy as np
 import pytest
 
-from athermal.cell import Cell
-from athermal.cli import main
-from athermal.contact import ContactModel
-from athermal.errors import InputError
-from athermal.io import write_gsd
-from athermal.modes import (
+from athermal.analysis.modes import (
     density_of_states,
     plateau_edge,
     plateau_frequency,
     stiffness_matrix,
     vibrational_modes,
 )
-from athermal.objective import Objective
-from athermal.packing import Packing, random_packing
+from athermal.cli import main
+from athermal.errors import InputError
+from athermal.io import write_gsd
+from athermal.model.cell import Cell
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 from athermal.relaxation import minimize_objective
 
 
@@ -203,9 +203,9 @@ def test_omega_star_rises_with_compression():
 
 
 def test_the_full_spectrum_is_refused_beyond_the_dense_limit(packing_2d, monkeypatch):
-    import athermal.modes
+    import athermal.analysis.modes
 
-    monkeypatch.setattr(athermal.modes, "DENSE_MODES_DOFS", 100)
+    monkeypatch.setattr(athermal.analysis.modes, "DENSE_MODES_DOFS", 100)
     with pytest.raises(InputError, match="ask for the lowest k"):
         vibrational_modes(*packing_2d)
     with pytest.raises(InputError, match="k: need an integer"):

@@ -2,9 +2,19 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from athermal import moduli
-from athermal.cell import Cell, pure_shear, simple_shear
-from athermal.contact import (
+from athermal.analysis import moduli
+from athermal.analysis.moduli import (
+    _cholesky_solve,
+    _solve,
+    linear_response,
+    nonaffine_displacement,
+    relaxed_strain_curvature,
+    strain_terms,
+)
+from athermal.analysis.observables import rattlers
+from athermal.errors import InputError
+from athermal.model.cell import Cell, pure_shear, simple_shear
+from athermal.model.contact import (
     ContactModel,
     Contacts,
     find_contacts,
@@ -13,18 +23,8 @@ from athermal.contact import (
     strain_derivative,
     total_energy,
 )
-from athermal.errors import InputError
-from athermal.moduli import (
-    _cholesky_solve,
-    _solve,
-    linear_response,
-    nonaffine_displacement,
-    relaxed_strain_curvature,
-    strain_terms,
-)
-from athermal.objective import Objective
-from athermal.observables import rattlers
-from athermal.packing import Packing, random_packing
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 from athermal.protocols import Minimizer, finite_strain_bulk, finite_strain_shear
 from athermal.relaxation import minimize_objective
 from conftest import network_strain
@@ -348,7 +348,7 @@ def _square_lattice(radius=0.13):
 
 
 def test_stability_finds_the_negative_mode_of_a_constructed_saddle():
-    from athermal.moduli import stability
+    from athermal.analysis.moduli import stability
 
     square, model = _square_lattice(), ContactModel(2.0)
     f, length = 2 * 0.13 - 0.25, 0.25
@@ -362,7 +362,7 @@ def test_stability_finds_the_negative_mode_of_a_constructed_saddle():
 
 
 def test_a_relaxed_packing_is_stable():
-    from athermal.moduli import stability
+    from athermal.analysis.moduli import stability
 
     model = ContactModel(2.0)
     relaxed = minimize_objective(
@@ -373,7 +373,7 @@ def test_a_relaxed_packing_is_stable():
 
 
 def test_a_protocol_relaxation_leaves_the_saddle_for_a_minimum():
-    from athermal.moduli import stability
+    from athermal.analysis.moduli import stability
     from athermal.protocols import Minimizer
     from athermal.relaxation import Relaxer
 

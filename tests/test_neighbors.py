@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from athermal.cell import Cell, isotropic, pure_shear, simple_shear
-from athermal.neighbors import brute_force_pairs, build_neighbor_list, pair_set
-from athermal.packing import random_packing
+from athermal.model.cell import Cell, isotropic, pure_shear, simple_shear
+from athermal.model.neighbors import brute_force_pairs, build_neighbor_list, pair_set
+from athermal.model.packing import random_packing
 
 
 def deformations(dim):
@@ -98,7 +98,7 @@ def test_row_maxima_match_numpy(dim, rows):
     """The compiled row maxima (four rows at a time, 2D and 3D specialized) against numpy, for
     row counts that leave every remainder of four."""
     from athermal import _blocks
-    from athermal.objective import _place_trial
+    from athermal.model.objective import _place_trial
 
     rng = np.random.default_rng(rows * dim)
     x, direction = rng.normal(size=(2, rows * dim))
@@ -127,7 +127,7 @@ def test_the_threaded_search_lists_the_same_pairs_in_the_same_order(monkeypatch,
     """Above ``PARALLEL_BUILD`` the search runs chunk by chunk on the threads; the list, its
     order and its slabs are those of the one-thread search, also when chunks overflow their
     part of the buffer and are searched again (forced here by a tiny first capacity)."""
-    import athermal.neighbors as neighbors
+    import athermal.model.neighbors as neighbors
 
     cell = Cell(np.eye(dim), walls)
     p = random_packing(6000 if dim == 2 else 4000, 0.86 if dim == 2 else 0.64, dim=dim, seed=2,

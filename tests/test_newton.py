@@ -6,14 +6,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from athermal.bench import make_case, reference_packing
-from athermal.cell import Cell, simple_shear
-from athermal.contact import ContactModel, find_contacts, hessian
 from athermal.errors import InputError
 from athermal.minimize import Hooks, Status
-from athermal.objective import Objective
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell, simple_shear
+from athermal.model.contact import ContactModel, find_contacts, hessian
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 from athermal.relaxation import Minimizer, minimize_objective
+from athermal.studies.bench import make_case, reference_packing
 
 newton_module = importlib.import_module("athermal.minimize.newton")
 
@@ -281,7 +281,7 @@ def test_the_factor_follows_the_contacts_that_form():
     built, and one that would leave the corrected matrix indefinite asks for a new build."""
     from scipy.sparse.linalg import spsolve
 
-    from athermal.contact import HessianOperator
+    from athermal.model.contact import HessianOperator
 
     rng = np.random.default_rng(4)
     n, d, m = 30, 2, 100

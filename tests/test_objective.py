@@ -3,11 +3,11 @@ import os
 import numpy as np
 import pytest
 
-from athermal.contact import ContactModel, packing_energy
 from athermal.errors import InputError
-from athermal.neighbors import build_neighbor_list
-from athermal.objective import Objective
-from athermal.packing import random_packing
+from athermal.model.contact import ContactModel, packing_energy
+from athermal.model.neighbors import build_neighbor_list
+from athermal.model.objective import Objective
+from athermal.model.packing import random_packing
 
 
 def test_evaluations_are_cached_counted_and_match_the_packing_energy():
@@ -47,7 +47,7 @@ def test_the_objective_takes_the_threads_kernel_for_large_lists(monkeypatch):
     round-off), in Python and in the compiled searches, and a relaxation converges."""
     import numba
 
-    import athermal.contact as contact
+    import athermal.model.contact as contact
     from athermal.relaxation import Minimizer, relax
 
     if min(numba.get_num_threads(), len(os.sched_getaffinity(0))) < 2:
@@ -69,7 +69,7 @@ def test_the_objective_takes_the_threads_kernel_for_large_lists(monkeypatch):
 def test_a_large_list_sums_in_its_slabs_order_on_any_number_of_threads(monkeypatch):
     """From ``PARALLEL_PAIRS`` on, the energy and gradient are summed slab by slab whether the
     threads run or not (a worker thread, one core): the same bits."""
-    import athermal.contact as contact
+    import athermal.model.contact as contact
 
     p = random_packing(2048, 0.86, seed=5)
     model = ContactModel(2.5)

@@ -1,9 +1,7 @@
 import numpy as np
 import pytest
 
-from athermal.cell import Cell, isotropic
-from athermal.contact import ContactModel, find_contacts
-from athermal.observables import (
+from athermal.analysis.observables import (
     coordination,
     deviatoric_part,
     fabric,
@@ -11,7 +9,9 @@ from athermal.observables import (
     measure,
     rattlers,
 )
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell, isotropic
+from athermal.model.contact import ContactModel, find_contacts
+from athermal.model.packing import Packing, random_packing
 
 
 @pytest.mark.parametrize("name", ["table1_N4096_alpha2.npz", "table1_N4096_alpha2.5.npz"])

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from athermal.cell import Cell
 from athermal.errors import InputError
-from athermal.packing import Packing, bidisperse_radii, polydisperse_radii, random_packing
+from athermal.model.cell import Cell
+from athermal.model.packing import Packing, bidisperse_radii, polydisperse_radii, random_packing
 
 
 @pytest.mark.parametrize("dim", [2, 3])

@@ -1,7 +1,7 @@
 import pytest
 
 from athermal.cli import main
-from athermal.paper import QUANTITIES, Settings, reproduce
+from athermal.studies.paper import QUANTITIES, Settings, reproduce
 
 TINY = Settings(
     n=96,

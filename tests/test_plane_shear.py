@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from athermal.cell import Cell
+from athermal.analysis.moduli import stability
 from athermal.cli import main
-from athermal.contact import ContactModel
 from athermal.errors import InputError
 from athermal.io import count_frames, read_gsd
 from athermal.linalg import pin_rows
-from athermal.moduli import stability
-from athermal.objective import Objective
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 from athermal.protocols.shear import plane_tractions, rough_walls, shear_steps
 from athermal.relaxation import Minimizer, Relaxer, minimize_objective, relax, relax_objective
 

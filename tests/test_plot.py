@@ -11,10 +11,10 @@ from matplotlib.collections import EllipseCollection, LineCollection
 from matplotlib.figure import Figure
 
 import athermal
-from athermal import plot
+from athermal.analysis.fitting import fit_power_law
+from athermal.analysis.observables import rattlers
 from athermal.errors import InputError
-from athermal.fitting import fit_power_law
-from athermal.observables import rattlers
+from athermal.studies import plot
 
 MODEL = athermal.ContactModel()
 
@@ -271,7 +271,7 @@ def test_summary_panels(tmp_path: Path) -> None:
 
 
 def test_modes_figure_draws_what_decided_omega_star(tmp_path: Path) -> None:
-    from athermal.modes import Modes, plateau_edge
+    from athermal.analysis.modes import Modes, plateau_edge
 
     u = (np.arange(1000) + 0.5) / 1000  # D ~ omega up to 0.1, then flat up to 2
     omega = np.where(u < 0.05 / 1.95, np.sqrt(0.39 * u), 1.95 * u + 0.05)

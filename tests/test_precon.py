@@ -4,17 +4,17 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import athermal.linalg as linalg
-from athermal.cell import Cell, simple_shear
-from athermal.contact import ContactModel, find_contacts, hessian
-from athermal.errors import InputError
-from athermal.objective import Objective
-from athermal.packing import Packing, random_packing
-from athermal.precon import (
+from athermal.engines.precon import (
     ContactPreconditioner,
     ExpPreconditioner,
     make_preconditioner,
     sine_perturbation,
 )
+from athermal.errors import InputError
+from athermal.model.cell import Cell, simple_shear
+from athermal.model.contact import ContactModel, find_contacts, hessian
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
 
 # overlapped random packings (N, phi) with contacts everywhere, small enough for dense algebra
 SYSTEMS = {2: (96, 0.9), 3: (96, 0.7)}

@@ -6,13 +6,13 @@ import json
 import numpy as np
 import pytest
 
+from athermal.analysis.fitting import fit_power_law
+from athermal.analysis.moduli import stability
 from athermal.cli import main
-from athermal.contact import ContactModel
 from athermal.errors import ConvergenceError, InputError
-from athermal.fitting import fit_power_law
 from athermal.io import read_gsd
-from athermal.moduli import stability
-from athermal.packing import random_packing
+from athermal.model.contact import ContactModel
+from athermal.model.packing import random_packing
 from athermal.protocols import jam, jam_to_pressure, pressure_search
 
 

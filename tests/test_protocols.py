@@ -4,14 +4,14 @@ import itertools
 import numpy as np
 import pytest
 
-from athermal.cell import pure_shear
-from athermal.contact import ContactModel
+from athermal.analysis.moduli import linear_response
+from athermal.analysis.observables import measure
 from athermal.errors import ConvergenceError, InputError
 from athermal.minimize import Status
-from athermal.moduli import linear_response
-from athermal.objective import Objective
-from athermal.observables import measure
-from athermal.packing import random_packing
+from athermal.model.cell import pure_shear
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import random_packing
 from athermal.protocols import (
     JammingStep,
     Minimizer,
@@ -308,7 +308,7 @@ def test_relaxer_finishes_with_fire_when_the_line_search_gives_up(monkeypatch):
     from athermal import relaxation
     from athermal.engines import numba
     from athermal.errors import ConvergenceError
-    from athermal.objective import Objective
+    from athermal.model.objective import Objective
 
     packing, model = random_packing(64, 0.9, seed=1), ContactModel(2.0)
     real = numba.run
@@ -426,7 +426,7 @@ def test_a_refuted_jammed_verdict_reopens_the_bracket_and_resumes_identically(mo
 
 def test_the_final_relaxation_balances_forces_relative_to_the_packings_own(jammed_256):
     """max_i |grad_i| <= 1e-10 x the mean contact force, or the round-off floor when larger."""
-    from athermal.contact import find_contacts
+    from athermal.model.contact import find_contacts
     from athermal.relaxation import round_off_floor
 
     packing, model = jammed_256.packing, ContactModel(2.0)
@@ -441,7 +441,7 @@ def test_round_off_floor_is_reachable_and_follows_the_contact_stiffness(alpha):
     """eps (L kappa_max + f_max) x 10: reachable by L-BFGS (it stalls at 0.25-0.6 of the
     unscaled estimate), and for Hertzian contacts near jamming far below a floor fixed in units
     of k <r>^(alpha-1) (the old 1e-13 k <r>^(alpha-1) was ~1e-3 of the mean force there)."""
-    from athermal.contact import find_contacts
+    from athermal.model.contact import find_contacts
     from athermal.relaxation import round_off_floor
 
     model = ContactModel(alpha)
@@ -487,7 +487,7 @@ def test_a_packing_whose_forces_are_within_its_tolerance_bears_no_load(jammed_25
 
 def test_iteration_counts_leave_a_state_the_compression_unjammed_out(jammed_256, monkeypatch):
     """Such a state is not Delta phi above jamming: it is not sheared and counts NaN."""
-    from athermal import experiments
+    from athermal.studies import experiments
 
     real = experiments.compression_steps
 

@@ -10,17 +10,17 @@ import pytest
 
 from athermal import ContactModel, random_packing
 from athermal._records import as_row, from_numbers
-from athermal.checkpoint import (
+from athermal.analysis.observables import measure
+from athermal.io import read_gsd, write_gsd
+from athermal.protocols import EVENTS, CompressionStep, JammingStep, ShearStep
+from athermal.protocols.jamming import Phase
+from athermal.studies.checkpoint import (
     Trajectory,
     compression_step,
     jamming_step,
     shear_step,
     step_log,
 )
-from athermal.io import read_gsd, write_gsd
-from athermal.observables import measure
-from athermal.protocols import EVENTS, CompressionStep, JammingStep, ShearStep
-from athermal.protocols.jamming import Phase
 
 MODEL = ContactModel(2.0)
 PACKING = random_packing(12, 0.86, seed=3)

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from athermal.cli import main
-from athermal.contact import ContactModel
 from athermal.io import count_frames, read_gsd, write_gsd
-from athermal.objective import Objective
-from athermal.packing import random_packing
+from athermal.model.contact import ContactModel
+from athermal.model.objective import Objective
+from athermal.model.packing import random_packing
 from athermal.relaxation import minimize_objective
 
 JAM = ["jam", "--n", "64", "--seed", "1", "--epsilon", "1e-5", "--picture", "none", "--quiet"]
@@ -266,8 +266,8 @@ def test_coincident_particles_are_named(tmp_path, capsys):
 
 
 def test_a_damaged_realization_is_computed_again(tmp_path):
-    from athermal.ensemble import EnsembleSpec, run_ensemble
-    from athermal.experiments import JamSpec
+    from athermal.studies.ensemble import EnsembleSpec, run_ensemble
+    from athermal.studies.experiments import JamSpec
 
     spec = EnsembleSpec("jam", JamSpec(n=32, epsilon=1e-4))
     first = run_ensemble(spec, tmp_path / "e", 2, workers=1)

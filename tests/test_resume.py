@@ -11,7 +11,7 @@ import numpy as np
 
 from athermal.cli import main
 from athermal.io import count_frames, read_gsd
-from athermal.tables import read_table
+from athermal.studies.tables import read_table
 
 JAM = ["jam", "--n", "128", "--seed", "5", "--epsilon", "1e-7", "--picture", "none", "--quiet"]
 
@@ -74,7 +74,7 @@ def test_jam_killed_with_sigkill_resumes_bit_identically(tmp_path):
 
 def test_shear_killed_with_sigkill_resumes_bit_identically(tmp_path, capsys):
     from athermal.io import write_gsd
-    from athermal.packing import random_packing
+    from athermal.model.packing import random_packing
 
     write_gsd(tmp_path / "start.gsd", random_packing(128, 0.87, seed=2))
     args = ["shear", "start.gsd", "--mode", "simple", "--strain", "0.03", "--step", "1e-3"]

@@ -2,7 +2,7 @@ import pytest
 
 from athermal.atomic import write_text
 from athermal.errors import FileFormatError, InputError
-from athermal.tables import read_table, write_table
+from athermal.studies.tables import read_table, write_table
 
 
 def test_table_round_trip_is_exact_and_keeps_text(tmp_path):

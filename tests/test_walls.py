@@ -8,21 +8,21 @@ import warnings
 import numpy as np
 import pytest
 
-from athermal.cell import Cell, pure_shear, simple_shear, wall_axes
+from athermal.analysis.moduli import linear_response, relaxed_strain_curvature, stability
+from athermal.analysis.observables import isostatic_contacts, measure, stress
 from athermal.cli import main
-from athermal.contact import ContactModel, find_contacts, gradient, hessian, total_energy
 from athermal.enthalpy import relax_at_pressure
 from athermal.errors import InputError
 from athermal.io import read_gsd, write_gsd
-from athermal.moduli import linear_response, relaxed_strain_curvature, stability
-from athermal.neighbors import brute_force_pairs, build_neighbor_list
-from athermal.objective import Objective
-from athermal.observables import isostatic_contacts, measure, stress
-from athermal.packing import Packing, random_packing
+from athermal.model.cell import Cell, pure_shear, simple_shear, wall_axes
+from athermal.model.contact import ContactModel, find_contacts, gradient, hessian, total_energy
+from athermal.model.neighbors import brute_force_pairs, build_neighbor_list
+from athermal.model.objective import Objective
+from athermal.model.packing import Packing, random_packing
+from athermal.model.walls import wall_pressures
 from athermal.protocols.jamming import jam
 from athermal.protocols.shear import shear_steps
 from athermal.relaxation import Minimizer, relax
-from athermal.walls import wall_pressures
 from conftest import network, network_strain
 
 WALLED = [(2, (1,)), (2, (0, 1)), (3, (2,)), (3, (0, 2))]
@@ -316,9 +316,9 @@ def test_the_wall_stiffness_travels_through_the_command_line(tmp_path, capsys):
 
 
 def test_what_walls_cannot_take_is_refused():
-    from athermal.criticality import weak_forces_and_gaps
-    from athermal.ensemble import EnsembleSpec
-    from athermal.experiments import JamSpec, ShearSpec
+    from athermal.certify.criticality import weak_forces_and_gaps
+    from athermal.studies.ensemble import EnsembleSpec
+    from athermal.studies.experiments import JamSpec, ShearSpec
 
     p = walled(2, (1,), n=32, phi=0.85)
     model = ContactModel()

@@ -1,19 +1,19 @@
 """athermal: quasi-static simulation of athermal soft-particle packings by energy minimization."""
 
-from .cell import Cell, isotropic, pure_shear, simple_shear
-from .contact import ContactModel, Contacts, find_contacts, hessian, strain_derivative
+from .analysis.fitting import PowerLaw, fit_power_law
+from .analysis.forces import ForceStatistics, force_statistics
+from .analysis.modes import Modes, vibrational_modes
+from .analysis.moduli import LinearResponse, Stability, linear_response, stability
+from .analysis.observables import Observables, measure
 from .enthalpy import EnthalpyResult, relax_at_pressure
 from .errors import ConvergenceError, FileFormatError, InputError
-from .fitting import PowerLaw, fit_power_law
-from .forces import ForceStatistics, force_statistics
 from .io import Frame, append_gsd, count_frames, read_gsd, write_gsd
 from .minimize import MinimizeResult
-from .modes import Modes, vibrational_modes
-from .moduli import LinearResponse, Stability, linear_response, stability
-from .neighbors import NeighborList, build_neighbor_list
-from .objective import Objective
-from .observables import Observables, measure
-from .packing import Packing, bidisperse_radii, polydisperse_radii, random_packing
+from .model.cell import Cell, isotropic, pure_shear, simple_shear
+from .model.contact import ContactModel, Contacts, find_contacts, hessian, strain_derivative
+from .model.neighbors import NeighborList, build_neighbor_list
+from .model.objective import Objective
+from .model.packing import Packing, bidisperse_radii, polydisperse_radii, random_packing
 from .protocols import (
     JammingCheck,
     Minimizer,

@@ -23,7 +23,7 @@ def _row_norm_sq(v, p, dim):  # type: ignore[no-untyped-def]
 @_jit
 def _row_gap_sq(u, v, a, w, p, dim):  # type: ignore[no-untyped-def]
     """``|(u + a v) - w|^2`` of the ``dim``-vectors at flat offset ``p``: ``u + a v`` rounds as
-    the trial points of :func:`~athermal.objective.energy_search` do, so that the compiled and
+    the trial points of :func:`~athermal.model.objective.energy_search` do, so that the compiled and
     the Python reach tests agree on the point evaluated."""
     s = 0.0
     for k in range(dim):

@@ -36,17 +36,17 @@ from numpy.typing import NDArray
 
 from ._portable import transform, upper_inverse
 from ._validate import choice, positive_scalar
-from .cell import Cell
-from .contact import ContactModel, find_contacts, gradient, total_energy
+from .analysis.observables import stress
+from .engines.precon import REBUILD_FRACTION, ExpPreconditioner
 from .errors import InputError
 from .minimize import CompiledSearch, Hooks, MinimizeResult
 from .minimize.cg import cg
 from .minimize.fire import fire
 from .minimize.lbfgs import lbfgs
-from .objective import MAX_STEP_FACTOR, Objective
-from .observables import stress
-from .packing import Packing
-from .precon import REBUILD_FRACTION, ExpPreconditioner
+from .model.cell import Cell
+from .model.contact import ContactModel, find_contacts, gradient, total_energy
+from .model.objective import MAX_STEP_FACTOR, Objective
+from .model.packing import Packing
 
 CellFreedom = Literal["volume", "shape", "walls"]
 """What of the cell relaxes: its volume (isotropic), its volume and shape, or the gaps between
@@ -164,7 +164,8 @@ class Enthalpy:
 class EnthalpyPreconditioner:
     """The Exp preconditioner extended to the cell: ``P = blockdiag(L (x) I_d, c I)`` on
     ``(u, c)``, with ``L`` the paper's Exp matrix of the current configuration
-    (:class:`~athermal.precon.ExpPreconditioner`) and ``c`` its mean diagonal entry (the cell
+    (:class:`~athermal.engines.precon.ExpPreconditioner`) and ``c`` its mean diagonal entry (the
+    cell
     variables are scaled to be as stiff as a particle coordinate). Rebuilt when a particle has
     moved a quarter of the cut-off, or the cell has strained by :data:`CELL_REBUILD`, since the
     last build."""

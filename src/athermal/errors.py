@@ -22,4 +22,5 @@ JAX_MISSING = (
     "backend jax: JAX is not installed; pip install jax (CPU; docs/howto/gpu.md for the CUDA "
     "build), or pip install -e '.[jax]' in athermal's checkout"
 )
-"""The one line for the JAX engine without JAX (:mod:`athermal.jaxengine`, ``--backend jax``)."""
+"""The one line for the JAX engine without JAX (:mod:`athermal.engines.jax.device`, ``--backend
+jax``)."""

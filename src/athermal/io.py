@@ -46,12 +46,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._validate import float_array
+from .analysis.observables import rattlers
 from .atomic import replacing
-from .cell import Cell
-from .contact import ContactModel, find_contacts
 from .errors import FileFormatError, InputError, one_line
-from .observables import rattlers
-from .packing import Packing
+from .model.cell import Cell
+from .model.contact import ContactModel, find_contacts
+from .model.packing import Packing
 
 PathLike = str | os.PathLike[str]
 
@@ -125,7 +125,7 @@ def write_gsd(
     Examples
     --------
     >>> import tempfile, pathlib
-    >>> from athermal.packing import random_packing
+    >>> from athermal.model.packing import random_packing
     >>> p = random_packing(16, 0.5, seed=1)
     >>> name = pathlib.Path(tempfile.mkdtemp()) / "p.gsd"
     >>> write_gsd(name, p, seed=1, observables={"energy": 0.0})

@@ -1,5 +1,5 @@
 """Sparse symmetric solvers, factored once and applied many times: one module for the
-preconditioners (:mod:`athermal.precon`) and the moduli (:mod:`athermal.moduli`).
+preconditioners (:mod:`athermal.engines.precon`) and the moduli (:mod:`athermal.analysis.moduli`).
 
 * :class:`CholeskyFactor`: CHOLMOD through cholespy, given the lower triangle only (cholespy
   ignores the upper one: passing it would silently factor another matrix);

@@ -2,8 +2,8 @@
 :data:`RTOL`) and doing it (:func:`relax`), on the minimizers of :mod:`athermal.minimize`.
 
 The physics above the minimizer library: the tolerance relative to the mean contact force
-(``rtol``), the preconditioners by name (:mod:`athermal.precon`), the hooks of an
-:class:`~athermal.objective.Objective` (particles of ``d`` coordinates, the step cap, the
+(``rtol``), the preconditioners by name (:mod:`athermal.engines.precon`), the hooks of an
+:class:`~athermal.model.objective.Objective` (particles of ``d`` coordinates, the step cap, the
 round-off of the contact energy, its compiled line search, FIRE's curvature bound) and the
 packing at the result (:class:`Relaxation`).
 """
@@ -20,16 +20,16 @@ from numpy.typing import NDArray
 from . import engines
 from ._portable import power
 from ._validate import choice
-from .cell import Cell
-from .contact import ContactModel, Contacts, find_contacts
+from .analysis.moduli import stability
 from .engines.numba import run
+from .engines.precon import PRECONDITIONERS, PreconName, make_preconditioner
 from .errors import ConvergenceError, InputError
 from .linalg import SOLVERS, SolverName
 from .minimize import NEWTON_TAKES_NO_PRECON, MinimizeResult, Preconditioner, Status
-from .moduli import stability
-from .objective import Objective
-from .packing import Packing
-from .precon import PRECONDITIONERS, PreconName, make_preconditioner
+from .model.cell import Cell
+from .model.contact import ContactModel, Contacts, find_contacts
+from .model.objective import Objective
+from .model.packing import Packing
 
 Method = Literal["lbfgs", "cg", "fire", "newton", "plbfgs", "pcg"]
 METHODS: tuple[str, ...] = ("lbfgs", "cg", "fire", "newton", "plbfgs", "pcg")
@@ -372,7 +372,7 @@ class Relaxer:
         self, x: NDArray[np.float64], *, gtol: float, etol: float = 0.0, what: str = "step"
     ) -> tuple[Relaxation, int]:
         """:meth:`relax`, then check that the result is a local minimum
-        (:func:`~athermal.moduli.stability`); a saddle is left along its negative mode and
+        (:func:`~athermal.analysis.moduli.stability`); a saddle is left along its negative mode and
         relaxed again. Returns the last result and how many saddles were left; raises
         :class:`ConvergenceError` after :data:`MAX_ESCAPES` saddles in a row.
 

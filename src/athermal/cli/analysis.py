@@ -11,20 +11,20 @@ from pathlib import Path
 
 import numpy as np
 
+from ..analysis.modes import plateau_edge, save_modes, vibrational_modes
+from ..analysis.moduli import linear_response
+from ..analysis.observables import measure
 from ..certify import LOG_PREFIX, certify
-from ..contact import ContactModel
-from ..criticality import GAMMA, THETA_E, critical_exponents, weak_forces_and_gaps
+from ..certify.criticality import GAMMA, THETA_E, critical_exponents, weak_forces_and_gaps
 from ..errors import InputError
 from ..io import count_frames, read_gsd, write_gsd
-from ..modes import plateau_edge, save_modes, vibrational_modes
-from ..moduli import linear_response
-from ..objective import Objective
-from ..observables import measure
-from ..packing import Packing
-from ..plot import criticality_figure, modes_figure, save
+from ..model.contact import ContactModel
+from ..model.objective import Objective
+from ..model.packing import Packing
 from ..protocols.finite_strain import finite_strain_bulk, finite_strain_shear
 from ..protocols.jamming import energy_threshold
 from ..relaxation import energy_scale
+from ..studies.plot import criticality_figure, modes_figure, save
 from .common import check_certified, model_from
 from .printer import emit
 

@@ -11,18 +11,18 @@ from typing import Any
 
 import numpy as np
 
-from .. import bench as table1
 from .. import engines
-from ..checkpoint import readable_log
+from ..analysis.forces import ForceStatistics, force_statistics
+from ..analysis.observables import Observables, measure
 from ..enthalpy import relax_at_pressure
-from ..forces import ForceStatistics, force_statistics
 from ..io import count_frames, read_gsd, write_gsd
 from ..minimize import MinimizeResult
-from ..objective import Objective
-from ..observables import Observables, measure
-from ..packing import random_packing
-from ..plot import force_distribution_figure, save
+from ..model.objective import Objective
+from ..model.packing import random_packing
 from ..relaxation import RTOL, force_tolerance, relax_objective
+from ..studies import bench as table1
+from ..studies.checkpoint import readable_log
+from ..studies.plot import force_distribution_figure, save
 from .common import (
     NotConverged,
     bits,

@@ -9,11 +9,11 @@ from typing import Any, cast
 
 import numpy as np
 
-from ..cell import Cell
+from ..analysis.observables import Observables
 from ..certify import Certificate
-from ..contact import ContactModel
-from ..observables import Observables
-from ..precon import PreconName
+from ..engines.precon import PreconName
+from ..model.cell import Cell
+from ..model.contact import ContactModel
 from ..relaxation import Minimizer
 
 
@@ -69,8 +69,8 @@ def minimizer_from(args: argparse.Namespace) -> Minimizer:
 
 def sizes_from(args: argparse.Namespace) -> dict[str, Any]:
     """The size options (``--sizes``, ``--size-ratio``, ``--polydispersity``) as keyword
-    arguments of :func:`~athermal.packing.random_packing` and
-    :class:`~athermal.experiments.JamSpec`."""
+    arguments of :func:`~athermal.model.packing.random_packing` and
+    :class:`~athermal.studies.experiments.JamSpec`."""
     return {
         "sizes": args.sizes,
         "size_ratio": args.size_ratio,

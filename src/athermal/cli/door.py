@@ -17,17 +17,17 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .. import engines
-from ..bench import check_alphas
-from ..cell import wall_axes
-from ..ensemble import INSTALL_HINT, check_batch
+from ..certify.extended import half_steps
 from ..enthalpy import ENTHALPY_METHODS
 from ..errors import InputError
-from ..extended import half_steps
 from ..io import SEED_BOUND
-from ..packing import check_width
+from ..model.cell import wall_axes
+from ..model.packing import check_width
 from ..protocols import RESOLUTION, check_growth, start_fraction
 from ..protocols.jamming import JAMMED_PHI
 from ..relaxation import Minimizer
+from ..studies.bench import check_alphas
+from ..studies.ensemble import INSTALL_HINT, check_batch
 from .common import minimizer_from, precon_from
 
 BYTES_PER_PARTICLE = 2000

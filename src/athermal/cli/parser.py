@@ -9,15 +9,16 @@ import argparse
 import re
 from typing import Any, NoReturn
 
-from .. import bench, engines
+from .. import engines
 from ..certify import TARGET
-from ..criticality import FORCE_WINDOW, GAP_WINDOW
+from ..certify.criticality import FORCE_WINDOW, GAP_WINDOW
+from ..engines.precon import PRECONDITIONERS
 from ..enthalpy import CELL_FREEDOMS
 from ..linalg import SOLVERS
-from ..packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
-from ..precon import PRECONDITIONERS
+from ..model.packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
 from ..relaxation import MAXITER, METHODS, RTOL
+from ..studies import bench
 
 
 class _Help(argparse.HelpFormatter):

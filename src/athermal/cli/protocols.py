@@ -1,6 +1,7 @@
 """The protocol subcommands: ``jam``, ``compress`` and ``shear``.
 
-Each appends every completed step to its GSD trajectory (:mod:`athermal.checkpoint`), keeps the
+Each appends every completed step to its GSD trajectory (:mod:`athermal.studies.checkpoint`), keeps
+the
 per-step CSV table current, shows a live line on stderr and prints a summary (``--json``: one
 object on stdout). ``--resume`` continues an interrupted run from its trajectory, bit for bit.
 """
@@ -20,14 +21,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import engines
+from ..analysis.observables import Observables, measure
 from ..certify import CertifiedPacking, bisect_jamming_point, certify
-from ..checkpoint import Step, Trajectory, compression_step, jamming_step, run_id, shear_step
-from ..contact import ContactModel, find_contacts
 from ..errors import ConvergenceError, InputError
-from ..experiments import JamSpec, jam_packing
 from ..io import Frame, count_frames, read_gsd, write_gsd
-from ..observables import Observables, measure
-from ..packing import Packing
+from ..model.contact import ContactModel, find_contacts
+from ..model.packing import Packing
 from ..protocols import (
     EPSILON,
     JAMMING_SCHEME,
@@ -41,7 +40,16 @@ from ..protocols import (
 from ..protocols.compress import FIT_LAWS
 from ..protocols.pressure import check_reachable, pressure_search, warn_if_near_jamming
 from ..protocols.shear import check_mode, rough_walls
-from ..tables import Row, write_table
+from ..studies.checkpoint import (
+    Step,
+    Trajectory,
+    compression_step,
+    jamming_step,
+    run_id,
+    shear_step,
+)
+from ..studies.experiments import JamSpec, jam_packing
+from ..studies.tables import Row, write_table
 from .common import (
     NotConverged,
     Progress,
@@ -271,7 +279,7 @@ def jam(args: argparse.Namespace) -> None:
     phi_text = f"{phi_c:.{_digits(width)}f} (bracket {width:.1g})"
     picture = None
     if args.dim == 2 and args.picture != "none":
-        from ..plot import packing_figure, save
+        from ..studies.plot import packing_figure, save
 
         picture = args.picture or str(Path(args.output).with_suffix(".png"))
         state = "jammed" if args.pressure is None else f"at p = {obs.pressure:.4g}"

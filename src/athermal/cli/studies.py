@@ -5,15 +5,15 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..experiments import CompressSpec, JamSpec, ShearSpec
 from ..relaxation import Minimizer
+from ..studies.experiments import CompressSpec, JamSpec, ShearSpec
 from .common import Progress, precon_from, sizes_from
 from .printer import emit
 
 
 def paper(args: argparse.Namespace) -> None:
     """``athermal paper``: every figure, the Table and the exponents of the paper."""
-    from ..paper import FULL, QUICK, reproduce
+    from ..studies.paper import FULL, QUICK, reproduce
 
     progress = Progress(args.quiet)
     settings = FULL if args.full else QUICK
@@ -45,7 +45,7 @@ def _spec_options(args: argparse.Namespace, fields: dict[str, str]) -> dict[str,
 
 def ensemble(args: argparse.Namespace) -> None:
     """``athermal ensemble``: M realizations of a protocol on Dask."""
-    from ..ensemble import EnsembleSpec, run_ensemble
+    from ..studies.ensemble import EnsembleSpec, run_ensemble
 
     engine = Minimizer(backend=args.backend)  # the compression's and shear's
     spec = EnsembleSpec(

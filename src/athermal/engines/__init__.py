@@ -1,7 +1,8 @@
 """The engines that relax a packing's energy, behind one interface, looked up by name.
 
 An engine (:class:`Engine`) declares what it can do (:class:`Capabilities`) and, bound to one
-:class:`~athermal.objective.Objective` and preconditioner (:meth:`Engine.bind`), minimizes from
+:class:`~athermal.model.objective.Objective` and preconditioner (:meth:`Engine.bind`), minimizes
+from
 flat vectors in the objective's internal order (:class:`Session`). Every question "can this
 engine do that" is answered here, by :func:`check`, before any work; no other module compares an
 engine's name. Two are registered: ``numba`` (:mod:`.numba`, the default: every method,
@@ -23,7 +24,7 @@ from ..errors import InputError
 from ..minimize import MinimizeResult
 
 if TYPE_CHECKING:
-    from ..objective import Objective
+    from ..model.objective import Objective
 
 DEFAULT = "numba"
 """The engine of a :class:`~athermal.relaxation.Minimizer` that names none."""

@@ -1,5 +1,5 @@
 """The default engine: the minimizers of :mod:`athermal.minimize` on the CPU, over the numba
-kernels of the objective, with every preconditioner of :mod:`athermal.precon`."""
+kernels of the objective, with every preconditioner of :mod:`athermal.engines.precon`."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ from numpy.typing import NDArray
 from .. import minimize as library
 from ..linalg import available, resolve_solver
 from ..minimize import MinimizeResult, Preconditioner
-from ..objective import Objective
-from ..precon import PRECONDITIONERS, PreconName, make_preconditioner
+from ..model.objective import Objective
 from . import Capabilities, Engine
+from .precon import PRECONDITIONERS, PreconName, make_preconditioner
 
 
 def run(

@@ -8,7 +8,7 @@ factor of the Hessian, for quasi-static steps near jamming). A preconditioner is
 (blocks of coordinates, the step cap, the round-off of ``f``) comes as :class:`Hooks`.
 
 Nothing here knows particles: :mod:`athermal.relaxation` minimizes a packing's energy with
-these, the preconditioners of :mod:`athermal.precon` and the physics' hooks.
+these, the preconditioners of :mod:`athermal.engines.precon` and the physics' hooks.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ Reverse communication: :func:`begin` sets the search up and names the first tria
 :func:`feed` of ``phi(a), phi'(a)`` at the trial step ``state[TRIAL]`` names the next one or
 ends the search. :func:`~.linesearch.strong_wolfe` drives it with a Python ``phi``; a
 function's compiled line search (:class:`~.result.CompiledSearch`, e.g.
-:func:`athermal.objective.energy_search`) with its own compiled energy, so that one minimizer
+:func:`athermal.model.objective.energy_search`) with its own compiled energy, so that one minimizer
 iteration costs a few calls from Python, not dozens.
 """
 

@@ -89,7 +89,7 @@ ETA_MAX = 0.5
 class Hessian(Protocol):
     """``d^2 f / dx dx`` ``(n_dof, n_dof)`` at one point, over ``n`` blocks of ``d``
     coordinates; a sum of pair terms when :attr:`pairs` is given (the physics'
-    :class:`~athermal.contact.HessianOperator`: one term per contact), which lets
+    :class:`~athermal.model.contact.HessianOperator`: one term per contact), which lets
     :class:`LaggedFactor` follow the pairs that form (:meth:`LaggedFactor.follow`).
     :class:`SparseHessian` is one for any sparse matrix."""
 

@@ -49,7 +49,7 @@ class CompiledSearch:
 class Problem(Protocol):
     """A function to minimize, as the minimizers see it: :func:`~athermal.minimize.minimize`
     wraps a plain callable in one (:class:`~athermal.minimize.function.Function`); a caller
-    may pass its own (the physics' :class:`~athermal.objective.Objective` is one)."""
+    may pass its own (the physics' :class:`~athermal.model.objective.Objective` is one)."""
 
     n_evaluations: int
 

@@ -4,7 +4,7 @@ From a jammed packing at ``phi_c`` the radii are grown to ``phi_c + Delta phi`` 
 ``Delta phi`` (1e-7 ... 1e-1 by default), each state relaxed from the previous one. Every step
 reports pressure, energy, contacts, z with rattlers removed and its distance ``z - z_iso`` from
 the isostatic value of the non-rattlers, and the bulk and shear moduli by exact linear response
-(:func:`~athermal.moduli.linear_response`); :func:`scaling_exponents` fits the power laws
+(:func:`~athermal.analysis.moduli.linear_response`); :func:`scaling_exponents` fits the power laws
 ``p ~ Delta phi^(alpha-1)``, ``G ~ Delta phi^(alpha-3/2)``, ``z - z_iso ~ Delta phi^(1/2)``.
 
 The bulk modulus reported is the paper's ``B = phi dp/dphi`` along this protocol (radii growing in
@@ -26,13 +26,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from .._records import Value, as_row
 from .._validate import float_array
-from ..contact import ContactModel, find_contacts
+from ..analysis.fitting import PowerLaw, fit_jamming_point, fit_power_law
+from ..analysis.moduli import linear_response
+from ..analysis.observables import Observables, isostatic_contacts, measure
 from ..errors import InputError
-from ..fitting import PowerLaw, fit_jamming_point, fit_power_law
-from ..moduli import linear_response
-from ..objective import Objective
-from ..observables import Observables, isostatic_contacts, measure
-from ..packing import Packing
+from ..model.contact import ContactModel, find_contacts
+from ..model.objective import Objective
+from ..model.packing import Packing
 from ..relaxation import RTOL, Minimizer, Relaxation, Relaxer, force_tolerance
 from .jamming import EPSILON, overlap_distance
 
@@ -108,7 +108,8 @@ class CompressionStep:
 
     ``bulk_modulus`` is ``phi dp/dphi`` along the protocol, ``shear_modulus`` the simple-shear
     ``G`` (between walls normal to x or y the pure-shear one,
-    :func:`~athermal.moduli.linear_response`), both by linear response (negative for a minimum
+    :func:`~athermal.analysis.moduli.linear_response`), both by linear response (negative for a
+    minimum
     unstable to shear: the event ``unstable to shear``, and no modulus in the fits);
     ``z_excess`` :func:`excess_z`; ``events`` what happened
     (names from :data:`EVENTS`), ``saddles`` how many saddles were left on the way and

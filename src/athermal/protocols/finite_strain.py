@@ -4,7 +4,7 @@
 quasi-statically, in 10 steps" (seed, section 4.2): the slope of the shear stress gives ``G``
 and the minimizer's iterations per step are the paper's iteration experiment. The bulk modulus is
 measured the same way under isotropic strain of the cell at fixed radii. Both agree with
-:func:`~athermal.moduli.linear_response` (the fit removes the curvature's first order).
+:func:`~athermal.analysis.moduli.linear_response` (the fit removes the curvature's first order).
 """
 
 from __future__ import annotations
@@ -18,13 +18,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .._validate import choice, float_array
-from ..cell import isotropic, simple_shear
-from ..contact import ContactModel, Contacts, find_contacts
+from ..analysis.moduli import nonaffine_displacement
+from ..analysis.observables import pressure, shear_stress, stress
 from ..errors import InputError
-from ..moduli import nonaffine_displacement
-from ..objective import MAX_STEP_FACTOR, Objective
-from ..observables import pressure, shear_stress, stress
-from ..packing import Packing
+from ..model.cell import isotropic, simple_shear
+from ..model.contact import ContactModel, Contacts, find_contacts
+from ..model.objective import MAX_STEP_FACTOR, Objective
+from ..model.packing import Packing
 from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 
 DEFAULT_STRAINS = np.linspace(1e-6, 1e-5, 10)
@@ -104,7 +104,8 @@ def finite_strain_shear(
         floored at round-off (:func:`~athermal.relaxation.round_off_floor`).
     start : where each relaxation starts: ``"affine"``, the deformed previous configuration
         (the paper's), or ``"linear"``, that moved by the linear-response displacement
-        (:func:`~athermal.moduli.nonaffine_displacement`, one sparse solve with the previous
+        (:func:`~athermal.analysis.moduli.nonaffine_displacement`, one sparse solve with the
+        previous
         minimum's Hessian) unless it moves a particle more than the minimizers' step cap. Near
         jamming the paper's step of 1e-6 opens a quarter of the contacts of a packing at
         ``Delta phi = 1e-7`` and the relaxation has to close them again; the linear start keeps

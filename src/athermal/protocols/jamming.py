@@ -51,7 +51,7 @@ packing ``Delta phi`` above jamming has on average ``N' (z - z_iso) / 2 ~ N' Z_S
 phi) / 2`` extra contacts: 1 at N = 1024 and 5 at N = 4096 for ``Delta phi = 5e-7``, and single
 packings scatter about that mean by as much as the mean itself); its mean overlap, expressed as a
 distance in packing fraction ``d phi <delta / (r_i + r_j)>``, is at most ``OVERLAP_SLACK`` x
-``epsilon``; and it is a local minimum (:func:`~athermal.moduli.stability`).
+``epsilon``; and it is a local minimum (:func:`~athermal.analysis.moduli.stability`).
 """
 
 from __future__ import annotations
@@ -68,11 +68,8 @@ import numpy as np
 from .._portable import power
 from .._records import Value, as_row
 from .._validate import choice, positive_scalar
-from ..contact import ContactModel, Contacts, find_contacts
-from ..errors import ConvergenceError, InputError
-from ..moduli import stability
-from ..objective import Objective
-from ..observables import (
+from ..analysis.moduli import stability
+from ..analysis.observables import (
     Observables,
     coordination,
     isostatic_contacts,
@@ -81,7 +78,10 @@ from ..observables import (
     rattlers,
     stress,
 )
-from ..packing import Packing
+from ..errors import ConvergenceError, InputError
+from ..model.contact import ContactModel, Contacts, find_contacts
+from ..model.objective import Objective
+from ..model.packing import Packing
 from ..relaxation import Minimizer, Relaxer, energy_scale, force_tolerance
 
 JAMMING_MINIMIZER = Minimizer("lbfgs", "exp")
@@ -230,13 +230,13 @@ class JammingCheck:
     decompressed_energy : ``E / N`` after decompressing and relaxing, in ``k <r>^alpha``.
     unjams : that energy is at most the jamming threshold (the packing unjams).
     excess_contacts : ``N_c - N_iso`` among the non-rattlers, ``N_iso = d N' - t + 1``
-        (:func:`~athermal.observables.isostatic_contacts`, ``t`` the periodic axes: ``d``
+        (:func:`~athermal.analysis.observables.isostatic_contacts`, ``t`` the periodic axes: ``d``
         unless the cell has walls, whose contacts count in ``N_c``).
     allowed_excess : the most ``excess_contacts`` accepted (:func:`isostatic_allowance`).
     overlap_dphi : ``d phi <delta / (r_i + r_j)>``, the mean overlap as a distance in packing
         fraction (a packing jammed by ``Delta phi`` has about ``Delta phi`` or less).
     epsilon : the accuracy the packing was jammed to.
-    stable : a local minimum (:func:`~athermal.moduli.stability`).
+    stable : a local minimum (:func:`~athermal.analysis.moduli.stability`).
     """
 
     decompression: float

@@ -24,11 +24,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from .._validate import positive_scalar
-from ..contact import ContactModel
+from ..analysis.observables import Observables, measure
 from ..errors import ConvergenceError, InputError
-from ..objective import Objective
-from ..observables import Observables, measure
-from ..packing import Packing
+from ..model.contact import ContactModel
+from ..model.objective import Objective
+from ..model.packing import Packing
 from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
 from .jamming import DPHI, EPSILON, JAMMING_MINIMIZER, JammingResult, JammingStep, jam
 
@@ -67,7 +67,7 @@ class PressureResult:
     packing : the relaxed packing, a local minimum at ``phi``.
     target, pressure : the pressure asked for and reached (``k l^(alpha-d)``).
     phi, phi_c : its packing fraction and the jamming point of its start.
-    observables : :func:`~athermal.observables.measure` of ``packing``.
+    observables : :func:`~athermal.analysis.observables.measure` of ``packing``.
     trials : every relaxation of the search, in order.
     jamming : the jamming run it started from (None for :func:`pressure_search` alone).
     iterations, seconds : summed over the trials (and the jamming run).

@@ -10,12 +10,14 @@ eigenvalue definitions), the driven stress ``tau`` (the stress work-conjugate to
 ``-sigma_01`` for simple shear, ``(sigma_11 - sigma_00) / 2`` for pure shear, ``sigma_ee`` of
 the compressed axis, positive when loaded) and whether ``tau`` dropped: a plastic event.
 
-With walls (:attr:`Cell.walls <athermal.cell.Cell.walls>`) pure shear is the biaxial test (walls
+With walls (:attr:`Cell.walls <athermal.model.cell.Cell.walls>`) pure shear is the biaxial test
+(walls
 normal to y move in as the periodic x stretches) and uniaxial compression moves the walls normal
 to the last axis; simple shear tilts the cell, which frictionless flat walls cannot carry, and
 is refused (:func:`check_mode`). Plane shear needs walls normal to one axis ``g`` other than
 x: the particles within ``wall_layer`` of each wall are glued to it (rough walls,
-:func:`~athermal.walls.wall_layers`; frozen in the relaxations, :class:`~athermal.objective.
+:func:`~athermal.model.walls.wall_layers`; frozen in the relaxations,
+:class:`~athermal.model.objective.
 Objective`), and each step moves the upper wall and its layer along x by ``Delta gamma L_g``,
 the free particles affinely (``x += Delta gamma (x_g + L_g / 2)``); the cell does not change.
 ``tau`` is then the shear force per unit area on the walls (:func:`plane_tractions`).
@@ -36,14 +38,14 @@ from numpy.typing import NDArray
 
 from .._records import Value, as_row
 from .._validate import choice, positive_scalar
-from ..cell import AXES, Cell, pure_shear, simple_shear
-from ..contact import ContactModel, find_contacts, gradient
+from ..analysis.observables import Observables, measure
 from ..errors import InputError
-from ..objective import Objective
-from ..observables import Observables, measure
-from ..packing import Packing
+from ..model.cell import AXES, Cell, pure_shear, simple_shear
+from ..model.contact import ContactModel, find_contacts, gradient
+from ..model.objective import Objective
+from ..model.packing import Packing
+from ..model.walls import wall_layers
 from ..relaxation import RTOL, Minimizer, Relaxer, force_tolerance
-from ..walls import wall_layers
 
 ShearMode = Literal["simple", "pure", "uniaxial", "plane"]
 SHEAR_MODES: tuple[str, ...] = ("simple", "pure", "uniaxial", "plane")
@@ -291,7 +293,7 @@ def rough_walls(
 ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """Plane shear's rough walls in ``start``: the masks ``(N,)`` of its particles within
     ``wall_layer`` (default the largest diameter) of the lower and of the upper wall
-    (:func:`~athermal.walls.wall_layers`). Refused (:class:`InputError`) when the cell cannot
+    (:func:`~athermal.model.walls.wall_layers`). Refused (:class:`InputError`) when the cell cannot
     be plane-sheared (:func:`check_mode`), a layer is empty, the layers meet or they leave no
     particle free."""
     _check_plane(start.cell)

@@ -1,0 +1,867 @@
+"""Repulsive contact potential ``E_ij = k_ij delta^alpha / alpha`` for overlaps ``delta > 0``.
+
+``delta = r_i + r_j - l`` with ``l = |x_i - x_j|`` (periodic image) and ``alpha >= 2``
+(2 = Hooke, 2.5 = Hertz). The force on ``i`` from ``j`` is ``f = k delta^(alpha-1) n`` with
+``n = (x_i - x_j) / l`` (seed eqs. for E_c and its derivatives). Energy in units of ``k`` x
+length^alpha; forces in ``k`` x length^(alpha-1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from numba import prange
+from numpy.typing import NDArray
+
+from .._jit import _jit, _jit_parallel, threads_usable
+from .._portable import outer_sum, power, power_of, row_norms
+from ..errors import InputError
+from .cell import Cell
+from .neighbors import NeighborList
+from .packing import Packing
+from .walls import WallContacts, find_wall_contacts, wall_gradient, wall_hessian
+
+Walls = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
+"""What the kernels take of a cell's walls: the walled axes ``(W,)``, the half lengths
+``L_a / 2`` ``(W,)`` (the walls at ``x_a = -+L_a / 2``) and the wall stiffness by species
+``(T,)``; every array empty or ``(T,)`` for a periodic cell."""
+
+
+@dataclass(frozen=True, eq=False)
+class ContactModel:
+    """Exponent ``alpha >= 2`` and stiffness: a scalar ``k`` or a symmetric ``(T, T)`` matrix
+    giving ``k_ij`` by the species (``Packing.types()``) of ``i`` and ``j``; ``wall_stiffness``
+    ``k_w`` of a particle's contact with a wall (default its species' own ``k_ii``)."""
+
+    alpha: float = 2.0
+    stiffness: float | NDArray[np.float64] = 1.0
+    wall_stiffness: float | None = None
+    kmat: NDArray[np.float64] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        alpha = float(self.alpha)
+        if not np.isfinite(alpha) or alpha < 2.0:
+            raise InputError(
+                f"alpha: contact exponent must be a finite number >= 2, got {self.alpha!r}"
+            )
+        object.__setattr__(self, "alpha", alpha)
+        kmat = np.atleast_2d(np.asarray(self.stiffness, dtype=np.float64))
+        if kmat.ndim != 2 or kmat.shape[0] != kmat.shape[1]:
+            raise InputError(
+                f"stiffness: expected a scalar or a square matrix, got shape {kmat.shape}"
+            )
+        if not np.all(np.isfinite(kmat)) or np.any(kmat <= 0.0) or not np.allclose(kmat, kmat.T):
+            raise InputError("stiffness: must be finite, > 0 and symmetric")
+        kmat = np.ascontiguousarray(kmat)
+        kmat.setflags(write=False)
+        object.__setattr__(self, "kmat", kmat)
+        if kmat.shape == (1, 1):
+            object.__setattr__(self, "stiffness", float(kmat[0, 0]))
+        if self.wall_stiffness is not None:
+            wall = float(self.wall_stiffness)
+            if not np.isfinite(wall) or wall <= 0.0:
+                raise InputError(f"wall_stiffness: must be finite and > 0, got {wall}")
+            object.__setattr__(self, "wall_stiffness", wall)
+
+    @property
+    def kwall(self) -> NDArray[np.float64]:
+        """Wall stiffness ``(T,)`` by species: ``wall_stiffness``, or the diagonal of ``kmat``."""
+        if self.wall_stiffness is None:
+            return np.ascontiguousarray(np.diag(self.kmat))
+        return np.full(self.kmat.shape[0], self.wall_stiffness)
+
+    def walls(self, cell: Cell) -> Walls:
+        """The wall arguments of the compiled kernels for ``cell`` (:data:`Walls`)."""
+        return (
+            np.array(cell.walls, dtype=np.int64),
+            np.array([0.5 * cell.h[a, a] for a in cell.walls]),
+            self.kwall,
+        )
+
+    def typeid(self, packing: Packing) -> NDArray[np.int32]:
+        """Per-particle index ``(N,)`` into ``kmat`` (all zero for a scalar stiffness)."""
+        if self.kmat.shape == (1, 1):
+            return np.zeros(packing.n, dtype=np.int32)
+        typeid, names = packing.types()
+        if len(names) != self.kmat.shape[0]:
+            raise InputError(
+                f"stiffness: matrix is {self.kmat.shape[0]}x{self.kmat.shape[0]} but the packing "
+                f"has {len(names)} species"
+            )
+        return typeid
+
+
+ONE_THREAD = np.zeros(0, dtype=np.int64)
+"""The ``slabs`` argument of :func:`evaluate` that sums pair by pair (writable, as the slabs of a
+list are: numba compiles read-only arrays as another type)."""
+NO_WALLS = (np.zeros(0, dtype=np.int64), np.zeros(0))
+"""The walled axes and half lengths (:data:`Walls`) of a periodic cell."""
+PARALLEL_PAIRS = 100_000
+"""Listed pairs from which the energy and gradient run on the threads (:func:`parallel_slabs`;
+measured in ``docs/decisions.md``, "The kernels on many cores")."""
+
+
+def parallel_slabs(nlist: NeighborList) -> tuple[NDArray[np.int64], bool]:
+    """The ``slabs`` and ``threads`` arguments of :func:`evaluate` for ``nlist``: its slabs when
+    it lists at least :data:`PARALLEL_PAIRS` pairs (else empty: pair by pair), and whether the
+    threads can sum them (more than one numba thread and allowed core, and the main thread:
+    numba's default threading layer takes one caller at a time). Either way the sum is the
+    same bits: the order is the list's, not the machine's."""
+    if nlist.n_pairs < PARALLEL_PAIRS or not nlist.slabs.size:
+        return ONE_THREAD, False
+    return nlist.slabs, threads_usable()
+
+
+def energy_gradient(
+    positions: NDArray[np.float64],
+    radii: NDArray[np.float64],
+    typeid: NDArray[np.int32],
+    shifts: NDArray[np.float64],
+    nlist: NeighborList,
+    model: ContactModel,
+    grad: NDArray[np.float64],
+) -> float:
+    """Total energy; its gradient ``dE/dx`` ``(N, d)`` is written into ``grad`` (hot path, one
+    thread).
+
+    ``shifts`` is ``nlist.shifts(cell)``; all arrays C-contiguous float64 (no checks here).
+    """
+    return energy_gradient_contacts(positions, radii, typeid, shifts, nlist, model, grad)[0]
+
+
+def energy_gradient_contacts(
+    positions: NDArray[np.float64],
+    radii: NDArray[np.float64],
+    typeid: NDArray[np.int32],
+    shifts: NDArray[np.float64],
+    nlist: NeighborList,
+    model: ContactModel,
+    grad: NDArray[np.float64],
+    walls: Walls | None = None,
+    slabs: tuple[NDArray[np.int64], bool] | None = None,
+) -> tuple[float, int]:
+    """:func:`energy_gradient` and the number of overlapping pairs and wall contacts, from the
+    same pass (``walls``: :meth:`ContactModel.walls`, none: a periodic cell; ``slabs``:
+    :func:`parallel_slabs` of ``nlist``, found here when not given)."""
+    if walls is None:
+        walls = (*NO_WALLS, model.kwall)
+    if slabs is None:
+        slabs = parallel_slabs(nlist)
+    energy, contacts = evaluate(
+        positions,
+        grad,
+        radii,
+        nlist.first,
+        nlist.second,
+        nlist.code,
+        shifts,
+        typeid,
+        model.kmat,
+        model.alpha,
+        *walls,
+        *slabs,
+    )
+    return float(energy), int(contacts)
+
+
+@dataclass(frozen=True, eq=False)
+class Contacts:
+    """The overlapping pairs (``delta > 0``) of a configuration, M of them.
+
+    ``i, j`` ``(M,)``; ``branch`` ``(M, d)`` = ``x_i - x_j`` (periodic image); ``distance`` and
+    ``overlap`` ``(M,)``; ``stiffness`` ``(M,)`` = ``k_ij``; ``alpha``; ``walls`` the
+    particles' contacts with the cell's walls (None: no walls). The functions below (energy,
+    gradient, Hessian, stress) count both.
+    """
+
+    i: NDArray[np.int64]
+    j: NDArray[np.int64]
+    branch: NDArray[np.float64]
+    distance: NDArray[np.float64]
+    overlap: NDArray[np.float64]
+    stiffness: NDArray[np.float64]
+    alpha: float
+    walls: WallContacts | None = None
+
+    def subset(self, keep: NDArray[np.bool_]) -> Contacts:
+        """The pair contacts where ``keep`` ``(M,)`` is True (the wall contacts kept)."""
+        return Contacts(
+            self.i[keep],
+            self.j[keep],
+            self.branch[keep],
+            self.distance[keep],
+            self.overlap[keep],
+            self.stiffness[keep],
+            self.alpha,
+            self.walls,
+        )
+
+    @property
+    def count(self) -> int:
+        """Pair contacts and wall contacts together."""
+        return int(self.i.size) + (0 if self.walls is None else int(self.walls.particle.size))
+
+    @property
+    def normal(self) -> NDArray[np.float64]:
+        """Unit normals ``n = branch / distance`` ``(M, d)``, pointing from j to i."""
+        return self.branch / self.distance[:, None]
+
+    @property
+    def force_magnitude(self) -> NDArray[np.float64]:
+        """``k delta^(alpha-1)`` ``(M,)``, > 0 (repulsive)."""
+        return self.stiffness * power(self.overlap, self.alpha - 1.0)
+
+    @property
+    def normal_stiffness(self) -> NDArray[np.float64]:
+        """``d^2 E_c / d delta^2 = (alpha - 1) k delta^(alpha-2)`` ``(M,)`` (force / length)."""
+        return self.stiffness * (self.alpha - 1.0) * power(self.overlap, self.alpha - 2.0)
+
+    @property
+    def force(self) -> NDArray[np.float64]:
+        """Force on ``i`` from ``j`` ``(M, d)``: ``k delta^(alpha-1) n``."""
+        return self.force_magnitude[:, None] * self.normal
+
+    @property
+    def energy(self) -> NDArray[np.float64]:
+        """Energy of each contact ``k delta^alpha / alpha`` ``(M,)``."""
+        return self.stiffness * power(self.overlap, self.alpha) / self.alpha
+
+
+def find_contacts(
+    packing: Packing, model: ContactModel, nlist: NeighborList | None = None
+) -> Contacts:
+    """All overlapping pairs of ``packing`` (a fresh neighbour list is built when none is given)
+    and its wall contacts.
+
+    Raises :class:`~athermal.errors.InputError` naming two particles whose centres coincide."""
+    if nlist is None:
+        from .neighbors import build_neighbor_list
+
+        nlist = build_neighbor_list(packing.positions, packing.radii, packing.cell, skin=0.0)
+    sep = nlist.separations(packing.positions, packing.cell)
+    dist = row_norms(sep)
+    if np.any(dist == 0.0):
+        k = int(np.flatnonzero(dist == 0.0)[0])
+        raise InputError(
+            f"particles {nlist.first[k]} and {nlist.second[k]} coincide (zero distance between "
+            "their centres): no contact normal exists"
+        )
+    overlap = packing.radii[nlist.first] + packing.radii[nlist.second] - dist
+    hit = overlap > 0.0
+    typeid = model.typeid(packing)
+    i, j = nlist.first[hit].astype(np.int64), nlist.second[hit].astype(np.int64)
+    walls = None
+    if packing.cell.walls:
+        kwall = model.kwall[typeid]
+        walls = find_wall_contacts(
+            packing.positions, packing.radii, kwall, model.alpha, packing.cell
+        )
+    return Contacts(
+        i,
+        j,
+        sep[hit],
+        dist[hit],
+        overlap[hit],
+        model.kmat[typeid[i], typeid[j]],
+        model.alpha,
+        walls,
+    )
+
+
+def total_energy(contacts: Contacts) -> float:
+    """Sum of the contact energies (walls' included)."""
+    walls = 0.0 if contacts.walls is None else float(contacts.walls.energy.sum())
+    return float(contacts.energy.sum()) + walls
+
+
+def gradient(contacts: Contacts, n: int) -> NDArray[np.float64]:
+    """``dE/dx`` ``(N, d)`` from a contact set (vectorized reference of the compiled kernel)."""
+    f = contacts.force
+    grad = np.zeros((n, f.shape[1]))
+    for axis in range(f.shape[1]):
+        grad[:, axis] = np.bincount(contacts.j, f[:, axis], n) - np.bincount(
+            contacts.i, f[:, axis], n
+        )
+    if contacts.walls is not None:
+        grad += wall_gradient(contacts.walls, n)
+    return grad
+
+
+def contact_blocks(contacts: Contacts) -> NDArray[np.float64]:
+    """Second derivatives ``d^2 E_c / dx_i dx_i`` ``(M, d, d)`` (seed eq. for the Hessian).
+
+    ``K = k delta^(alpha-2) [(alpha - 1 + delta/l) n n^T - (delta/l) I]``; the ``(i, j)`` block is
+    ``-K`` and ``(j, j)`` is ``K``.
+    """
+    n = contacts.normal
+    d = n.shape[1]
+    ratio = contacts.overlap / contacts.distance
+    scale = contacts.stiffness * power(contacts.overlap, contacts.alpha - 2.0)
+    nn = n[:, :, None] * n[:, None, :]
+    return scale[:, None, None] * (
+        (contacts.alpha - 1.0 + ratio)[:, None, None] * nn - ratio[:, None, None] * np.eye(d)
+    )
+
+
+def assemble_blocks(
+    i: NDArray[np.int64], j: NDArray[np.int64], blocks: NDArray[np.float64], n: int
+) -> sp.csr_matrix:
+    """Symmetric ``(N d, N d)`` matrix: ``+K`` on blocks (i,i), (j,j) and ``-K`` on (i,j), (j,i).
+
+    Pairs of a particle with its own image (``i == j``) contribute nothing, as for the Hessian.
+    """
+    indptr, indices, data = block_csr(
+        np.ascontiguousarray(i, dtype=np.int64),
+        np.ascontiguousarray(j, dtype=np.int64),
+        np.ascontiguousarray(blocks, dtype=np.float64),
+        n,
+    )
+    size = n * blocks.shape[1]
+    return sp.csr_matrix((data, indices, indptr), shape=(size, size))
+
+
+def hessian(contacts: Contacts, n: int) -> sp.csr_matrix:
+    """Sparse Hessian ``d^2 E / dx dx`` ``(N d, N d)``, symmetric, of the contact energy."""
+    h = assemble_blocks(contacts.i, contacts.j, contact_blocks(contacts), n)
+    if contacts.walls is not None and contacts.walls.particle.size:
+        h = (h + wall_hessian(contacts.walls, n)).tocsr()
+    return h
+
+
+def strain_derivative(contacts: Contacts) -> NDArray[np.float64]:
+    """``dE/d(epsilon)`` ``(d, d)`` under the homogeneous deformation ``x -> (I + epsilon) x``.
+
+    ``dE/d(epsilon_ab) = -sum_c f_a l_b`` (cell, walls and positions deformed together; a wall
+    contact's ``l`` from the wall to the centre); it equals ``-V sigma``.
+    """
+    out = -outer_sum(contacts.force, contacts.branch)
+    if contacts.walls is not None:
+        out -= outer_sum(contacts.walls.force, contacts.walls.branch)
+    return out
+
+
+def packing_energy(packing: Packing, model: ContactModel) -> float:
+    """Energy of ``packing`` (convenience; builds a neighbour list)."""
+    return total_energy(find_contacts(packing, model))
+
+
+@dataclass(frozen=True, eq=False)
+class HessianOperator:
+    """The Hessian ``H`` ``(N d, N d)`` at one configuration as a linear operator: matrix-free
+    products for iterative solves, and the sparse matrix for factorizations.
+
+    A contact's block (:func:`contact_blocks`) is written ``K = a b b^T - c I`` with ``b`` the
+    branch vector ``x_i - x_j`` (``l = |b|``), ``a = kappa (alpha - 1 + delta/l) / l^2``,
+    ``c = kappa delta/l`` and ``kappa = k delta^(alpha-2)``; ``pairs (M, 2)``, ``sep (M, d)``
+    (= ``b``) and ``coef (M, 2)`` = ``(a, c)`` hold the ``M`` contacts of ``n`` particles
+    (:meth:`athermal.model.objective.Objective.hessian` fills them by a compiled pass). ``walls``:
+    the wall contacts' diagonal entries, particle, axis and value ``(W,)`` each
+    (:meth:`athermal.model.walls.WallContacts.hessian_terms`).
+    """
+
+    n: int
+    pairs: NDArray[np.int64]
+    sep: NDArray[np.float64]
+    coef: NDArray[np.float64]
+    walls: tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]] = (
+        np.zeros(0, np.int64),
+        np.zeros(0, np.int64),
+        np.zeros(0),
+    )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        size = self.n * self.sep.shape[1]
+        return size, size
+
+    def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """``H v`` for a flat ``v`` ``(N d,)``, by one compiled pass over the contacts."""
+        d = self.sep.shape[1]
+        out = np.empty(self.n * d)
+        hessian_product(
+            self.pairs,
+            self.sep,
+            self.coef,
+            np.ascontiguousarray(v, dtype=np.float64).reshape(self.n, d),
+            out.reshape(self.n, d),
+        )
+        particle, axis, value = self.walls
+        if particle.size:
+            index = particle * d + axis
+            np.add.at(out, index, value * np.asarray(v)[index])
+        return out
+
+    def _wall_diagonal(self) -> NDArray[np.float64]:
+        """The walls' part of the diagonal ``(N d,)``."""
+        particle, axis, value = self.walls
+        d = self.sep.shape[1]
+        return np.bincount(particle * d + axis, value, self.n * d).astype(np.float64)
+
+    def contact_blocks(self, rows: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """Each contact's block ``K = a b b^T - c I`` ``(M, d, d)``, or those of the contacts
+        ``rows`` only."""
+        if rows is None:
+            rows = np.arange(self.pairs.shape[0])
+        rows = np.ascontiguousarray(rows, dtype=np.int64)
+        out = np.empty((rows.size, self.sep.shape[1], self.sep.shape[1]))
+        pair_blocks(self.sep, self.coef, rows, out)
+        return out
+
+    def lowest_block_eigenvalue(self) -> float:
+        """The smallest eigenvalue of the ``d x d`` diagonal blocks of ``H`` (``>= 0`` when it
+        has none): ``H`` is indefinite where it is negative (its value is then an upper bound on
+        the smallest eigenvalue of ``H``)."""
+        d = self.sep.shape[1]
+        diagonal = np.empty((self.n, d, d))
+        diagonal_blocks(self.pairs, self.sep, self.coef, diagonal)
+        if self.walls[0].size:
+            diagonal[:, range(d), range(d)] += self._wall_diagonal().reshape(self.n, d)
+        return float(np.linalg.eigvalsh(diagonal)[:, 0].min()) if self.n else 0.0
+
+    def matrix(self) -> sp.csr_matrix:
+        """``H`` as a symmetric sparse matrix (for a factorization)."""
+        blocks = self.contact_blocks()
+        h = assemble_blocks(self.pairs[:, 0], self.pairs[:, 1], blocks, self.n)
+        if self.walls[0].size:
+            h = (h + sp.diags(self._wall_diagonal())).tocsr()
+        return h
+
+
+@_jit
+def _pair_force(delta, k, alpha):  # type: ignore[no-untyped-def]
+    """Force magnitude ``k delta^(alpha-1)`` with fast paths for alpha = 2, 2.5, 3."""
+    if alpha == 2.0:
+        return k * delta
+    if alpha == 2.5:
+        return k * delta * np.sqrt(delta)
+    if alpha == 3.0:
+        return k * delta * delta
+    return k * power_of(delta, alpha - 1.0)
+
+
+# Measured on this kind of machine: a plain scatter loop beat per-row register accumulation, a
+# branch-free overlap test (``max(delta, 0)``) is no slower and avoids mispredictions at large N,
+# and skipping the species lookup for a uniform stiffness saves ~3 ns per pair.
+@_jit
+def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
+    """Energy ``sum k delta^alpha / alpha`` over pairs and the number of overlapping pairs
+    (``|x_i - x_j + shift|^2 < (r_i + r_j)^2``); gradient written into ``grad (N, 2)``."""
+    grad[:] = 0.0
+    twice, contacts = _pairs_2d(
+        x, radii, first, second, code, shift, typeid, kmat, alpha, grad, 0, first.size
+    )
+    return twice / alpha, contacts
+
+
+@_jit
+def _pairs_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi):  # type: ignore[no-untyped-def]
+    """Pairs ``lo ... hi - 1`` of :func:`energy_gradient_2d`: their gradient added into
+    ``grad``; ``alpha`` x their energy, and their overlapping pairs."""
+    energy = 0.0
+    contacts = 0
+    uniform = kmat.size == 1
+    k = kmat[0, 0]
+    for p in range(lo, hi):
+        i = first[p]
+        j = second[p]
+        c = code[p]
+        dx = x[i, 0] - x[j, 0] + shift[c, 0]
+        dy = x[i, 1] - x[j, 1] + shift[c, 1]
+        dist_sq = dx * dx + dy * dy
+        reach = radii[i] + radii[j]
+        contacts += dist_sq < reach * reach
+        dist = np.sqrt(dist_sq)
+        delta = max(reach - dist, 0.0)
+        if not uniform:
+            k = kmat[typeid[i], typeid[j]]
+        f = _pair_force(delta, k, alpha)
+        energy += f * delta
+        s = f / dist
+        fx = s * dx
+        fy = s * dy
+        grad[i, 0] -= fx
+        grad[i, 1] -= fy
+        grad[j, 0] += fx
+        grad[j, 1] += fy
+    return energy, contacts
+
+
+@_jit
+def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
+    """3D twin of :func:`energy_gradient_2d` (``grad (N, 3)``)."""
+    grad[:] = 0.0
+    twice, contacts = _pairs_3d(
+        x, radii, first, second, code, shift, typeid, kmat, alpha, grad, 0, first.size
+    )
+    return twice / alpha, contacts
+
+
+@_jit
+def _pairs_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi):  # type: ignore[no-untyped-def]
+    """3D twin of :func:`_pairs_2d`."""
+    energy = 0.0
+    contacts = 0
+    uniform = kmat.size == 1
+    k = kmat[0, 0]
+    for p in range(lo, hi):
+        i = first[p]
+        j = second[p]
+        c = code[p]
+        dx = x[i, 0] - x[j, 0] + shift[c, 0]
+        dy = x[i, 1] - x[j, 1] + shift[c, 1]
+        dz = x[i, 2] - x[j, 2] + shift[c, 2]
+        dist_sq = dx * dx + dy * dy + dz * dz
+        reach = radii[i] + radii[j]
+        contacts += dist_sq < reach * reach
+        dist = np.sqrt(dist_sq)
+        delta = max(reach - dist, 0.0)
+        if not uniform:
+            k = kmat[typeid[i], typeid[j]]
+        f = _pair_force(delta, k, alpha)
+        energy += f * delta
+        s = f / dist
+        fx = s * dx
+        fy = s * dy
+        fz = s * dz
+        grad[i, 0] -= fx
+        grad[i, 1] -= fy
+        grad[i, 2] -= fz
+        grad[j, 0] += fx
+        grad[j, 1] += fy
+        grad[j, 2] += fz
+    return energy, contacts
+
+
+@_jit
+def _slab(  # type: ignore[no-untyped-def]
+    x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs, s, energies, overlapping
+):
+    """The pairs of slab ``s``: their gradient added into ``grad``, ``alpha`` x their energy
+    into ``energies[s]`` and their overlapping pairs into ``overlapping[s]``."""
+    lo, hi = slabs[s], slabs[s + 1]
+    if x.shape[1] == 2:
+        e, c = _pairs_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi)
+    else:
+        e, c = _pairs_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi)
+    energies[s] = e
+    overlapping[s] = c
+
+
+@_jit
+def _slab_total(energies, overlapping, alpha):  # type: ignore[no-untyped-def]
+    """The slabs' energy (their ``alpha`` x energies summed in slab order, over ``alpha``) and
+    their overlapping pairs."""
+    energy = 0.0
+    for s in range(energies.size):
+        energy += energies[s]
+    return energy / alpha, overlapping.sum()
+
+
+@_jit_parallel
+def energy_gradient_slabs(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs):  # type: ignore[no-untyped-def]
+    """:func:`energy_gradient_2d` (or 3d) on the threads: the pairs of the even slabs of the
+    list (:attr:`~athermal.model.neighbors.NeighborList.slabs`) at once, then those of the odd ones
+    (slabs of one parity share no particle, so no two threads add into one row of ``grad``).
+    Every row of ``grad`` gets its terms in one order whatever the number of threads, and the
+    slabs' energies are summed in slab order: the same bits as :func:`energy_gradient_slabs_serial`
+    on one thread."""
+    count = slabs.size - 1
+    energies = np.zeros(count)
+    overlapping = np.zeros(count, dtype=np.int64)
+    grad[:] = 0.0
+    for parity in range(2):
+        for half in prange(count // 2):
+            _slab(
+                x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs,
+                2 * half + parity, energies, overlapping,
+            )  # fmt: skip
+    return _slab_total(energies, overlapping, alpha)
+
+
+@_jit
+def energy_gradient_slabs_serial(  # type: ignore[no-untyped-def]
+    x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs
+):
+    """:func:`energy_gradient_slabs` on the calling thread alone, in the same order (even slabs,
+    then odd ones): where the threads cannot run, a large packing still gets their bits."""
+    count = slabs.size - 1
+    energies = np.zeros(count)
+    overlapping = np.zeros(count, dtype=np.int64)
+    grad[:] = 0.0
+    for parity in range(2):
+        for half in range(count // 2):
+            _slab(
+                x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs,
+                2 * half + parity, energies, overlapping,
+            )  # fmt: skip
+    return _slab_total(energies, overlapping, alpha)
+
+
+@_jit
+def count_overlaps(x, radii, first, second, code, shift):  # type: ignore[no-untyped-def]
+    """Number of listed pairs that overlap (``|x_i - x_j + shift| < r_i + r_j``)."""
+    count = 0
+    d = x.shape[1]
+    for p in range(first.size):
+        i = first[p]
+        j = second[p]
+        r2 = 0.0
+        for a in range(d):
+            t = x[i, a] - x[j, a] + shift[code[p], a]
+            r2 += t * t
+        reach = radii[i] + radii[j]
+        if r2 < reach * reach:
+            count += 1
+    return count
+
+
+@_jit
+def hessian_terms(x, radii, first, second, code, shift, typeid, kmat, alpha, pairs, sep, coef):  # type: ignore[no-untyped-def]
+    """The overlapping pairs' Hessian blocks ``K = a b b^T - c I`` (``b`` the separation
+    ``x_i - x_j + shift``, ``l = |b|``): ``a = kappa (alpha - 1 + delta/l) / l^2``,
+    ``c = kappa delta/l`` with ``kappa = k delta^(alpha-2)``. Writes ``pairs (P, 2)``,
+    ``sep (P, d)`` and ``coef (P, 2)`` = ``(a, c)`` for the first M rows; returns M."""
+    d = x.shape[1]
+    uniform = kmat.size == 1
+    k = kmat[0, 0]
+    m = 0
+    for p in range(first.size):
+        i = first[p]
+        j = second[p]
+        if i == j:  # a particle and its own image: no relative displacement, no block
+            continue
+        dist_sq = 0.0
+        for a in range(d):
+            t = x[i, a] - x[j, a] + shift[code[p], a]
+            sep[m, a] = t
+            dist_sq += t * t
+        reach = radii[i] + radii[j]
+        if not dist_sq < reach * reach:
+            continue
+        dist = np.sqrt(dist_sq)
+        delta = reach - dist
+        if not uniform:
+            k = kmat[typeid[i], typeid[j]]
+        if alpha == 2.0:
+            kappa = k
+        elif alpha == 2.5:
+            kappa = k * np.sqrt(delta)
+        else:
+            kappa = k * power_of(delta, alpha - 2.0)
+        ratio = delta / dist
+        pairs[m, 0] = i
+        pairs[m, 1] = j
+        coef[m, 0] = kappa * (alpha - 1.0 + ratio) / dist_sq
+        coef[m, 1] = kappa * ratio
+        m += 1
+    return m
+
+
+@_jit
+def hessian_product(pairs, sep, coef, v, out):  # type: ignore[no-untyped-def]
+    """``out = H v`` ``(N, d)`` from the blocks of :func:`hessian_terms`: each adds
+    ``K (v_i - v_j)`` to ``out_i`` and subtracts it from ``out_j``."""
+    out[:] = 0.0
+    d = v.shape[1]
+    for p in range(pairs.shape[0]):
+        i = pairs[p, 0]
+        j = pairs[p, 1]
+        bu = 0.0
+        for a in range(d):
+            bu += sep[p, a] * (v[i, a] - v[j, a])
+        a_n = coef[p, 0] * bu
+        c_t = coef[p, 1]
+        for a in range(d):
+            ku = a_n * sep[p, a] - c_t * (v[i, a] - v[j, a])
+            out[i, a] += ku
+            out[j, a] -= ku
+
+
+@_jit
+def _block_entry(sep, coef, p, x, y):  # type: ignore[no-untyped-def]
+    """Entry ``(x, y)`` of pair ``p``'s block ``K = a b b^T - c I`` (:func:`hessian_terms`):
+    ``a (b_x b_y) - c delta_xy``, as NumPy's broadcast forms it."""
+    return coef[p, 0] * (sep[p, x] * sep[p, y]) - coef[p, 1] * (1.0 if x == y else 0.0)
+
+
+@_jit
+def pair_blocks(sep, coef, rows, out):  # type: ignore[no-untyped-def]
+    """The blocks of the pairs ``rows`` into ``out`` ``(len(rows), d, d)``."""
+    d = sep.shape[1]
+    for q in range(rows.size):
+        for x in range(d):
+            for y in range(d):
+                out[q, x, y] = _block_entry(sep, coef, rows[q], x, y)
+
+
+@_jit
+def diagonal_blocks(pairs, sep, coef, out):  # type: ignore[no-untyped-def]
+    """``out`` ``(N, d, d)`` = each particle's diagonal block of ``H``: the sum of its pairs'
+    blocks (a pair with its own image adds nothing), first over the pairs where it is the
+    first particle, then where it is the second, each in pair order (the sums ``np.add.at``
+    forms)."""
+    d = sep.shape[1]
+    out[:] = 0.0
+    for end in range(2):
+        for p in range(pairs.shape[0]):
+            if pairs[p, 0] == pairs[p, 1]:
+                continue
+            i = pairs[p, end]
+            for x in range(d):
+                for y in range(d):
+                    out[i, x, y] += _block_entry(sep, coef, p, x, y)
+
+
+@_jit
+def block_csr(first, second, blocks, n):  # type: ignore[no-untyped-def]
+    """The symmetric ``(n d, n d)`` matrix with ``+K_p`` on blocks ``(i, i)`` and ``(j, j)`` and
+    ``-K_p`` on ``(i, j)`` and ``(j, i)`` of each pair ``p`` (``i = first[p]``, ``j =
+    second[p]``; pairs with ``i == j`` skipped), from symmetric ``blocks`` ``(M, d, d)``: CSR
+    ``(indptr, indices, data)`` with sorted columns, every diagonal block stored. Duplicate
+    pairs (two images) are summed in pair order on both sides, so the matrix is exactly
+    symmetric."""
+    d = blocks.shape[1]
+    degree = np.ones(n, dtype=np.int64)  # the diagonal block, then one per pair end
+    for p in range(first.size):
+        if first[p] != second[p]:
+            degree[first[p]] += 1
+            degree[second[p]] += 1
+    start = np.zeros(n + 1, dtype=np.int64)
+    for a in range(n):
+        start[a + 1] = start[a] + degree[a]
+    neighbours = np.empty(start[n], dtype=np.int64)
+    fill = start[:n].copy()
+    for a in range(n):
+        neighbours[fill[a]] = a
+        fill[a] += 1
+    for p in range(first.size):
+        i, j = first[p], second[p]
+        if i != j:
+            neighbours[fill[i]] = j
+            fill[i] += 1
+            neighbours[fill[j]] = i
+            fill[j] += 1
+    # each particle's distinct neighbours, sorted: the block pattern
+    bptr = np.zeros(n + 1, dtype=np.int64)
+    for a in range(n):
+        row = neighbours[start[a] : start[a + 1]]
+        for k in range(1, row.size):  # insertion sort: a handful of neighbours
+            value = row[k]
+            q = k - 1
+            while q >= 0 and row[q] > value:
+                row[q + 1] = row[q]
+                q -= 1
+            row[q + 1] = value
+        count = 1
+        for k in range(1, row.size):
+            if row[k] != row[count - 1]:
+                row[count] = row[k]
+                count += 1
+        bptr[a + 1] = bptr[a] + count
+    bcols = np.empty(bptr[n], dtype=np.int64)
+    for a in range(n):
+        for k in range(bptr[a + 1] - bptr[a]):
+            bcols[bptr[a] + k] = neighbours[start[a] + k]
+    bvals = np.zeros((bptr[n], d, d))
+    for p in range(first.size):
+        i, j = first[p], second[p]
+        if i == j:
+            continue
+        for end in range(4):
+            a = i if end % 2 == 0 else j  # blocks (i, i), (j, j), (i, j), (j, i)
+            b = a if end < 2 else (j if end == 2 else i)
+            k = bptr[a]
+            while bcols[k] != b:
+                k += 1
+            sign = 1.0 if end < 2 else -1.0
+            for r in range(d):
+                for c in range(d):
+                    bvals[k, r, c] += sign * blocks[p, r, c]
+    indptr = np.empty(n * d + 1, dtype=np.int64)
+    indices = np.empty(bptr[n] * d * d, dtype=np.int64)
+    data = np.empty(bptr[n] * d * d)
+    indptr[0] = 0
+    for a in range(n):
+        width = (bptr[a + 1] - bptr[a]) * d
+        for r in range(d):
+            q = bptr[a] * d * d + r * width
+            indptr[a * d + r + 1] = q + width
+            for k in range(bptr[a], bptr[a + 1]):
+                for c in range(d):
+                    indices[q] = bcols[k] * d + c
+                    data[q] = bvals[k, r, c]
+                    q += 1
+    return indptr, indices, data
+
+
+@_jit
+def evaluate(  # type: ignore[no-untyped-def]
+    points,
+    gradient,
+    radii,
+    first,
+    second,
+    images,
+    shift,
+    typeid,
+    kmat,
+    alpha,
+    walls,
+    half,
+    kwall,
+    slabs,
+    threads,
+):
+    """The contact energy and overlapping pairs at ``points`` ``(N, d)``, its gradient written
+    into ``gradient`` ``(N, d)``, by the kernel of the dimension (arguments as
+    :func:`energy_gradient_2d`), in the order of the list's slabs when ``slabs`` holds them
+    (:func:`energy_gradient_slabs` on the threads when ``threads``, else its one-thread twin;
+    empty: pair by pair), then the walls' (:func:`wall_energy_gradient`): the one evaluation
+    every caller uses, so that the energy at a point is the same bits from Python and from
+    compiled loops, and on any number of threads."""
+    args = (radii, first, second, images, shift, typeid, kmat, alpha, gradient)
+    if slabs.size and threads:
+        energy, contacts = energy_gradient_slabs(points, *args, slabs)
+    elif slabs.size:
+        energy, contacts = energy_gradient_slabs_serial(points, *args, slabs)
+    elif points.shape[1] == 2:
+        energy, contacts = energy_gradient_2d(points, *args)
+    else:
+        energy, contacts = energy_gradient_3d(points, *args)
+    if walls.size:
+        e_wall, c_wall = wall_energy_gradient(
+            points, radii, typeid, walls, half, kwall, alpha, gradient
+        )
+        energy += e_wall
+        contacts += c_wall
+    return energy, contacts
+
+
+@_jit
+def wall_energy_gradient(x, radii, typeid, walls, half, kwall, alpha, grad):  # type: ignore[no-untyped-def]
+    """Energy ``sum k_w delta^alpha / alpha`` of the particles' overlaps with the walls and
+    their number, the gradient added into ``grad (N, d)``. Along axis ``a = walls[w]`` the walls
+    lie at ``x_a = -half[w]`` and ``+half[w]``; a particle overlaps them by
+    ``delta = r_i - (x_ia + half)`` and ``r_i - (half - x_ia)`` (flat and frictionless: the
+    force is along the axis). ``kwall (T,)`` by species ``typeid``."""
+    energy = 0.0
+    contacts = 0
+    for i in range(x.shape[0]):
+        k = kwall[typeid[i]]
+        for w in range(walls.size):
+            a = walls[w]
+            low = radii[i] - (x[i, a] + half[w])
+            if low > 0.0:
+                f = _pair_force(low, k, alpha)
+                energy += f * low
+                grad[i, a] -= f
+                contacts += 1
+            high = radii[i] - (half[w] - x[i, a])
+            if high > 0.0:
+                f = _pair_force(high, k, alpha)
+                energy += f * high
+                grad[i, a] += f
+                contacts += 1
+    return energy / alpha, contacts

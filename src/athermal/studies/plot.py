@@ -1,0 +1,690 @@
+"""Figures of the paper with matplotlib: packings with contact forces, convergence,
+scaling laws, iteration counts, shear curves and ensemble histograms. Each function returns a
+:class:`matplotlib.figure.Figure` (no global pyplot state); :func:`save` writes one atomically.
+
+Units: the unit cell, stiffness ``k = 1``; energies ``k l^alpha``, stresses, pressures and
+moduli ``k l^(alpha-d)``, forces and gradients ``k l^(alpha-1)`` (``l`` a length).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from ..analysis.fitting import PowerLaw
+from ..analysis.observables import rattlers
+from ..atomic import replacing
+from ..errors import InputError
+from ..model.contact import ContactModel, find_contacts
+from ..model.packing import Packing
+
+if TYPE_CHECKING:
+    from matplotlib.artist import Artist
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+    from ..analysis.modes import Modes
+    from ..certify.criticality import CriticalExponents, WeakForcesAndGaps
+
+MAX_FORCE_WIDTH = 2.0
+"""Width (points) of the line of the largest force in a packing of up to 1024 disks drawn
+``size = 6`` inches wide; larger packings get ``sqrt(1024 / N)`` of it."""
+MIN_FORCE_WIDTH = 0.05
+"""Force lines thinner than this (points) are not drawn."""
+FORCE_COLOR = "firebrick"
+GRADIENT_UNITS = r"($k\,\ell^{\alpha-1}$)"
+STRESS_UNITS = r"($k\,\ell^{\alpha-d}$)"
+
+
+def _figure(width: float = 5.0, height: float = 4.0) -> Figure:
+    try:
+        from matplotlib.figure import Figure
+    except ImportError as exc:  # pragma: no cover - matplotlib is a core dependency
+        raise ImportError("athermal's figures need matplotlib: pip install matplotlib") from exc
+    return Figure(figsize=(width, height), layout="constrained")
+
+
+def save(figure: Figure, path: str | os.PathLike[str], *, dpi: int = 150) -> Path:
+    """Write ``figure`` to ``path`` (format from the suffix), replacing it atomically."""
+    with replacing(path) as temporary:
+        figure.savefig(temporary, dpi=dpi)
+    return Path(path)
+
+
+def max_force_width(n: int, size: float = 6.0) -> float:
+    """Line width (points) of the force equal to the force scale, for ``n`` disks drawn in a
+    panel ``size`` inches wide: :data:`MAX_FORCE_WIDTH` x ``min(1, sqrt(1024 / n))`` x
+    ``size / 6``, so lines stay thinner than the disks."""
+    return MAX_FORCE_WIDTH * min(1.0, float(np.sqrt(1024.0 / max(n, 1)))) * size / 6.0
+
+
+def _force_scale(packing: Packing, model: ContactModel) -> float:
+    """The largest contact force of ``packing`` (``k l^(alpha-1)``), 0 without contacts."""
+    force = find_contacts(packing.wrapped(), model).force_magnitude
+    return float(force.max()) if force.size else 0.0
+
+
+def _check_force_scale(force_scale: float) -> float:
+    scale = float(force_scale)
+    if not np.isfinite(scale) or scale <= 0.0:
+        raise InputError(f"force_scale: must be a finite force > 0, got {force_scale!r}")
+    return scale
+
+
+def _draw_packing(
+    ax: Axes,
+    packing: Packing,
+    model: ContactModel | None,
+    force_scale: float | None,
+    max_width: float,
+) -> tuple[float | None, int]:
+    """Draw disks (rattlers white with a dashed grey edge), cell, walls (thick lines, with a
+    force line from each centre to the wall it touches) and force lines into ``ax``;
+    return the force scale used (None without ``model`` or contacts) and the rattler count
+    (0 when every particle is one: an unjammed packing has no network to rattle in)."""
+    from matplotlib.collections import EllipseCollection, LineCollection
+    from matplotlib.patches import Polygon
+
+    wrapped = packing.wrapped()
+    h = packing.cell.h
+    walls = packing.cell.walls
+    around = [(0,) if axis in walls else (-1, 0, 1) for axis in range(2)]
+    images = np.array([(a, b) for a in around[0] for b in around[1]], dtype=np.float64)
+    shifts = images @ h.T
+    centres = (wrapped.positions[None, :, :] + shifts[:, None, :]).reshape(-1, 2)
+    radii = np.tile(wrapped.radii, len(images))
+    corners = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]]) @ h.T
+    lo, hi = corners.min(axis=0), corners.max(axis=0)
+    margin = 2.0 * float(radii.max())
+    keep = np.all((centres > lo - margin) & (centres < hi + margin), axis=1)
+    rattler = np.zeros(packing.n, dtype=bool)
+    scale: float | None = None
+    segments: NDArray[np.float64] | None = None
+    widths: NDArray[np.float64] | None = None
+    if model is not None:
+        contacts = find_contacts(wrapped, model)
+        rattler = rattlers(contacts, packing.n, packing.dim)
+        if rattler.all():  # no rigid network (unjammed): every disk drawn alike, none marked
+            rattler[:] = False
+        # a wall contact's line runs from the centre to the wall
+        on_wall = contacts.walls
+        first = np.concatenate([contacts.i, [] if on_wall is None else on_wall.particle])
+        branch = np.concatenate(
+            [contacts.branch, np.zeros((0, 2)) if on_wall is None else on_wall.branch]
+        )
+        force = np.concatenate(
+            [contacts.force_magnitude, [] if on_wall is None else on_wall.force_magnitude]
+        )
+        if force_scale is not None:
+            scale = _check_force_scale(force_scale)
+        elif force.size:
+            scale = float(force.max())
+        if scale is not None and force.size:
+            width = np.minimum(max_width * force / scale, max_width)
+            visible = width >= MIN_FORCE_WIDTH
+            start = wrapped.positions[first[visible].astype(np.int64)]
+            pairs = np.stack([start, start - branch[visible]], axis=1)
+            segments = np.concatenate([pairs + shift for shift in shifts])
+            widths = np.tile(width[visible], len(images))
+    tiled = np.tile(rattler, len(images))
+    r_min, r_max = packing.radii.min(), packing.radii.max()
+    shade = 0.8 - 0.25 * (radii - r_min) / (r_max - r_min if r_max > r_min else 1.0)
+    face = np.column_stack([shade, shade, np.full_like(shade, 0.9)])
+    for chosen, faces, edge, style, lw in (
+        (keep & ~tiled, face[keep & ~tiled], "0.3", "solid", 0.3),
+        (keep & tiled, "white", "0.45", "--", 0.6),
+    ):
+        if chosen.any():
+            ax.add_collection(
+                EllipseCollection(
+                    2 * radii[chosen],
+                    2 * radii[chosen],
+                    np.zeros(int(chosen.sum())),
+                    units="xy",
+                    offsets=centres[chosen],
+                    offset_transform=ax.transData,
+                    facecolors=faces,
+                    edgecolors=edge,
+                    linewidths=lw,
+                    linestyles=style,
+                    gid="rattlers" if style == "--" else "disks",
+                )
+            )
+    if segments is not None and widths is not None and widths.size:
+        lines = LineCollection(
+            list(segments), linewidths=widths, colors=FORCE_COLOR, capstyle="round", zorder=3
+        )
+        lines.set_gid("forces")
+        ax.add_collection(lines)
+    ax.add_patch(Polygon(corners, closed=True, fill=False, edgecolor="black", linewidth=1.0))
+    pad = np.zeros(2)
+    for axis in walls:  # a wall: a thick line on its face, drawn just outside the cell
+        pad[axis] = 0.02 * (hi[axis] - lo[axis])
+        for face in (lo[axis], hi[axis]):
+            ends = np.array([lo, hi], dtype=np.float64)
+            ends[:, axis] = face
+            ax.plot(ends[:, 0], ends[:, 1], color="black", linewidth=3.0, gid="walls")
+    ax.set_xlim(lo[0] - pad[0], hi[0] + pad[0])
+    ax.set_ylim(lo[1] - pad[1], hi[1] + pad[1])
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    return scale, int(rattler.sum())
+
+
+def _packing_key(
+    scale: float | None, max_width: float, n_rattlers: int | None
+) -> tuple[list[Artist], list[str]]:
+    """Legend handles: the force key (a line of ``max_width`` for ``f = scale``, saying that
+    each contact's line width is proportional to its force) and the rattler marker (with its
+    count when ``n_rattlers`` is given)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles: list[Artist] = []
+    labels: list[str] = []
+    if scale is not None:
+        handles.append(Line2D([], [], color=FORCE_COLOR, linewidth=max_width))
+        labels.append(
+            rf"contact force (width $\propto f$; this line: $f$ = {scale:.2e} "
+            rf"$k\,\ell^{{\alpha-1}}$)"
+        )
+    if n_rattlers is None or n_rattlers > 0:
+        handles.append(Patch(facecolor="white", edgecolor="0.45", linestyle="--"))
+        labels.append("rattler" if n_rattlers is None else f"rattler ({n_rattlers})")
+    return handles, labels
+
+
+def packing_figure(
+    packing: Packing,
+    model: ContactModel | None = None,
+    *,
+    title: str = "",
+    size: float = 6.0,
+    force_scale: float | None = None,
+    ax: Axes | None = None,
+) -> Figure:
+    """The disks of a 2D ``packing`` drawn to scale in its unit cell, periodic images included
+    (none across walls, which are drawn as thick lines with the lines of their contact forces),
+    shaded by radius (the smallest light, the largest dark). With ``model``: every contact force
+    ``f`` as a line between the centres of width
+    ``w = max_force_width(N, size) x min(1, f / force_scale)`` points (lines with
+    ``w <`` :data:`MIN_FORCE_WIDTH` omitted), rattlers (the rule of
+    :func:`athermal.analysis.observables.rattlers`) white with a dashed grey edge, and a key.
+
+    ``force_scale`` (``k l^(alpha-1)``) defaults to this packing's largest force; pass one
+    shared value to compare packings. ``size``: figure width in inches (with ``ax``, the panel
+    width, used for line widths only). With ``ax``, draws into it and returns its figure.
+    """
+    if packing.dim != 2:
+        raise InputError(f"packing_figure: draws 2D packings, got dim = {packing.dim}")
+    if ax is None:
+        fig = _figure(size, size)
+        ax = fig.add_subplot()
+    else:
+        from matplotlib.figure import Figure
+
+        owner = ax.get_figure()
+        root = owner if owner is None or isinstance(owner, Figure) else owner.figure
+        if not isinstance(root, Figure):
+            raise InputError("packing_figure: ax belongs to no figure")
+        fig = root
+    width = max_force_width(packing.n, size)
+    scale, n_rattlers = _draw_packing(ax, packing, model, force_scale, width)
+    if model is not None:
+        handles, labels = _packing_key(scale, width, n_rattlers)
+        if handles:
+            ax.legend(
+                handles,
+                labels,
+                loc="upper center",
+                bbox_to_anchor=(0.5, 0.0),
+                ncols=len(handles),
+                frameon=False,
+                fontsize="small",
+            )
+    ax.set_title(title or f"N = {packing.n}, phi = {packing.phi:.6f}")
+    return fig
+
+
+def jamming_figure(
+    snapshots: Sequence[tuple[str, Packing]], model: ContactModel, *, title: str = ""
+) -> Figure:
+    """The paper's jamming figure: one panel per ``(label, packing)`` (e.g. initial,
+    intermediate, jammed) side by side, titled ``(a) label``, ``(b) label``, ...; all force
+    lines on ONE absolute scale, the largest force over all snapshots, with one key."""
+    if not snapshots:
+        raise InputError("jamming_figure: needs at least one snapshot")
+    panel = 4.0
+    fig = _figure(panel * len(snapshots), panel + 0.9)
+    axes = fig.subplots(1, len(snapshots), squeeze=False)[0]
+    forces = [_force_scale(packing, model) for _, packing in snapshots]
+    shared = max(forces)
+    width = max_force_width(max(packing.n for _, packing in snapshots), panel)
+    for k, (ax, (label, packing)) in enumerate(zip(axes, snapshots, strict=True)):
+        if packing.dim != 2:
+            raise InputError(f"jamming_figure: draws 2D packings, got dim = {packing.dim}")
+        _, n_rattlers = _draw_packing(ax, packing, model, shared if shared > 0 else None, width)
+        ax.set_title(f"({chr(ord('a') + k)}) {label}")
+        note = f"{n_rattlers} rattlers of {packing.n}" if n_rattlers else "no rigid network"
+        ax.set_xlabel(note if model is not None else "", fontsize="small")
+    handles, labels = _packing_key(shared if shared > 0 else None, width, None)
+    fig.legend(handles, labels, loc="outside lower center", ncols=len(handles), frameon=False)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def convergence_figure(
+    histories: Mapping[str, NDArray[np.float64]],
+    *,
+    title: str = "",
+    tolerance: float | None = None,
+    ylabel: str = r"$\max_i |\nabla_i E|$ " + GRADIENT_UNITS,
+) -> Figure:
+    """``max_i |grad_i E|`` (l-infinity gradient norm, ``k l^(alpha-1)``) against the
+    iteration, one line per method (the paper's convergence figure); ``tolerance`` (the same
+    units) as a dashed horizontal line. Put alpha and N in ``title``."""
+    fig = _figure(7.0, 4.0)
+    ax = fig.add_subplot()
+    for label, history in histories.items():
+        ax.semilogy(np.arange(len(history)), history, label=label, linewidth=0.8)
+    if tolerance is not None:
+        ax.axhline(float(tolerance), color="0.3", linestyle="--", linewidth=0.8, label="tolerance")
+    from matplotlib.ticker import MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=5, integer=True))
+    ax.ticklabel_format(axis="x", style="sci", scilimits=(-3, 4))
+    ax.set_xlabel("iteration")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    fig.legend(loc="outside right upper", fontsize="small", frameon=False)
+    return fig
+
+
+def _loglog(
+    ax: Axes,
+    x: Sequence[float],
+    y: Sequence[float],
+    fit: PowerLaw | None,
+    label: str,
+    reference: float | None,
+    used: Sequence[bool] | None = None,
+) -> None:
+    """Points (filled where ``used`` by the fit, default: inside the fit's range; open
+    otherwise), the fit over its range with its window shaded, and (``reference``) a dotted line
+    of that slope a factor 2 below the middle fitted point."""
+    xs, ys = np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
+    ok = (xs > 0) & (ys > 0)
+    if used is not None:
+        inside = ok & np.asarray(used, dtype=bool)
+    else:
+        inside = ok if fit is None else ok & (xs >= fit.x_min) & (xs <= fit.x_max)
+    (line,) = ax.loglog(xs[inside], ys[inside], "o", markersize=3, label=label)
+    color = line.get_color()
+    ax.loglog(xs[ok & ~inside], ys[ok & ~inside], "o", markersize=3, mfc="none", color=color)
+    if fit is not None:
+        ax.axvspan(fit.x_min, fit.x_max, color=color, alpha=0.07, linewidth=0)
+        grid = np.geomspace(fit.x_min, fit.x_max, 50)
+        ax.loglog(
+            grid,
+            fit(grid),
+            "-",
+            color=color,
+            linewidth=0.8,
+            label=f"fit: slope {fit.exponent:.2f} ± {fit.stderr:.2f} ({fit.points} points, "
+            f"shaded {fit.x_min:.0e} ... {fit.x_max:.0e})",
+        )
+    if reference is not None:
+        anchor = inside if inside.any() else ok
+        if anchor.any():
+            order = np.argsort(xs[anchor])
+            x0 = float(xs[anchor][order][order.size // 2])
+            y0 = float(ys[anchor][order][order.size // 2]) / 2.0
+            span = np.geomspace(float(xs[ok].min()), float(xs[ok].max()), 2)
+            ax.loglog(
+                span,
+                y0 * (span / x0) ** reference,
+                ":",
+                color="0.5",
+                linewidth=1.0,
+                label=f"slope {reference:g} (expected, {label})",
+                gid="reference",
+            )
+
+
+def scaling_figure(
+    delta_phi: Mapping[str, Sequence[float]],
+    values: Mapping[str, Sequence[float]],
+    fits: Mapping[str, PowerLaw | None],
+    *,
+    ylabel: str,
+    title: str = "",
+    reference_slopes: Mapping[str, float] | None = None,
+    phi_c_note: str | None = None,
+    used: Mapping[str, Sequence[bool]] | None = None,
+) -> Figure:
+    """``values[label]`` against ``delta_phi[label]`` on log-log axes, one series per label
+    (e.g. ``alpha = 2``): fitted points filled (those ``used[label]`` marks, default: those in
+    the fit's range), the others open, the fit over its (shaded) window, and a grey dotted line
+    of slope ``reference_slopes[label]`` (the expected exponent) where given. ``ylabel`` should
+    carry units; ``phi_c_note`` explains phi_c."""
+    fig = _figure(6.4, 4.8)
+    ax = fig.add_subplot()
+    slopes = reference_slopes or {}
+    for label in values:
+        mask = None if used is None else used.get(label)
+        _loglog(
+            ax, delta_phi[label], values[label], fits.get(label), label, slopes.get(label), mask
+        )
+    note = r"$\phi_c$ of the jamming protocol" if phi_c_note is None else phi_c_note
+    ax.set_xlabel(r"$\phi - \phi_c$" + (f" ({note})" if note else ""))
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize="x-small")
+    return fig
+
+
+def iterations_figure(
+    delta_phi: Sequence[float],
+    counts: Mapping[str, Sequence[Sequence[float]]],
+    *,
+    title: str = "",
+    error: str = "sd",
+) -> Figure:
+    """Mean iteration count against ``delta_phi``, one series per method;
+    ``counts[label][k]`` are the realizations at ``delta_phi[k]`` (NaN ones, unjammed there, left
+    out). Error bars: the sample
+    standard deviation (``error="sd"``) or the standard error of the mean (``"stderr"``),
+    named in the y label and legend title. Tick labels are plain integers."""
+    if error not in ("sd", "stderr"):
+        raise InputError(f"error: expected 'sd' or 'stderr', got {error!r}")
+    from matplotlib.ticker import FuncFormatter, MaxNLocator, NullFormatter
+
+    fig = _figure(7.5, 4.0)
+    ax = fig.add_subplot()
+    every: list[float] = []
+    for label, per_point in counts.items():
+        means, bars = [], []
+        for v in per_point:
+            data = np.asarray(v, dtype=np.float64)
+            data = data[np.isfinite(data)]
+            sd = float(np.std(data, ddof=1)) if data.size > 1 else 0.0
+            means.append(float(np.mean(data)) if data.size else np.nan)
+            bars.append(sd / np.sqrt(data.size) if error == "stderr" and data.size else sd)
+        every.extend(m for m in means if np.isfinite(m) and m > 0)
+        ax.errorbar(delta_phi, means, yerr=bars, marker="o", markersize=3, capsize=2, label=label)
+    ax.set_xscale("log")
+    if every and max(every) > 10.0 * min(every):
+        ax.set_yscale("log")
+        ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
+        ax.yaxis.set_minor_formatter(NullFormatter())
+    else:
+        ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel(r"$\phi - \phi_c$")
+    ax.set_ylabel(f"iterations per step (mean ± {error})")
+    ax.set_title(title)
+    ax.legend(  # beside the axes: with five methods no corner inside is free
+        fontsize="small",
+        title=f"mean ± {error} over realizations",
+        title_fontsize="small",
+        loc="upper left",
+        bbox_to_anchor=(1.02, 1.0),
+    )
+    return fig
+
+
+def shear_figure(curves: Mapping[str, Mapping[str, Sequence[float]]], *, title: str = "") -> Figure:
+    """The paper's shear-test figure on a 2 x 2 grid against the strain (dimensionless):
+    isotropic and deviatoric stress (``k l^(alpha-d)``, top) and fabric (dimensionless,
+    bottom), one line per curve; ``curves[label]`` (label: the strain increment) has
+    ``strain``, ``stress_iso``, ``stress_dev``, ``fabric_iso``, ``fabric_dev``. One legend."""
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
+
+    fig = _figure(8.0, 6.0)
+    axes = fig.subplots(2, 2, sharex=True)
+    panels = (
+        ("stress_iso", r"$\sigma_{iso}$ " + STRESS_UNITS),
+        ("stress_dev", r"$\sigma_{dev}$ " + STRESS_UNITS),
+        ("fabric_iso", r"$F_{iso}$"),
+        ("fabric_dev", r"$F_{dev}$"),
+    )
+    for ax, (key, ylabel) in zip(axes.flat, panels, strict=True):
+        for label, c in curves.items():
+            ax.plot(c["strain"], c[key], "-", linewidth=1.0, label=label)
+        formatter = ScalarFormatter(useMathText=True)
+        formatter.set_powerlimits((-2, 3))
+        ax.yaxis.set_major_formatter(formatter)
+        ax.xaxis.set_major_locator(MaxNLocator(5))
+        ax.set_ylabel(ylabel)
+    for ax in axes[1]:
+        ax.set_xlabel(r"strain $\gamma$")
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    if handles:
+        fig.legend(
+            handles,
+            labels,
+            loc="outside right upper",
+            title="strain increment",
+            fontsize="small",
+        )
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def _histogram(ax: Axes, values: Sequence[float], xlabel: str) -> None:
+    """Histogram of ``values`` with integer counts, the mean (line) and mean ± sd (band)."""
+    from matplotlib.ticker import MaxNLocator
+
+    data = np.asarray(values, dtype=np.float64)
+    if data.size == 0:
+        raise InputError(f"histogram: no values for {xlabel!r}")
+    mean = float(data.mean())
+    sd = float(data.std(ddof=1)) if data.size > 1 else 0.0
+    heights, _, _ = ax.hist(
+        data, bins=max(5, int(np.sqrt(data.size)) + 1), color="steelblue", edgecolor="white"
+    )
+    if sd > 0:
+        ax.axvspan(mean - sd, mean + sd, color="firebrick", alpha=0.12, linewidth=0, zorder=0)
+    ax.axvline(mean, color="firebrick", label=f"mean ± sd = {mean:.5g} ± {sd:.2g}")
+    ax.set_ylim(0.0, 1.3 * float(np.max(heights)))
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("realizations")
+    ax.legend(fontsize="small")
+
+
+def histogram_figure(values: Sequence[float], *, xlabel: str, title: str = "") -> Figure:
+    """A histogram of ``values`` (e.g. phi_c over realizations; ``xlabel`` with units) with
+    integer counts and the mean ± sample sd marked (line and band)."""
+    fig = _figure()
+    ax = fig.add_subplot()
+    _histogram(ax, values, xlabel)
+    ax.set_title(title)
+    return fig
+
+
+def summary_figure(panels: Mapping[str, Sequence[float]], *, title: str = "") -> Figure:
+    """The ensemble summary: one histogram per quantity (key: its axis label with units, e.g.
+    ``phi_c``, ``z - z_iso``, ``p / eps^(alpha-1)``), integer counts of realizations and the
+    mean ± sd marked in each; up to 3 panels a row."""
+    if not panels:
+        raise InputError("summary_figure: needs at least one quantity")
+    columns = min(3, len(panels))
+    rows = -(-len(panels) // columns)
+    fig = _figure(4.0 * columns, 3.4 * rows)
+    axes: Any = fig.subplots(rows, columns, squeeze=False)
+    for ax, (label, values) in zip(axes.flat, panels.items(), strict=False):
+        _histogram(ax, values, label)
+    for ax in list(axes.flat)[len(panels) :]:
+        ax.set_visible(False)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def force_distribution_figure(
+    histograms: Mapping[str, tuple[NDArray[np.int64], int]], *, title: str = ""
+) -> Figure:
+    """The contact-force distribution ``P(f / <f>)``: one curve per histogram (label ->
+    ``(counts, overflow)`` on :data:`athermal.analysis.forces.EDGES`), on a logarithmic axis (left,
+    with
+    each fitted exponential tail dashed and its decay in the legend) and a linear one (right,
+    the small forces)."""
+    from ..analysis.forces import EDGES, exponential_tail, histogram_density
+
+    centres = (EDGES[:-1] + EDGES[1:]) / 2.0
+    fig = _figure(9.0, 3.8)
+    log_ax, lin_ax = fig.subplots(1, 2)
+    for label, (counts, overflow) in histograms.items():
+        density = histogram_density(counts, overflow)
+        seen = counts > 0
+        tail = exponential_tail(counts, overflow)
+        text = label if tail is None else f"{label}: decay {tail.decay:.2f} ± {tail.stderr:.2f}"
+        (line,) = log_ax.semilogy(centres[seen], density[seen], "o", markersize=3, label=text)
+        lin_ax.plot(centres, density, "-", color=line.get_color(), linewidth=1.0)
+        if tail is not None:
+            x = np.array([tail.x_min, tail.x_max])
+            fitted = np.exp(tail.log_prefactor - tail.decay * x)
+            log_ax.semilogy(x, fitted, "--", color=line.get_color())
+    log_ax.set_xlabel(r"$f / \langle f \rangle$")
+    log_ax.set_ylabel(r"$P(f / \langle f \rangle)$")
+    log_ax.legend(fontsize="small")
+    lin_ax.set_xlim(0.0, 4.0)
+    lin_ax.set_ylim(bottom=0.0)
+    lin_ax.set_xlabel(r"$f / \langle f \rangle$")
+    lin_ax.set_ylabel(r"$P(f / \langle f \rangle)$ (linear)")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def modes_figure(spectra: Mapping[str, Modes], *, title: str = "", seed: int = 0) -> Figure:
+    """Vibrational spectra, one colour per packing (label ->
+    :class:`~athermal.analysis.modes.Modes` of a
+    full spectrum), with what decided each ``omega*``
+    (:func:`~athermal.analysis.modes.plateau_edge`):
+    the density of states ``D(omega)`` on log-log axes with the plateau level over its window
+    (solid), half of it (dashed) and ``omega*`` with its bootstrap error band (left); the
+    cumulative count of modes ``N(omega) / M`` with the plateau's line ``D_p omega`` (dotted)
+    and the line of half the plateau, ``D_p omega / 2`` (dashed), whose crossing with the count
+    is ``omega*`` (middle); the participation ratio of every mode against its frequency
+    (right). Frequencies in ``sqrt(k l^(alpha-2) / m)``; ``seed`` is the bootstrap's."""
+    from ..analysis.modes import PLATEAU_FRACTION, cumulative_count, density_of_states, plateau_edge
+
+    fig = _figure(13.0, 4.0)
+    dos_ax, count_ax, pr_ax = fig.subplots(1, 3)
+    for label, modes in spectra.items():
+        omega = modes.frequencies
+        edges, density = density_of_states(omega)
+        centres = np.sqrt(edges[:-1] * edges[1:])
+        seen = density > 0
+        edge = plateau_edge(omega, seed=seed)
+        star, half = edge.omega_star, PLATEAU_FRACTION * edge.plateau
+        (line,) = dos_ax.loglog(
+            centres[seen],
+            density[seen],
+            "o-",
+            markersize=3,
+            linewidth=1.0,
+            label=rf"{label}: $\omega^*$ = {star:.3g} $\pm$ {edge.error:.2g}",
+        )
+        color = line.get_color()
+        dos_ax.hlines(edge.plateau, *edge.window, color=color, linewidth=2.0, alpha=0.6)
+        dos_ax.hlines(half, omega.min(), edge.window[1], color=color, linestyle="--")
+        sorted_omega, fraction = cumulative_count(omega)
+        count_ax.loglog(
+            sorted_omega,
+            fraction,
+            drawstyle="steps-mid",
+            color=color,
+            linewidth=1.0,
+            label=rf"{label}: {edge.modes_below} of {edge.modes} modes below $\omega^*$",
+        )
+        count_ax.loglog(sorted_omega, edge.plateau * sorted_omega, ":", color=color)
+        count_ax.loglog(sorted_omega, half * sorted_omega, "--", color=color)
+        count_ax.plot(star, half * star, "o", color=color, markerfacecolor="none")
+        for ax in (dos_ax, count_ax):
+            ax.axvline(star, color=color, linestyle=":", linewidth=1.0)
+            ax.axvspan(
+                max(star - edge.error, omega.min()), star + edge.error, color=color, alpha=0.12
+            )
+        vibrating = modes.eigenvalues > modes.tolerance
+        pr_ax.semilogx(omega, modes.participation[vibrating], ".", markersize=2, color=color)
+    dos_ax.set_title(r"solid: plateau $D_p$ over its window; dashed: $D_p / 2$", fontsize="small")
+    dos_ax.set_xlabel(r"$\omega$")
+    dos_ax.set_ylabel(r"$D(\omega)$")
+    dos_ax.legend(fontsize="small")
+    count_ax.set_title(r"dotted: $D_p\,\omega$; dashed: $D_p\,\omega / 2$", fontsize="small")
+    count_ax.set_xlabel(r"$\omega$")
+    count_ax.set_ylabel(r"$N(\omega) / M$ (modes below $\omega$)")
+    count_ax.legend(fontsize="small", loc="upper left")
+    pr_ax.set_xlabel(r"$\omega$")
+    pr_ax.set_ylabel("participation ratio")
+    pr_ax.set_ylim(0.0, 1.0)
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def criticality_figure(
+    samples: Sequence[WeakForcesAndGaps], exponents: CriticalExponents, *, title: str = ""
+) -> Figure:
+    """The cumulative distributions of the pooled weak forces (extended and localized, left) and
+    gaps (right) against ``f / <f>`` and ``h`` on log-log axes, as counts per non-rattler: the
+    fitted windows shaded, each fit (solid, over its window) and the mean-field slopes
+    ``1 + theta_e`` and ``1 - gamma`` (dotted) through the fit's middle."""
+    from ..certify.criticality import GAMMA, THETA_E
+
+    live = sum(s.n_live for s in samples)
+    forces = np.concatenate([s.forces for s in samples])
+    localized = np.concatenate([s.localized for s in samples])
+    gaps = np.concatenate([s.gaps for s in samples])
+    fig = _figure(10.0, 4.2)
+    force_ax, gap_ax = fig.subplots(1, 2)
+    curves = (
+        (force_ax, forces[~localized], exponents.extended, "extended", 1.0 + THETA_E, "theta_e"),
+        (force_ax, forces[localized], exponents.localized, "localized (bucklers)", None, ""),
+        (gap_ax, gaps, exponents.gap, "gaps", 1.0 - GAMMA, "gamma"),
+    )
+    for ax, values, fit, label, mean_field, name in curves:
+        x = np.sort(values)
+        count = np.arange(1, x.size + 1) / live
+        shown = np.unique(np.geomspace(1, x.size, 300).astype(int)) - 1
+        exponent = fit.a - 1.0 if name != "gamma" else 1.0 - fit.a
+        symbol = {"theta_e": r"\theta_e", "gamma": r"\gamma", "": r"\theta_l"}[name]
+        (line,) = ax.loglog(
+            x[shown],
+            count[shown],
+            ".",
+            markersize=3,
+            label=f"{label}: ${symbol}$ = {exponent:.3f} ± {fit.stderr:.3f}",
+        )
+        low, high = fit.window
+        middle = np.sqrt(low * high)
+        at_middle = float(np.interp(np.log(middle), np.log(x), np.log(count)))
+        grid = np.geomspace(low, high, 20)
+        ax.loglog(grid, np.exp(at_middle) * (grid / middle) ** fit.a, "-", color=line.get_color())
+        if mean_field is not None:
+            ax.loglog(
+                grid,
+                np.exp(at_middle) * (grid / middle) ** mean_field,
+                ":",
+                color="black",
+                label=f"mean field, slope {mean_field:.4f}",
+            )
+        ax.axvspan(low, high, color=line.get_color(), alpha=0.06)
+    force_ax.set_xlabel(r"$f / \langle f \rangle$")
+    force_ax.set_ylabel("contacts below, per non-rattler")
+    gap_ax.set_xlabel(r"$h = r_{ij} / (r_i + r_j) - 1$")
+    gap_ax.set_ylabel("gaps below, per non-rattler")
+    for ax in (force_ax, gap_ax):
+        ax.legend(fontsize="small", loc="upper left")
+    fig.suptitle(title or f"{exponents.packings} packings, {live} non-rattlers")
+    return fig
