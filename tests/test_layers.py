@@ -131,7 +131,7 @@ def test_the_house_has_no_cycle_and_its_floors():
     line alone at the top, the ground floor importing nothing of athermal."""
     graph = rooms()
     level = floors(graph)
-    assert len(graph) <= 20 and max(level.values()) <= 11
+    assert len(graph) <= 21 and max(level.values()) <= 11
     assert [r for r in level if level[r] == max(level.values())] == ["cli"]
     assert all(not graph[r] for r in ("errors", "_jit", "_records"))
 
@@ -139,3 +139,16 @@ def test_the_house_has_no_cycle_and_its_floors():
 def test_the_floor_walker_sees_a_cycle():
     with pytest.raises(AssertionError, match="import cycle: a -> b -> a"):
         floors({"a": {"b"}, "b": {"a"}})
+
+
+def test_a_moved_module_still_imports_by_its_old_name_with_a_warning():
+    import importlib
+    import sys
+
+    import athermal.model.contact as new
+
+    sys.modules.pop("athermal.contact", None)
+    with pytest.warns(DeprecationWarning, match="athermal.contact moved to athermal.model.contact"):
+        old = importlib.import_module("athermal.contact")
+    assert old is new and old.ContactModel is new.ContactModel
+    sys.modules.pop("athermal.contact", None)

@@ -1,5 +1,6 @@
 """athermal: quasi-static simulation of athermal soft-particle packings by energy minimization."""
 
+from ._moved import install
 from .analysis.fitting import PowerLaw, fit_power_law
 from .analysis.forces import ForceStatistics, force_statistics
 from .analysis.modes import Modes, vibrational_modes
@@ -85,3 +86,5 @@ __all__ = [
     "vibrational_modes",
     "write_gsd",
 ]
+
+install()  # the modules' old names, for one release (athermal._moved)
