@@ -9,7 +9,7 @@ first packing of a size is not timed for compilation: every row is warm). Run fr
 repository root::
 
     python -m benchmarks.certificates                      # 2D N 256-4096, 3D N 256-1024
-    python -m benchmarks.certificates --n3d 256 1024 4096  # 3D to 4096 too (its jamming: ~15 min each)
+    python -m benchmarks.certificates --n3d 256 1024 4096  # 3D to 4096 too (~15 min each)
     python -m benchmarks.certificates --quick              # N = 256 only
 
 Results: ``benchmarks/results/certify.md`` and ``certify.json``.

@@ -29,9 +29,9 @@ JAX = tuple(Minimizer(m, backend="jax") for m in ("fire", "lbfgs", "plbfgs", "pc
 
 
 def timed(start: Any, model: ContactModel, how: Minimizer, repeats: int) -> dict[str, Any]:
-    """Iterations, median seconds of ``repeats`` runs (after one that compiles, on JAX),
-    convergence and energy of ``how`` on ``start``."""
-    if how.backend == "jax":
+    """Iterations, median seconds of ``repeats`` runs (after one that compiles, on an engine that
+    compiles per size), convergence and energy of ``how`` on ``start``."""
+    if how.engine.capabilities.warm_up:
         relax(start, model, how)
     seconds = []
     for _ in range(repeats):

@@ -151,4 +151,5 @@ def test_a_moved_module_still_imports_by_its_old_name_with_a_warning():
     with pytest.warns(DeprecationWarning, match="athermal.contact moved to athermal.model.contact"):
         old = importlib.import_module("athermal.contact")
     assert old is new and old.ContactModel is new.ContactModel
+    assert new.__spec__.name == "athermal.model.contact"  # its relative imports still resolve
     sys.modules.pop("athermal.contact", None)

@@ -42,6 +42,10 @@ MOVED = {
 class MovedFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
     """Imports ``athermal.<old>`` as the module it moved to, warning once per import."""
 
+    def __init__(self) -> None:
+        self.specs: dict[str, importlib.machinery.ModuleSpec | None] = {}
+        """The moved modules' own specs, by their new names."""
+
     def find_spec(
         self, fullname: str, path: object = None, target: object = None
     ) -> importlib.machinery.ModuleSpec | None:
@@ -59,10 +63,14 @@ class MovedFinder(importlib.abc.MetaPathFinder, importlib.abc.Loader):
             DeprecationWarning,
             stacklevel=2,
         )
-        return importlib.import_module(new)
+        module = importlib.import_module(new)
+        self.specs[new] = module.__spec__
+        return module
 
     def exec_module(self, module: ModuleType) -> None:
-        """Nothing: the module ran under its new name."""
+        """Nothing runs (the module ran under its new name); the import machinery set its
+        ``__spec__`` to the old name's, and it gets its own back."""
+        module.__spec__ = self.specs[module.__name__]
 
 
 def install() -> None:
