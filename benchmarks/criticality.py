@@ -6,10 +6,9 @@ For each N, packings of seeds ``0 .. K-1`` are jammed
 (:func:`athermal.certify.certify`); each certified packing is kept as a GSD file in the cache
 directory (a rerun reuses it). Their forces and gaps are pooled
 (:func:`athermal.certify.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and
-``gamma``
-fitted over the default windows and over a scan of others, so that the dependence on the window
-is shown beside the value. With ``--epsilon E`` below 1e-9 each jamming point is bracketed to E
-in double-double (:func:`athermal.certify.bisect_jamming_point`) and the certified packing at its
+``gamma`` fitted over the default windows and over a scan of others, so that the dependence on the
+window is shown beside the value. With ``--epsilon E`` below 1e-9 each jamming point is bracketed to
+E in double-double (:func:`athermal.certify.bisect_jamming_point`) and the certified packing at its
 jammed bound is taken. Run from the repository root::
 
     python -m benchmarks.criticality --n 1024 --packings 120

@@ -1,8 +1,7 @@
 """B1 against LAMMPS: the paper's Table cases minimized by LAMMPS ``min_style cg``.
 
 Each case (:func:`athermal.studies.bench.make_case`, N = 4096, alpha = 2 and 2.5) is set up in
-LAMMPS,
-in-process through the ``lammps`` Python module (serial, ``-screen none -log none``), and
+LAMMPS, in-process through the ``lammps`` Python module (serial, ``-screen none -log none``), and
 minimized by ``minimize 0.0 ftol 50000 100000`` with ``ftol = RTOL x F0`` (RTOL = 1e-9, F0 the
 mean contact force at the start, as in athermal) and ``min_modify norm max``. The LAMMPS manual
 (min_modify): *max* "computes the length of the 3-vector force for each atom (2-norm), and takes

@@ -60,8 +60,7 @@ def linear_start(
 ) -> Packing:
     """``relaxed`` deformed affinely by ``deformation`` ``(d, d)`` and moved by the
     linear-response displacement (:func:`athermal.analysis.moduli.nonaffine_displacement`); the
-    affine
-    start alone where that displacement is not finite or moves a particle more than
+    affine start alone where that displacement is not finite or moves a particle more than
     ``MAX_STEP_FACTOR`` mean radii. The same start as ``finite_strain_shear(start="linear")``."""
     deformed = relaxed.deform(deformation)
     with warnings.catch_warnings():

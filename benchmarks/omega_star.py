@@ -3,21 +3,17 @@
 
 For each N and start seed the packing is jammed by the defaults of
 :class:`athermal.studies.experiments.JamSpec` (alpha = 2, the default protocol and epsilon),
-compressed
-from its own phi_c through the Delta phi values (one :func:`athermal.compression_steps` run,
-each state from the previous one), and at the jammed packing and every compressed state the
+compressed from its own phi_c through the Delta phi values (one :func:`athermal.compression_steps`
+run, each state from the previous one), and at the jammed packing and every compressed state the
 full spectrum is taken (:func:`athermal.analysis.modes.vibrational_modes`, as ``athermal modes``
-does)
-and :func:`athermal.analysis.modes.plateau_edge` gives omega* ± its bootstrap error and the modes
-below
-omega*. The table gives per N and Delta phi each seed's omega* ± err (modes below), the mean
-and sample sd over seeds, the mean error, its ratio to the sd and the mean ``z - z_iso``.
+does) and :func:`athermal.analysis.modes.plateau_edge` gives omega* ± its bootstrap error and the
+modes below omega*. The table gives per N and Delta phi each seed's omega* ± err (modes below), the
+mean and sample sd over seeds, the mean error, its ratio to the sd and the mean ``z - z_iso``.
 
 omega* is *resolved* at a Delta phi when at least ``--min-modes`` (default 3) modes lie below
 it on every seed and no seed's state unjammed; the exponent of omega* against Delta phi is
 fitted per N (:func:`athermal.analysis.fitting.fit_power_law`) to the mean over seeds at the
-resolved
-Delta phi (at least 3 of them), and to each seed alone over the same Delta phi.
+resolved Delta phi (at least 3 of them), and to each seed alone over the same Delta phi.
 
 Run from the repository root (each worker pinned to its own core)::
 

@@ -1,9 +1,8 @@
 """B3 and the paper's physics checks: jamming, compression scaling, moduli, iteration counts.
 
 The experiments are the library's (:mod:`athermal.studies.experiments`: ``jam_packing``,
-``compress``,
-``iteration_counts``); this script runs them over realizations and writes the results. Each
-experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summary), atomically
+``compress``, ``iteration_counts``); this script runs them over realizations and writes the results.
+Each experiment writes ``<output-dir>/<name>.json`` (raw numbers) and ``.md`` (summary), atomically
 (default ``benchmarks/results/protocols``); jammed packings are cached as GSD files in
 ``--cache`` so later experiments reuse them.
 

@@ -6,8 +6,7 @@ packing (:func:`athermal.studies.bench.reference_packing`) is tiled k x k into a
 Its copies are identical, so the Table's Case 3 perturbation breaks the symmetry (every
 coordinate displaced by U[-a, a], a = 1e-4 mean diameters, ``default_rng(20240601)``) and Case
 1's radii growth x (1 + 5e-5) follows (both by :func:`athermal.studies.bench.make_case`). k = 1
-uses the
-same recipe, so the growth with N is measured on one definition.
+uses the same recipe, so the growth with N is measured on one definition.
 
 L-BFGS, P-L-BFGS (Exp) with the direct, the AMG and the incomplete-Cholesky (``ic0``) solver, and
 FIRE relax each start to ``max_i |grad_i| <= 1e-9 F0`` (``RTOL``; F0: mean contact force at the

@@ -1,8 +1,7 @@
 """B1: the paper's Table — minimizers and preconditioners on the three benchmark cases.
 
 The cases and methods live in :mod:`athermal.studies.bench` (also run by ``athermal bench``); this
-script
-adds what a results file needs: the machine, the commit, one pinned core and atomic writes
+script adds what a results file needs: the machine, the commit, one pinned core and atomic writes
 (:mod:`machine`).
 
 Run from the repository root::

@@ -165,8 +165,7 @@ class EnthalpyPreconditioner:
     """The Exp preconditioner extended to the cell: ``P = blockdiag(L (x) I_d, c I)`` on
     ``(u, c)``, with ``L`` the paper's Exp matrix of the current configuration
     (:class:`~athermal.engines.precon.ExpPreconditioner`) and ``c`` its mean diagonal entry (the
-    cell
-    variables are scaled to be as stiff as a particle coordinate). Rebuilt when a particle has
+    cell variables are scaled to be as stiff as a particle coordinate). Rebuilt when a particle has
     moved a quarter of the cut-off, or the cell has strained by :data:`CELL_REBUILD`, since the
     last build."""
 

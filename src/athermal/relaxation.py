@@ -65,8 +65,6 @@ class Minimizer:
     precon : ``none``, ``exp`` (the paper's, weights parameter ``A``) or ``contact``.
     A : Exp weight decay (dimensionless, >= 0).
     solver : ``auto``, ``direct``, ``amg`` or ``ic0`` for the preconditioner's linear solves.
-    maxiter : iteration limit of one relaxation; a protocol that reaches it stops with a
-        :class:`~athermal.errors.ConvergenceError`.
     maxiter : iteration limit of one relaxation (default :data:`MAXITER`); a protocol that
         reaches it stops with a :class:`~athermal.errors.ConvergenceError`.
     backend : the engine's name (:mod:`athermal.engines`): ``numba`` (CPU, every method) or

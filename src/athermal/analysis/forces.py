@@ -2,8 +2,7 @@
 tail and the anisotropy of contact normals and forces.
 
 Only contacts between non-rattlers count (:func:`~athermal.analysis.observables.rattlers`): a
-rattler's
-contacts carry forces at round-off that say nothing about the load-bearing network.
+rattler's contacts carry forces at round-off that say nothing about the load-bearing network.
 
 Anisotropy. For unit normals ``n_c`` and weights ``w_c`` let ``chi = sum w_c n_c (x) n_c /
 sum w_c``; the anisotropy is ``d (lambda_max - lambda_min) / trace(chi)`` and its axis the

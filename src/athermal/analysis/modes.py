@@ -3,9 +3,8 @@ Hessian, unit masses), the density of states ``D(omega)``, participation ratios 
 frequency ``omega*``.
 
 Rattlers (:func:`~athermal.analysis.observables.rattlers`) and their contacts are removed; the
-Hessian
-of the remaining ``N'`` particles is taken whole, so that its ``t`` translations (``t = d`` in
-a periodic cell, the periodic axes between walls) are exact zero modes. A stable minimum has
+Hessian of the remaining ``N'`` particles is taken whole, so that its ``t`` translations (``t = d``
+in a periodic cell, the periodic axes between walls) are exact zero modes. A stable minimum has
 exactly ``t`` eigenvalues within round-off of zero
 (:data:`~athermal.analysis.moduli.STABILITY_TOL` x the mean diagonal entry) and none below it; the
 remaining ``d N' - t`` are the vibrations, ``omega = sqrt(lambda)`` in units of

@@ -15,11 +15,10 @@ displacements ``u``. For a contact with branch vector ``r = x_i - x_j`` (length 
   quadratic expansion ``E''_aff gamma^2 / 2 + gamma Xi.u + u.H u / 2`` over ``u``.
 
 Rattlers (:func:`~athermal.analysis.observables.rattlers`) and every contact that touches one are
-left out
-of all three terms; the translations along the periodic axes (``d`` of them in a periodic cell),
-zero modes of ``H``, are removed by pinning one particle along them (``Xi`` sums to zero there,
-so the minimum is unchanged). Between walls (:mod:`athermal.model.walls`) a wall contact adds its
-terms with the wall's distance ``n.D r`` (no tangential term, no partner), and a deformation
+left out of all three terms; the translations along the periodic axes (``d`` of them in a periodic
+cell), zero modes of ``H``, are removed by pinning one particle along them (``Xi`` sums to zero
+there, so the minimum is unchanged). Between walls (:mod:`athermal.model.walls`) a wall contact adds
+its terms with the wall's distance ``n.D r`` (no tangential term, no partner), and a deformation
 must keep the walls untilted. Moduli follow from ``E''_rel``:
 simple shear ``D1 = e0 e1^T`` gives ``G = E''_rel / V = -d sigma_01 / d gamma``; isotropic
 compression at fixed radii ``D = (1 + e) I`` gives ``p(e) = -(1+e)^(1-d) dE/de / (d V0)`` and so

@@ -7,9 +7,8 @@ than ~1e-7 of the mean force. :func:`certify` holds the positions as ``hi + lo``
 positions by Newton's method on the non-rattlers: each correction ``dx = -H^+ g`` is solved in
 float64 (the sparse Hessian at ``hi``, its first non-rattler pinned against the translations,
 CHOLMOD: :func:`athermal.analysis.moduli.pinned_solve`) and added in double-double. This is
-iterative
-refinement (Wilkinson; Higham, *Accuracy and Stability of Numerical Algorithms*, ch. 12): the
-residual falls by about ``cond(H) x 1e-16`` per step until it reaches the double-double floor,
+iterative refinement (Wilkinson; Higham, *Accuracy and Stability of Numerical Algorithms*, ch. 12):
+the residual falls by about ``cond(H) x 1e-16`` per step until it reaches the double-double floor,
 ``~1e-32`` of the positions.
 
 The contacts are those of the start's double-double overlaps; after the refinement they are
@@ -19,9 +18,8 @@ network. Rattlers (fewer than ``d + 1`` contacts, removed iteratively) carry no 
 certified point: each moves with the mean step of the non-rattlers near it (a Newton step moves
 a cage by up to ~1e-9 along soft modes), and one that still overlaps a neighbour is moved to
 the nearest place in its cage clear of every neighbour (:mod:`athermal.certify.cage`); a rattler
-with no
-such place bears load, and the packing is not certified. A step that does not improve the force
-balance is undone.
+with no such place bears load, and the packing is not certified. A step that does not improve the
+force balance is undone.
 
 :func:`bisect_jamming_point` brackets a jamming point below float64's resolution (~1e-9), each
 verdict a force balance of the contact network in double-double.
@@ -327,10 +325,9 @@ def _free_rattlers(
     neighbour (a rattler's place in its cage is free): the nearest, the others held
     (:func:`athermal.certify.cage.free_place`), or, for rattlers with no room alone, one found with
     their rattler neighbours moved too (:func:`athermal.certify.cage.free_places`); a few rounds,
-    since a
-    rattler may touch another. Rattlers that have no room even so are left where they overlap
-    least: they bear load. Returns the pair sums at the positions reached (the packing's radii
-    or ``radii``) and those squeezed rattlers."""
+    since a rattler may touch another. Rattlers that have no room even so are left where they
+    overlap least: they bear load. Returns the pair sums at the positions reached (the packing's
+    radii or ``radii``) and those squeezed rattlers."""
     radii = pairs.packing.radii if radii is None else radii
     reach = radii[pairs.first] + radii[pairs.second]
     free = rattler.copy()
@@ -397,8 +394,7 @@ def _place_together(
 ) -> NDArray[np.int64]:
     """Move the rattlers ``stuck`` and their rattler neighbours (``free``) together to places
     clear of every neighbour (:func:`athermal.certify.cage.free_places`), or where they overlap
-    least;
-    returns those that still overlap there."""
+    least; returns those that still overlap there."""
     near = np.isin(pairs.first, stuck) | np.isin(pairs.second, stuck)
     ends = np.concatenate([pairs.first[near], pairs.second[near]])
     movers = np.unique(ends[free[ends]])
@@ -578,8 +574,7 @@ def bisect_jamming_point(
     of ~1e-28 are round-off there, and a float64 minimum lies ~1e-8 away along the soft modes.
     Harmonic contacts (alpha = 2) only: a spring in tension continues the contact's force
     linearly. Rattlers are placed with a clearance of :data:`athermal.certify.cage.CLEARANCE` x the
-    sum
-    of the radii, which bounds the epsilon this resolves (``docs/decisions.md``).
+    sum of the radii, which bounds the epsilon this resolves (``docs/decisions.md``).
 
     Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
     :class:`ConvergenceError` when a trial that gives no verdict at a step of ``epsilon / 4``

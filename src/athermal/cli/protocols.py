@@ -1,8 +1,7 @@
 """The protocol subcommands: ``jam``, ``compress`` and ``shear``.
 
 Each appends every completed step to its GSD trajectory (:mod:`athermal.studies.checkpoint`), keeps
-the
-per-step CSV table current, shows a live line on stderr and prints a summary (``--json``: one
+the per-step CSV table current, shows a live line on stderr and prints a summary (``--json``: one
 object on stdout). ``--resume`` continues an interrupted run from its trajectory, bit for bit.
 """
 

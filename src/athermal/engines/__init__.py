@@ -2,8 +2,7 @@
 
 An engine (:class:`Engine`) declares what it can do (:class:`Capabilities`) and, bound to one
 :class:`~athermal.model.objective.Objective` and preconditioner (:meth:`Engine.bind`), minimizes
-from
-flat vectors in the objective's internal order (:class:`Session`). Every question "can this
+from flat vectors in the objective's internal order (:class:`Session`). Every question "can this
 engine do that" is answered here, by :func:`check`, before any work; no other module compares an
 engine's name. Two are registered: ``numba`` (:mod:`.numba`, the default: every method,
 preconditioner and geometry) and ``jax`` (:mod:`.jax`, the extra ``athermal[jax]``). Another is

@@ -191,8 +191,7 @@ class Objective:
         """The last argument of :func:`energy_search`: the radii, the current Verlet list (built
         at ``x`` ``(N d,)`` if there is none), the walls, the slabs of the threads' kernel
         (:func:`~athermal.model.contact.parallel_slabs`), and the positions the list was built at
-        and
-        its reach."""
+        and its reach."""
         nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
         return (
             *self._pair_arguments(nlist),

@@ -109,8 +109,7 @@ class CompressionStep:
     ``bulk_modulus`` is ``phi dp/dphi`` along the protocol, ``shear_modulus`` the simple-shear
     ``G`` (between walls normal to x or y the pure-shear one,
     :func:`~athermal.analysis.moduli.linear_response`), both by linear response (negative for a
-    minimum
-    unstable to shear: the event ``unstable to shear``, and no modulus in the fits);
+    minimum unstable to shear: the event ``unstable to shear``, and no modulus in the fits);
     ``z_excess`` :func:`excess_z`; ``events`` what happened
     (names from :data:`EVENTS`), ``saddles`` how many saddles were left on the way and
     ``substeps`` how many relaxations the step took (more than 1 after a pressure drop,

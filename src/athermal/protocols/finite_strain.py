@@ -105,9 +105,8 @@ def finite_strain_shear(
     start : where each relaxation starts: ``"affine"``, the deformed previous configuration
         (the paper's), or ``"linear"``, that moved by the linear-response displacement
         (:func:`~athermal.analysis.moduli.nonaffine_displacement`, one sparse solve with the
-        previous
-        minimum's Hessian) unless it moves a particle more than the minimizers' step cap. Near
-        jamming the paper's step of 1e-6 opens a quarter of the contacts of a packing at
+        previous minimum's Hessian) unless it moves a particle more than the minimizers' step cap.
+        Near jamming the paper's step of 1e-6 opens a quarter of the contacts of a packing at
         ``Delta phi = 1e-7`` and the relaxation has to close them again; the linear start keeps
         them (``benchmarks/results/protocols/newton_diagnostics_n*.md``).
     """

@@ -11,10 +11,9 @@ eigenvalue definitions), the driven stress ``tau`` (the stress work-conjugate to
 the compressed axis, positive when loaded) and whether ``tau`` dropped: a plastic event.
 
 With walls (:attr:`Cell.walls <athermal.model.cell.Cell.walls>`) pure shear is the biaxial test
-(walls
-normal to y move in as the periodic x stretches) and uniaxial compression moves the walls normal
-to the last axis; simple shear tilts the cell, which frictionless flat walls cannot carry, and
-is refused (:func:`check_mode`). Plane shear needs walls normal to one axis ``g`` other than
+(walls normal to y move in as the periodic x stretches) and uniaxial compression moves the walls
+normal to the last axis; simple shear tilts the cell, which frictionless flat walls cannot carry,
+and is refused (:func:`check_mode`). Plane shear needs walls normal to one axis ``g`` other than
 x: the particles within ``wall_layer`` of each wall are glued to it (rough walls,
 :func:`~athermal.model.walls.wall_layers`; frozen in the relaxations,
 :class:`~athermal.model.objective.

@@ -163,8 +163,7 @@ class ShearRecord:
 class ForceRecord:
     """A jammed packing's force network (:class:`~athermal.analysis.forces.ForceStatistics`): its
     histogram of ``f / <f>`` on :data:`~athermal.analysis.forces.EDGES`, the fitted tail decay
-    (None: no
-    fit) and the anisotropies."""
+    (None: no fit) and the anisotropies."""
 
     counts: tuple[int, ...]
     overflow: int

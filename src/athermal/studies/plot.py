@@ -534,8 +534,7 @@ def force_distribution_figure(
 ) -> Figure:
     """The contact-force distribution ``P(f / <f>)``: one curve per histogram (label ->
     ``(counts, overflow)`` on :data:`athermal.analysis.forces.EDGES`), on a logarithmic axis (left,
-    with
-    each fitted exponential tail dashed and its decay in the legend) and a linear one (right,
+    with each fitted exponential tail dashed and its decay in the legend) and a linear one (right,
     the small forces)."""
     from ..analysis.forces import EDGES, exponential_tail, histogram_density
 

@@ -21,8 +21,7 @@ DETERMINISTIC_OPS = "--xla_gpu_deterministic_ops=true"
 
 class JaxEngine(Engine):
     """The accelerator engine (:mod:`athermal.engines.jax.device`): L-BFGS, CG and FIRE as jitted
-    loops
-    on the device, the Exp preconditioner as a V-cycle there; no walls, frozen particles,
+    loops on the device, the Exp preconditioner as a V-cycle there; no walls, frozen particles,
     enthalpy or Newton."""
 
     name = "jax"
@@ -41,8 +40,7 @@ class JaxEngine(Engine):
 
     def bind(self, objective: Objective, precon: str, *, A: float, solver: str) -> Device:
         """The device's :class:`athermal.engines.jax.device.Engine` for ``objective`` (``solver``
-        does
-        not apply: the engine has one way)."""
+        does not apply: the engine has one way)."""
         from .device import Engine as Device
 
         return Device(objective, cast(Literal["none", "exp"], precon), A=A)

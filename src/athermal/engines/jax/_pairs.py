@@ -74,8 +74,7 @@ def device_pairs(
 ) -> Pairs:
     """The Verlet list (skin ``skin``, length units) of ``positions`` ``(N, d)`` with ``radii``
     in ``cell``, built on the host (:func:`~athermal.model.neighbors.build_neighbor_list`, exact in
-    any
-    sheared cell), on the device padded to :func:`capacity_for` ``(count, capacity)``: the
+    any sheared cell), on the device padded to :func:`capacity_for` ``(count, capacity)``: the
     engine's list where its cell is too small for the device's cell list."""
     nlist = build_neighbor_list(positions, radii, cell, skin)
     count = int(nlist.first.size)
@@ -122,8 +121,7 @@ def energy_gradient(x: Any, pairs: tuple[Any, ...], alpha: float) -> tuple[Any, 
 def stress_contacts(x: Any, pairs: tuple[Any, ...], alpha: float, volume: float) -> tuple[Any, Any]:
     """The contact stress ``sigma = (1/V) sum_c l_c (x) f_c`` ``(d, d)`` (the convention of
     :func:`athermal.analysis.observables.stress`: positive pressure under compression) over a cell
-    of
-    ``volume``, and the number of overlapping pairs, at ``x`` ``(N, d)`` over the padded pairs
+    of ``volume``, and the number of overlapping pairs, at ``x`` ``(N, d)`` over the padded pairs
     (:attr:`Pairs.arrays`)."""
     first, second, shift, radius_sum, stiffness = pairs
     sep, length, overlap = _overlaps(x, first, second, shift, radius_sum)
