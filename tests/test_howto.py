@@ -85,3 +85,8 @@ def test_packings_between_walls(tmp_path):
 def test_the_engine_page_registers_an_engine_that_jams(tmp_path):
     (block,) = blocks(HOWTO / "engine.md")
     assert paste(block, tmp_path).strip() == block.printed.strip()
+
+
+def test_the_law_page_relaxes_a_law_of_its_own(tmp_path):
+    (block,) = blocks(HOWTO / "law.md")
+    assert paste(block, tmp_path).strip() == block.printed.strip()

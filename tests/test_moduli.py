@@ -42,9 +42,7 @@ def deformed(contacts: Contacts, dmat: np.ndarray) -> Contacts:
     dist = np.linalg.norm(branch, axis=1)
     overlap = contacts.overlap + contacts.distance - dist
     assert np.all(overlap > 0.0)  # no contact opens within the step
-    return Contacts(
-        contacts.i, contacts.j, branch, dist, overlap, contacts.stiffness, contacts.alpha
-    )
+    return Contacts(contacts.i, contacts.j, branch, dist, overlap, contacts.stiffness, contacts.law)
 
 
 def overlapping_more_than(contacts: Contacts, fraction: float) -> Contacts:

@@ -12,6 +12,7 @@ from .io import Frame, append_gsd, count_frames, read_gsd, write_gsd
 from .minimize import MinimizeResult
 from .model.cell import Cell, isotropic, pure_shear, simple_shear
 from .model.contact import ContactModel, Contacts, find_contacts, hessian, strain_derivative
+from .model.law import ContactLaw, NumbaForm, PowerContact
 from .model.neighbors import NeighborList, build_neighbor_list
 from .model.objective import Objective
 from .model.packing import Packing, bidisperse_radii, polydisperse_radii, random_packing
@@ -33,6 +34,7 @@ from .relaxation import Relaxation, relax
 
 __all__ = [
     "Cell",
+    "ContactLaw",
     "ContactModel",
     "Contacts",
     "ConvergenceError",
@@ -47,9 +49,11 @@ __all__ = [
     "Minimizer",
     "Modes",
     "NeighborList",
+    "NumbaForm",
     "Objective",
     "Observables",
     "Packing",
+    "PowerContact",
     "PowerLaw",
     "Relaxation",
     "Stability",

@@ -18,7 +18,6 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import engines
-from ._portable import power
 from ._validate import choice
 from .analysis.moduli import stability
 from .engines.numba import run
@@ -524,11 +523,11 @@ def round_off_floor(contacts: Contacts, cell: Cell) -> float:
     ``ROUND_OFF_MARGIN x eps_mach (L kappa_max + f_max)``.
 
     An overlap carries an absolute error ``~eps_mach L`` from the coordinates (``L`` the largest
-    cell width), which the contact stiffness ``kappa = k (alpha-1) delta^(alpha-2)`` turns into
-    a force error, on top of the relative rounding of the force ``f = k delta^(alpha-1)``
-    itself (where L-BFGS and FIRE stall against it: ``docs/decisions.md``, section "Protocol
-    constants"). For Hertzian contacts near jamming this is far below a floor in units of
-    ``k <r>^(alpha-1)``: the stiffness vanishes with the overlap.
+    cell width), which the contact stiffness ``kappa = E''(delta)`` turns into a force error, on
+    top of the relative rounding of the force ``f(delta)`` itself (where L-BFGS and FIRE stall
+    against it: ``docs/decisions.md``, section "Protocol constants"). For Hertzian contacts
+    near jamming this is far below a floor in units of ``k <r>^(alpha-1)``: the stiffness
+    vanishes with the overlap.
     """
     if contacts.i.size == 0:
         return 0.0
@@ -551,5 +550,6 @@ def force_tolerance(packing: Packing, model: ContactModel, rtol: float) -> float
 
 
 def energy_scale(radii: NDArray[np.float64], model: ContactModel) -> float:
-    """``k_max <r>^alpha``: the energy of an overlap of one mean radius (energy units)."""
-    return float(model.kmat.max()) * float(power(np.mean(radii), model.alpha))
+    """The law's energy unit at ``k_max`` and an overlap of one mean radius (``k_max
+    <r>^alpha`` for a power law; energy units)."""
+    return model.law.energy_unit(float(model.kmat.max()), float(np.mean(radii)))

@@ -3,8 +3,8 @@
 Linear response. Deform positions and cell along an affine path ``x -> D(gamma) x`` with
 ``D(0) = I``, ``D1 = D'(0)``, ``D2 = D''(0)``, and let the particles relax by non-affine
 displacements ``u``. For a contact with branch vector ``r = x_i - x_j`` (length ``l``, unit
-``n``) and pair energy ``phi(l) = k delta^alpha / alpha``, ``delta = r_i + r_j - l``, so that
-``phi' = -k delta^(alpha-1)`` and ``phi'' = k (alpha-1) delta^(alpha-2)``:
+``n``) and pair energy ``phi(l) = E(delta)`` (the contact law, :mod:`athermal.model.law`),
+``delta = r_i + r_j - l``, so that ``phi' = -f(delta)`` and ``phi'' = E''(delta)``:
 
 * affine curvature ``d2E/dgamma2 = sum_c phi'' (n.D1 r)^2 + (phi'/l) (|D1 r|^2 - (n.D1 r)^2)
   + phi' n.D2 r``;
@@ -27,7 +27,8 @@ compression at fixed radii ``D = (1 + e) I`` gives ``p(e) = -(1+e)^(1-d) dE/de /
 The paper's finite-strain measurement (small strain steps, each relaxed) lives with the protocols
 (:mod:`athermal.protocols.finite_strain`).
 
-Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x length^(alpha-d).
+Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x length^(alpha-d)
+(for a power law).
 """
 
 from __future__ import annotations

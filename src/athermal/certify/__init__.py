@@ -32,7 +32,8 @@ from dataclasses import asdict, dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from .._portable import power, root, row_dots, transform
+from .._double import two_sum
+from .._portable import root, row_dots, transform
 from ..analysis.modes import lowest_eigenpairs, zero_tolerance
 from ..analysis.moduli import nonrattler_hessian, pinned_solve, relaxing_displacement
 from ..analysis.observables import isostatic_contacts, rattlers
@@ -43,7 +44,7 @@ from ..model.packing import Packing
 from ..protocols.jamming import FINAL_RTOL, JAMMING_MINIMIZER, energy_threshold
 from ..relaxation import Relaxer, energy_scale, force_tolerance, round_off_floor
 from .cage import free_place, free_places
-from .extended import PRECISION, NearPairs, PairSums, displace, half_steps, two_sum
+from .extended import PRECISION, NearPairs, PairSums, displace
 
 TARGET = 1e-20
 """Force balance a certificate asks for: ``max_i |F_i| <= TARGET x`` the mean contact force."""
@@ -95,7 +96,7 @@ class Certificate:
     ----------
     force_balance : ``max_i |grad_i E|`` over every particle, in double-double.
     relative_force_balance : ``force_balance`` over the mean contact force.
-    mean_force : mean contact force ``k delta^(alpha-1)`` over the non-rattlers' contacts.
+    mean_force : mean contact force ``f(delta)`` over the non-rattlers' contacts.
     start_force_balance : ``force_balance`` of the float64 packing it started from.
     contacts : contacts between non-rattlers (``N_c``).
     n_rattlers : rattlers (fewer than ``d + 1`` contacts, removed iteratively).
@@ -201,7 +202,7 @@ def certify(
             "certify: packings between walls are not certified yet (the double-double sums "
             "have no wall terms)"
         )
-    half_steps(model.alpha)
+    model.law.half_steps()
     dim = packing.dim
     hi = np.array(packing.positions, dtype=np.float64, order="C")
     lo = np.zeros_like(hi) if position_lo is None else np.array(position_lo, np.float64, order="C")
@@ -253,9 +254,10 @@ def certify(
 
 def precision_floor(packing: Packing, model: ContactModel) -> float:
     """The force balance double-double resolves at ``packing``: :data:`DD_FLOOR` x the largest
-    stiffness x the largest cell width^(alpha - 1) (force units)."""
-    width = float(packing.cell.widths.max())
-    return DD_FLOOR * float(model.kmat.max()) * float(power(width, model.alpha - 1.0))
+    law's force at the largest stiffness and an overlap of the largest cell width (``k
+    L^(alpha - 1)``; force units)."""
+    width = np.array([packing.cell.widths.max()])
+    return DD_FLOOR * float(model.law.force(width, float(model.kmat.max()))[0])
 
 
 def contact_network(
@@ -447,7 +449,7 @@ def _certificate(
     overlap = sums.overlap[0] + sums.overlap[1]
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     touching = live & (overlap > 0.0)
-    force = pairs.stiffness[touching] * power(overlap[touching], model.alpha - 1.0)
+    force = model.law.force(overlap[touching], pairs.stiffness[touching])
     gaps = -overlap[live & (overlap <= 0.0)]
     n_live = int((~rattler).sum())
     network, _ = contact_network(pairs, packing.positions, sums)
@@ -584,7 +586,7 @@ def bisect_jamming_point(
     balance reached: at a pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean
     contact force.
     """
-    if half_steps(model.alpha) != 2:
+    if model.law.half_steps() != 2:
         raise InputError("alpha: the certified bisection takes harmonic contacts (alpha = 2)")
     if not 1e-15 <= epsilon <= 1e-6:
         raise InputError(f"epsilon: must lie in [1e-15, 1e-6], got {epsilon}")

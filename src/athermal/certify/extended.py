@@ -1,19 +1,10 @@
-"""Double-double arithmetic and the contact sums of a packing in it.
-
-A double-double number is an unevaluated sum ``hi + lo`` of two float64 with
-``|lo| <= ulp(hi) / 2``: 106 bits of significand, about 32 decimal digits. The operations are the
-error-free transformations of Dekker (1971) and Knuth (TAOCP vol. 2), assembled as in Hida, Li &
-Bailey's QD library (*Algorithms for quad-double precision floating point arithmetic*, ARITH-15,
-2001): ``two_sum`` gives the rounding error of a sum exactly, ``two_prod`` that of a product by
-Dekker's splitting (exact in float64 without a fused multiply-add, so on every CPU the result is
-the same bits). They need round-to-nearest float64 arithmetic without reassociation, which the
-plain ``numba.njit`` kernels here keep (no ``fastmath``).
+"""The contact sums of a packing in double-double arithmetic (:mod:`athermal._double`).
 
 :func:`contact_sums` evaluates, for positions held as ``x_hi + x_lo`` with float64 radii and
 cell (exact inputs), every listed pair's separation, distance and overlap, and over the
-overlapping pairs the energy ``sum k delta^alpha / alpha``, the gradient ``(N, d)`` and the
-virial ``sum l (x) f`` in double-double: residual forces far below float64's round-off floor of
-positions of order one.
+overlapping pairs the energy, the gradient ``(N, d)`` and the virial ``sum l (x) f`` in
+double-double (the contact law's double-double form, :mod:`athermal.model.law`): residual
+forces far below float64's round-off floor of positions of order one.
 """
 
 from __future__ import annotations
@@ -24,112 +15,15 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from .._double import add, div, mul, sqrt, sub, two_prod, two_sum
 from .._portable import transform
-from ..errors import InputError
 from ..model.contact import ContactModel, Contacts
+from ..model.law import power_pair_dd
 from ..model.neighbors import build_neighbor_list
 from ..model.packing import Packing
 
-SPLITTER = 134217729.0
-"""``2^27 + 1``: Dekker's constant splitting a float64 into two halves of 26 bits."""
 PRECISION = "double-double (float64 pairs hi + lo, 106-bit significand, ~1e-32 relative)"
 """What the certificates state as the precision used."""
-
-_jit = numba.njit(cache=True, inline="always")
-
-
-@_jit
-def two_sum(a, b):  # type: ignore[no-untyped-def]
-    """``(s, e)`` with ``s = fl(a + b)`` and ``s + e = a + b`` exactly (Knuth)."""
-    s = a + b
-    v = s - a
-    return s, (a - (s - v)) + (b - v)
-
-
-@_jit
-def quick_two_sum(a, b):  # type: ignore[no-untyped-def]
-    """``two_sum`` for ``|a| >= |b|`` (Dekker)."""
-    s = a + b
-    return s, b - (s - a)
-
-
-@_jit
-def _split(a):  # type: ignore[no-untyped-def]
-    t = SPLITTER * a
-    hi = t - (t - a)
-    return hi, a - hi
-
-
-@_jit
-def two_prod(a, b):  # type: ignore[no-untyped-def]
-    """``(p, e)`` with ``p = fl(a b)`` and ``p + e = a b`` exactly (Dekker's splitting)."""
-    p = a * b
-    ah, al = _split(a)
-    bh, bl = _split(b)
-    return p, ((ah * bh - p) + ah * bl + al * bh) + al * bl
-
-
-@_jit
-def add(ah, al, bh, bl):  # type: ignore[no-untyped-def]
-    """``a + b`` in double-double (QD's accurate addition)."""
-    s, e = two_sum(ah, bh)
-    t, f = two_sum(al, bl)
-    e += t
-    s, e = quick_two_sum(s, e)
-    e += f
-    return quick_two_sum(s, e)
-
-
-@_jit
-def sub(ah, al, bh, bl):  # type: ignore[no-untyped-def]
-    """``a - b`` in double-double."""
-    return add(ah, al, -bh, -bl)
-
-
-@_jit
-def mul(ah, al, bh, bl):  # type: ignore[no-untyped-def]
-    """``a b`` in double-double."""
-    p, e = two_prod(ah, bh)
-    e += ah * bl + al * bh
-    return quick_two_sum(p, e)
-
-
-@_jit
-def div(ah, al, bh, bl):  # type: ignore[no-untyped-def]
-    """``a / b`` in double-double (three float64 quotient digits, QD's accurate division)."""
-    q1 = ah / bh
-    ph, pl = mul(q1, 0.0, bh, bl)
-    rh, rl = sub(ah, al, ph, pl)
-    q2 = rh / bh
-    ph, pl = mul(q2, 0.0, bh, bl)
-    rh, rl = sub(rh, rl, ph, pl)
-    q3 = rh / bh
-    q1, q2 = quick_two_sum(q1, q2)
-    return add(q1, q2, q3, 0.0)
-
-
-@_jit
-def sqrt(ah, al):  # type: ignore[no-untyped-def]
-    """``sqrt(a)`` in double-double for ``a >= 0`` (one Newton step from float64, Karp)."""
-    if ah <= 0.0:
-        return 0.0, 0.0
-    x = 1.0 / np.sqrt(ah)
-    ax = ah * x
-    sh, sl = two_prod(ax, ax)
-    dh, _ = sub(ah, al, sh, sl)
-    return two_sum(ax, dh * (x * 0.5))
-
-
-@_jit
-def _power(dh, dl, half_steps):  # type: ignore[no-untyped-def]
-    """``delta^(half_steps / 2)`` in double-double for an integer ``half_steps >= 0``."""
-    ph, pl = 1.0, 0.0
-    for _ in range(half_steps // 2):
-        ph, pl = mul(ph, pl, dh, dl)
-    if half_steps % 2:
-        sh, sl = sqrt(dh, dl)
-        ph, pl = mul(ph, pl, sh, sl)
-    return ph, pl
 
 
 @numba.njit(cache=True)
@@ -142,7 +36,9 @@ def contact_sums(  # type: ignore[no-untyped-def]
     ``xh + xl`` ``(N, d)`` are the positions, ``radii`` ``(N,)`` and the cell ``h`` ``(d, d)``
     float64; pair ``p`` joins ``first[p]`` and ``second[p]`` through the lattice image
     ``images[p]`` ``(d,)`` (integers as float64: separation ``x_i - x_j + h n``), with stiffness
-    ``stiffness[p]``. ``delta^(alpha - 1) = delta^(half_steps / 2)``. Written: every pair's
+    ``stiffness[p]``; energy and force by the power law's double-double form
+    (:func:`~athermal.model.law.power_pair_dd`, ``delta^(alpha - 1) = delta^(half_steps /
+    2)``). Written: every pair's
     overlap ``r_i + r_j - |x_i - x_j + h n|`` (negative: a gap) into ``overlap_h/l`` ``(P,)``;
     over the pairs that overlap, and the ``bonded[p]`` ones whatever their overlap (springs of
     rest length ``r_i + r_j``, pulling when apart: an even ``half_steps``), ``dE/dx`` into
@@ -175,10 +71,7 @@ def contact_sums(  # type: ignore[no-untyped-def]
         overlap_h[p], overlap_l[p] = dh, dl
         if dh <= 0.0 and not bonded[p]:
             continue
-        fh, fl = _power(dh, dl, half_steps)
-        fh, fl = mul(fh, fl, stiffness[p], 0.0)  # k delta^(alpha - 1)
-        uh, ul = mul(fh, fl, dh, dl)
-        uh, ul = div(uh, ul, alpha, 0.0)
+        uh, ul, fh, fl = power_pair_dd(dh, dl, stiffness[p], half_steps, alpha)
         eh, el = add(eh, el, uh, ul)
         ch, cl = div(fh, fl, rh, rl)  # force per unit separation
         for a in range(d):
@@ -197,18 +90,6 @@ def displace(xh, xl, step):  # type: ignore[no-untyped-def]
     for i in range(xh.shape[0]):
         for a in range(xh.shape[1]):
             xh[i, a], xl[i, a] = add(xh[i, a], xl[i, a], step[i, a], 0.0)
-
-
-def half_steps(alpha: float) -> int:
-    """``2 (alpha - 1)`` as an integer: the double-double force ``delta^(alpha - 1)`` is a
-    product of ``delta`` and its square root. Raises :class:`InputError` for another alpha."""
-    steps = 2.0 * (float(alpha) - 1.0)
-    if steps != round(steps) or steps < 2.0:
-        raise InputError(
-            f"alpha: extended precision takes alpha = 2, 2.5, 3, ... (2 (alpha - 1) an integer "
-            f">= 2), got {alpha}"
-        )
-    return round(steps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -240,8 +121,9 @@ class NearPairs:
         self.images = np.ascontiguousarray(nlist.images[nlist.code])
         typeid = model.typeid(packing)
         self.stiffness = np.ascontiguousarray(model.kmat[typeid[self.first], typeid[self.second]])
-        self.half_steps = half_steps(model.alpha)
+        self.half_steps = model.law.half_steps()
         self.alpha = float(model.alpha)
+        self.law = model.law
         self.packing = packing
 
     def separations(self, hi: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -260,7 +142,7 @@ class NearPairs:
             np.linalg.norm(sep, axis=1),
             overlap[keep],
             self.stiffness[keep],
-            self.alpha,
+            self.law,
         )
 
     def sums(

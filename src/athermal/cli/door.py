@@ -17,11 +17,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from .. import engines
-from ..certify.extended import half_steps
 from ..enthalpy import ENTHALPY_METHODS
 from ..errors import InputError
 from ..io import SEED_BOUND
 from ..model.cell import wall_axes
+from ..model.law import PowerContact
 from ..model.packing import check_width
 from ..protocols import RESOLUTION, check_growth, start_fraction
 from ..protocols.jamming import JAMMED_PHI
@@ -183,7 +183,7 @@ def _work(args: argparse.Namespace) -> None:
             )
     if certifying or (args.command in ("certify", "criticality") and args.alpha is not None):
         try:
-            half_steps(args.alpha)
+            PowerContact(args.alpha).half_steps()
         except InputError as exc:
             raise InputError(f"--{exc}") from None
     if args.command == "jam" and args.certify and args.pressure is not None:

@@ -384,8 +384,8 @@ class ContactPreconditioner(_PairPreconditioner):
     """Contact stiffness plus Exp stabilization: ``P = K_+ + L (x) I_d`` ``(N d, N d)``.
 
     ``K_+`` is assembled from the current contacts with the positive part of each contact's
-    Hessian block, ``k (alpha - 1) delta^(alpha-2) n n^T`` (the tangential term ``-k
-    delta^(alpha-1)/l (I - n n^T)`` is dropped, so ``K_+`` is positive semidefinite and
+    Hessian block, ``E'' n n^T`` (the law's stiffness; the tangential term ``-(f/l) (I - n
+    n^T)`` is dropped, so ``K_+`` is positive semidefinite and
     ``P`` is SPD). ``L`` is the :class:`ExpPreconditioner` matrix with its own sine-test ``mu``.
 
     Parameters and attributes are those of :class:`ExpPreconditioner` (``matrix`` is ``P``

@@ -1,24 +1,29 @@
-"""Repulsive contact potential ``E_ij = k_ij delta^alpha / alpha`` for overlaps ``delta > 0``.
-
-``delta = r_i + r_j - l`` with ``l = |x_i - x_j|`` (periodic image) and ``alpha >= 2``
-(2 = Hooke, 2.5 = Hertz). The force on ``i`` from ``j`` is ``f = k delta^(alpha-1) n`` with
-``n = (x_i - x_j) / l`` (seed eqs. for E_c and its derivatives). Energy in units of ``k`` x
-length^alpha; forces in ``k`` x length^(alpha-1).
+"""Repulsive contacts between particles of overlap ``delta = r_i + r_j - l > 0``, ``l = |x_i -
+x_j|`` (periodic image), each storing the contact law's energy ``E(delta)`` (default ``k
+delta^alpha / alpha``, :mod:`athermal.model.law`): the contact model, the contact set and its
+energy, gradient, Hessian and strain derivative (vectorized), and the compiled pair loops that
+relaxations call. The force on ``i`` from ``j`` is ``f n`` with ``n = (x_i - x_j) / l``.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cache
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
 from numba import prange
 from numpy.typing import NDArray
 
-from .._jit import _jit, _jit_parallel, threads_usable
-from .._portable import outer_sum, power, power_of, row_norms
+from .._jit import _jit, _jit_parallel, rebound, threads_usable
+from .._portable import outer_sum, row_norms
 from ..errors import InputError
 from .cell import Cell
+from .law import ContactLaw, PowerContact
+from .law import power_curvature as _law_curvature
+from .law import power_pair as _law_pair
+from .law import power_total as _law_total
 from .neighbors import NeighborList
 from .packing import Packing
 from .walls import WallContacts, find_wall_contacts, wall_gradient, wall_hessian
@@ -31,22 +36,29 @@ Walls = tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]
 
 @dataclass(frozen=True, eq=False)
 class ContactModel:
-    """Exponent ``alpha >= 2`` and stiffness: a scalar ``k`` or a symmetric ``(T, T)`` matrix
-    giving ``k_ij`` by the species (``Packing.types()``) of ``i`` and ``j``; ``wall_stiffness``
-    ``k_w`` of a particle's contact with a wall (default its species' own ``k_ii``)."""
+    """The contact law and stiffness: a scalar ``k`` or a symmetric ``(T, T)`` matrix giving
+    ``k_ij`` by the species (``Packing.types()``) of ``i`` and ``j``; ``wall_stiffness`` ``k_w``
+    of a particle's contact with a wall (default its species' own ``k_ii``). The law is
+    ``law`` or, when none is given, :class:`~athermal.model.law.PowerContact` of exponent ``alpha
+    >= 2``; ``alpha`` is then the law's small-overlap exponent."""
 
     alpha: float = 2.0
     stiffness: float | NDArray[np.float64] = 1.0
     wall_stiffness: float | None = None
+    law: ContactLaw = None  # type: ignore[assignment]
     kmat: NDArray[np.float64] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        alpha = float(self.alpha)
-        if not np.isfinite(alpha) or alpha < 2.0:
+        if self.law is None:
+            object.__setattr__(self, "law", PowerContact(self.alpha))
+        elif not isinstance(self.law, ContactLaw):
+            raise InputError(f"law: expected a ContactLaw, got {type(self.law).__name__}")
+        elif float(self.alpha) not in (2.0, self.law.alpha):
             raise InputError(
-                f"alpha: contact exponent must be a finite number >= 2, got {self.alpha!r}"
+                f"alpha: the law {self.law.name} has its own exponent {self.law.alpha:g}; "
+                "give alpha or a law, not both"
             )
-        object.__setattr__(self, "alpha", alpha)
+        object.__setattr__(self, "alpha", float(self.law.alpha))
         kmat = np.atleast_2d(np.asarray(self.stiffness, dtype=np.float64))
         if kmat.ndim != 2 or kmat.shape[0] != kmat.shape[1]:
             raise InputError(
@@ -149,7 +161,7 @@ def energy_gradient_contacts(
         walls = (*NO_WALLS, model.kwall)
     if slabs is None:
         slabs = parallel_slabs(nlist)
-    energy, contacts = evaluate(
+    energy, contacts = kernels(model.law)["evaluate"](
         positions,
         grad,
         radii,
@@ -171,7 +183,7 @@ class Contacts:
     """The overlapping pairs (``delta > 0``) of a configuration, M of them.
 
     ``i, j`` ``(M,)``; ``branch`` ``(M, d)`` = ``x_i - x_j`` (periodic image); ``distance`` and
-    ``overlap`` ``(M,)``; ``stiffness`` ``(M,)`` = ``k_ij``; ``alpha``; ``walls`` the
+    ``overlap`` ``(M,)``; ``stiffness`` ``(M,)`` = ``k_ij``; the contact ``law``; ``walls`` the
     particles' contacts with the cell's walls (None: no walls). The functions below (energy,
     gradient, Hessian, stress) count both.
     """
@@ -182,7 +194,7 @@ class Contacts:
     distance: NDArray[np.float64]
     overlap: NDArray[np.float64]
     stiffness: NDArray[np.float64]
-    alpha: float
+    law: ContactLaw
     walls: WallContacts | None = None
 
     def subset(self, keep: NDArray[np.bool_]) -> Contacts:
@@ -194,9 +206,14 @@ class Contacts:
             self.distance[keep],
             self.overlap[keep],
             self.stiffness[keep],
-            self.alpha,
+            self.law,
             self.walls,
         )
+
+    @property
+    def alpha(self) -> float:
+        """The law's small-overlap exponent (:attr:`~athermal.model.law.ContactLaw.alpha`)."""
+        return self.law.alpha
 
     @property
     def count(self) -> int:
@@ -210,23 +227,23 @@ class Contacts:
 
     @property
     def force_magnitude(self) -> NDArray[np.float64]:
-        """``k delta^(alpha-1)`` ``(M,)``, > 0 (repulsive)."""
-        return self.stiffness * power(self.overlap, self.alpha - 1.0)
+        """The law's ``f(delta)`` ``(M,)``, > 0 (repulsive)."""
+        return self.law.force(self.overlap, self.stiffness)
 
     @property
     def normal_stiffness(self) -> NDArray[np.float64]:
-        """``d^2 E_c / d delta^2 = (alpha - 1) k delta^(alpha-2)`` ``(M,)`` (force / length)."""
-        return self.stiffness * (self.alpha - 1.0) * power(self.overlap, self.alpha - 2.0)
+        """``d^2 E_c / d delta^2`` ``(M,)`` (force / length)."""
+        return self.law.stiffness(self.overlap, self.stiffness)
 
     @property
     def force(self) -> NDArray[np.float64]:
-        """Force on ``i`` from ``j`` ``(M, d)``: ``k delta^(alpha-1) n``."""
+        """Force on ``i`` from ``j`` ``(M, d)``: ``f n``."""
         return self.force_magnitude[:, None] * self.normal
 
     @property
     def energy(self) -> NDArray[np.float64]:
-        """Energy of each contact ``k delta^alpha / alpha`` ``(M,)``."""
-        return self.stiffness * power(self.overlap, self.alpha) / self.alpha
+        """Energy of each contact ``E(delta)`` ``(M,)``."""
+        return self.law.energy(self.overlap, self.stiffness)
 
 
 def find_contacts(
@@ -255,9 +272,7 @@ def find_contacts(
     walls = None
     if packing.cell.walls:
         kwall = model.kwall[typeid]
-        walls = find_wall_contacts(
-            packing.positions, packing.radii, kwall, model.alpha, packing.cell
-        )
+        walls = find_wall_contacts(packing.positions, packing.radii, kwall, model.law, packing.cell)
     return Contacts(
         i,
         j,
@@ -265,7 +280,7 @@ def find_contacts(
         dist[hit],
         overlap[hit],
         model.kmat[typeid[i], typeid[j]],
-        model.alpha,
+        model.law,
         walls,
     )
 
@@ -292,17 +307,14 @@ def gradient(contacts: Contacts, n: int) -> NDArray[np.float64]:
 def contact_blocks(contacts: Contacts) -> NDArray[np.float64]:
     """Second derivatives ``d^2 E_c / dx_i dx_i`` ``(M, d, d)`` (seed eq. for the Hessian).
 
-    ``K = k delta^(alpha-2) [(alpha - 1 + delta/l) n n^T - (delta/l) I]``; the ``(i, j)`` block is
-    ``-K`` and ``(j, j)`` is ``K``.
+    ``K = E'' n n^T - (f / l) (I - n n^T)``; the ``(i, j)`` block is ``-K`` and ``(j, j)`` is
+    ``K``.
     """
     n = contacts.normal
     d = n.shape[1]
-    ratio = contacts.overlap / contacts.distance
-    scale = contacts.stiffness * power(contacts.overlap, contacts.alpha - 2.0)
+    pull = contacts.force_magnitude / contacts.distance
     nn = n[:, :, None] * n[:, None, :]
-    return scale[:, None, None] * (
-        (contacts.alpha - 1.0 + ratio)[:, None, None] * nn - ratio[:, None, None] * np.eye(d)
-    )
+    return (contacts.normal_stiffness + pull)[:, None, None] * nn - pull[:, None, None] * np.eye(d)
 
 
 def assemble_blocks(
@@ -353,8 +365,8 @@ class HessianOperator:
     products for iterative solves, and the sparse matrix for factorizations.
 
     A contact's block (:func:`contact_blocks`) is written ``K = a b b^T - c I`` with ``b`` the
-    branch vector ``x_i - x_j`` (``l = |b|``), ``a = kappa (alpha - 1 + delta/l) / l^2``,
-    ``c = kappa delta/l`` and ``kappa = k delta^(alpha-2)``; ``pairs (M, 2)``, ``sep (M, d)``
+    branch vector ``x_i - x_j`` (``l = |b|``), ``a = (E'' + f/l) / l^2`` and ``c = f/l``;
+    ``pairs (M, 2)``, ``sep (M, d)``
     (= ``b``) and ``coef (M, 2)`` = ``(a, c)`` hold the ``M`` contacts of ``n`` particles
     (:meth:`athermal.model.objective.Objective.hessian` fills them by a compiled pass). ``walls``:
     the wall contacts' diagonal entries, particle, axis and value ``(W,)`` each
@@ -429,36 +441,25 @@ class HessianOperator:
         return h
 
 
-@_jit
-def _pair_force(delta, k, alpha):  # type: ignore[no-untyped-def]
-    """Force magnitude ``k delta^(alpha-1)`` with fast paths for alpha = 2, 2.5, 3."""
-    if alpha == 2.0:
-        return k * delta
-    if alpha == 2.5:
-        return k * delta * np.sqrt(delta)
-    if alpha == 3.0:
-        return k * delta * delta
-    return k * power_of(delta, alpha - 1.0)
-
-
 # Measured on this kind of machine: a plain scatter loop beat per-row register accumulation, a
 # branch-free overlap test (``max(delta, 0)``) is no slower and avoids mispredictions at large N,
 # and skipping the species lookup for a uniform stiffness saves ~3 ns per pair.
 @_jit
 def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
-    """Energy ``sum k delta^alpha / alpha`` over pairs and the number of overlapping pairs
+    """Energy ``sum E(delta)`` over pairs (the law's ``pair`` and ``total``, :class:`~athermal.
+    model.law.NumbaForm`) and the number of overlapping pairs
     (``|x_i - x_j + shift|^2 < (r_i + r_j)^2``); gradient written into ``grad (N, 2)``."""
     grad[:] = 0.0
     twice, contacts = _pairs_2d(
         x, radii, first, second, code, shift, typeid, kmat, alpha, grad, 0, first.size
     )
-    return twice / alpha, contacts
+    return _law_total(twice, alpha), contacts
 
 
 @_jit
 def _pairs_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, lo, hi):  # type: ignore[no-untyped-def]
     """Pairs ``lo ... hi - 1`` of :func:`energy_gradient_2d`: their gradient added into
-    ``grad``; ``alpha`` x their energy, and their overlapping pairs."""
+    ``grad``; the sum of their energy terms (the law's ``pair``), and their overlapping pairs."""
     energy = 0.0
     contacts = 0
     uniform = kmat.size == 1
@@ -476,8 +477,8 @@ def _pairs_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, l
         delta = max(reach - dist, 0.0)
         if not uniform:
             k = kmat[typeid[i], typeid[j]]
-        f = _pair_force(delta, k, alpha)
-        energy += f * delta
+        e, f = _law_pair(delta, k, alpha)
+        energy += e
         s = f / dist
         fx = s * dx
         fy = s * dy
@@ -495,7 +496,7 @@ def energy_gradient_3d(x, radii, first, second, code, shift, typeid, kmat, alpha
     twice, contacts = _pairs_3d(
         x, radii, first, second, code, shift, typeid, kmat, alpha, grad, 0, first.size
     )
-    return twice / alpha, contacts
+    return _law_total(twice, alpha), contacts
 
 
 @_jit
@@ -519,8 +520,8 @@ def _pairs_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, l
         delta = max(reach - dist, 0.0)
         if not uniform:
             k = kmat[typeid[i], typeid[j]]
-        f = _pair_force(delta, k, alpha)
-        energy += f * delta
+        e, f = _law_pair(delta, k, alpha)
+        energy += e
         s = f / dist
         fx = s * dx
         fy = s * dy
@@ -538,7 +539,7 @@ def _pairs_3d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad, l
 def _slab(  # type: ignore[no-untyped-def]
     x, radii, first, second, code, shift, typeid, kmat, alpha, grad, slabs, s, energies, overlapping
 ):
-    """The pairs of slab ``s``: their gradient added into ``grad``, ``alpha`` x their energy
+    """The pairs of slab ``s``: their gradient added into ``grad``, their energy terms' sum
     into ``energies[s]`` and their overlapping pairs into ``overlapping[s]``."""
     lo, hi = slabs[s], slabs[s + 1]
     if x.shape[1] == 2:
@@ -551,12 +552,12 @@ def _slab(  # type: ignore[no-untyped-def]
 
 @_jit
 def _slab_total(energies, overlapping, alpha):  # type: ignore[no-untyped-def]
-    """The slabs' energy (their ``alpha`` x energies summed in slab order, over ``alpha``) and
-    their overlapping pairs."""
+    """The slabs' energy (their energy terms summed in slab order, then the law's ``total``)
+    and their overlapping pairs."""
     energy = 0.0
     for s in range(energies.size):
         energy += energies[s]
-    return energy / alpha, overlapping.sum()
+    return _law_total(energy, alpha), overlapping.sum()
 
 
 @_jit_parallel
@@ -620,8 +621,8 @@ def count_overlaps(x, radii, first, second, code, shift):  # type: ignore[no-unt
 @_jit
 def hessian_terms(x, radii, first, second, code, shift, typeid, kmat, alpha, pairs, sep, coef):  # type: ignore[no-untyped-def]
     """The overlapping pairs' Hessian blocks ``K = a b b^T - c I`` (``b`` the separation
-    ``x_i - x_j + shift``, ``l = |b|``): ``a = kappa (alpha - 1 + delta/l) / l^2``,
-    ``c = kappa delta/l`` with ``kappa = k delta^(alpha-2)``. Writes ``pairs (P, 2)``,
+    ``x_i - x_j + shift``, ``l = |b|``): ``a = (E'' + f/l) / l^2`` and ``c = f/l`` (the law's
+    ``curvature``). Writes ``pairs (P, 2)``,
     ``sep (P, d)`` and ``coef (P, 2)`` = ``(a, c)`` for the first M rows; returns M."""
     d = x.shape[1]
     uniform = kmat.size == 1
@@ -644,17 +645,11 @@ def hessian_terms(x, radii, first, second, code, shift, typeid, kmat, alpha, pai
         delta = reach - dist
         if not uniform:
             k = kmat[typeid[i], typeid[j]]
-        if alpha == 2.0:
-            kappa = k
-        elif alpha == 2.5:
-            kappa = k * np.sqrt(delta)
-        else:
-            kappa = k * power_of(delta, alpha - 2.0)
-        ratio = delta / dist
+        a, c = _law_curvature(delta, dist, k, alpha)
         pairs[m, 0] = i
         pairs[m, 1] = j
-        coef[m, 0] = kappa * (alpha - 1.0 + ratio) / dist_sq
-        coef[m, 1] = kappa * ratio
+        coef[m, 0] = a / dist_sq
+        coef[m, 1] = c
         m += 1
     return m
 
@@ -841,7 +836,8 @@ def evaluate(  # type: ignore[no-untyped-def]
 
 @_jit
 def wall_energy_gradient(x, radii, typeid, walls, half, kwall, alpha, grad):  # type: ignore[no-untyped-def]
-    """Energy ``sum k_w delta^alpha / alpha`` of the particles' overlaps with the walls and
+    """Energy ``sum E(delta)`` (the law's, stiffness ``k_w``) of the particles' overlaps with
+    the walls and
     their number, the gradient added into ``grad (N, d)``. Along axis ``a = walls[w]`` the walls
     lie at ``x_a = -half[w]`` and ``+half[w]``; a particle overlaps them by
     ``delta = r_i - (x_ia + half)`` and ``r_i - (half - x_ia)`` (flat and frictionless: the
@@ -854,14 +850,47 @@ def wall_energy_gradient(x, radii, typeid, walls, half, kwall, alpha, grad):  # 
             a = walls[w]
             low = radii[i] - (x[i, a] + half[w])
             if low > 0.0:
-                f = _pair_force(low, k, alpha)
-                energy += f * low
+                e, f = _law_pair(low, k, alpha)
+                energy += e
                 grad[i, a] -= f
                 contacts += 1
             high = radii[i] - (half[w] - x[i, a])
             if high > 0.0:
-                f = _pair_force(high, k, alpha)
-                energy += f * high
+                e, f = _law_pair(high, k, alpha)
+                energy += e
                 grad[i, a] += f
                 contacts += 1
-    return energy / alpha, contacts
+    return _law_total(energy, alpha), contacts
+
+
+_LAW_LOOPS = (
+    _pairs_2d,
+    _pairs_3d,
+    energy_gradient_2d,
+    energy_gradient_3d,
+    _slab,
+    _slab_total,
+    energy_gradient_slabs,
+    energy_gradient_slabs_serial,
+    wall_energy_gradient,
+    evaluate,
+    hessian_terms,
+)
+"""The compiled loops that call the contact law, and those that call them."""
+
+
+@cache
+def kernels(law: ContactLaw) -> dict[str, Any]:
+    """The compiled loops of :data:`_LAW_LOOPS` for ``law``, by name (``evaluate``,
+    ``hessian_terms``, ...): this module's own (cached on disk) for the power law, else the
+    same loops compiled for the law's :class:`~athermal.model.law.NumbaForm` on first use.
+    Raises :class:`InputError` for a law without one."""
+    form = law.numba
+    if form is None:
+        raise InputError(f"law {law.name}: it has no numba form; the numba engine cannot relax it")
+    if form == PowerContact.numba:
+        return {loop.py_func.__name__: loop for loop in _LAW_LOOPS}
+    return rebound(
+        _LAW_LOOPS,
+        {"_law_pair": form.pair, "_law_total": form.total, "_law_curvature": form.curvature},
+    )

@@ -10,6 +10,7 @@ held where they are: their gradient rows are zero, so no minimizer moves them.
 
 from __future__ import annotations
 
+from functools import cache
 from typing import Any
 
 import numpy as np
@@ -17,7 +18,7 @@ from numpy.typing import NDArray
 
 from .. import _blocks
 from .._blocks import PLACE, max_row_sq  # by name: numba folds PLACE in as a literal
-from .._jit import _jit
+from .._jit import _jit, rebound
 from .._portable import dot, power
 from ..errors import InputError
 from ..linalg import pin_rows
@@ -31,9 +32,10 @@ from .contact import (
     energy_gradient_contacts,
     evaluate,
     find_contacts,
-    hessian_terms,
+    kernels,
     parallel_slabs,
 )
+from .law import ContactLaw
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
 from .walls import WallContacts, find_wall_contacts
@@ -170,10 +172,11 @@ class Objective:
             return None
         if self._compiled is None:
             x = self.x0
+            search = search_for(self.model.law)
             self._compiled = CompiledSearch(
-                energy_search,
+                search,
                 compiled_function(
-                    energy_search,
+                    search,
                     np.empty(STATE_SIZE),
                     GO_ON,
                     x,
@@ -245,7 +248,7 @@ class Objective:
         coef = np.empty((size, 2))
         positions_2d = positions.reshape(self.n, self.dim)
         arguments = (positions_2d, *self._pair_arguments(nlist), pairs, sep, coef)
-        m = hessian_terms(*arguments)
+        m = kernels(self.model.law)["hessian_terms"](*arguments)
         walls = self.wall_contacts(positions_2d)
         h = HessianOperator(self.n, pairs[:m], sep[:m], coef[:m], walls.hessian_terms())
         if self.frozen_rows.size:
@@ -255,7 +258,7 @@ class Objective:
     def wall_contacts(self, positions: NDArray[np.float64]) -> WallContacts:
         """The wall contacts at ``positions`` ``(N, d)`` (internal order)."""
         kwall = self.model.kwall[self._typeid]
-        return find_wall_contacts(positions, self.radii, kwall, self.model.alpha, self.cell)
+        return find_wall_contacts(positions, self.radii, kwall, self.model.law, self.cell)
 
     def count_contacts(self, x: NDArray[np.float64]) -> int:
         """Number of overlapping pairs and wall contacts at ``x``: counted by the last
@@ -292,24 +295,22 @@ class Objective:
     def curvature_bound(self, x: NDArray[np.float64]) -> float:
         """Gershgorin bound ``lambda_G >= lambda_max(H)`` on the Hessian of the energy at ``x``.
 
-        A contact's Hessian block ``K_ij = c [(alpha - 1 + delta/l) n n^T - (delta/l) I]`` with
-        ``c = k delta^(alpha-2)`` has norm ``(alpha - 1) c``, and row ``i`` of ``H`` holds
-        ``H_ii = sum_j K_ij`` and ``H_ij = -K_ij``, so
-        ``lambda_max <= lambda_G = 2 max_i sum_j (alpha - 1) k_ij delta_ij^(alpha - 2)``
-        (``2 k z_max`` for Hooke contacts); a wall contact adds its ``(alpha - 1) k_w
-        delta^(alpha-2)`` once, to its particle's row. Units ``k`` x length^(alpha-2), i.e.
+        A contact's Hessian block ``K_ij = E'' n n^T - (f/l) (I - n n^T)`` has norm ``E''`` (the
+        law's stiffness, :meth:`~athermal.model.law.ContactLaw.stiffness`), and row ``i`` of
+        ``H`` holds ``H_ii = sum_j K_ij`` and ``H_ij = -K_ij``, so
+        ``lambda_max <= lambda_G = 2 max_i sum_j E''_ij`` (``2 k z_max`` for Hooke contacts); a
+        wall contact adds its ``E''`` once, to its particle's row. Units force / length, i.e.
         1 / time^2 for unit masses (FIRE's default time step). Without contacts it falls back to
         a particle with 6 (2D) or 12 (3D) contacts of overlap ``delta`` = the mean radius.
         """
         model = self.model
         contacts = find_contacts(self.packing(x, internal=True), model, self.neighbor_list(x))
-        alpha = float(model.alpha)
         walls = self.wall_contacts(np.asarray(x).reshape(self.n, self.dim))
         if contacts.i.size == 0 and walls.particle.size == 0:
             z_ref = 6.0 if self.dim == 2 else 12.0
             r_mean = float(np.mean(self.radii))
             k_max = max(float(np.max(model.kmat)), float(np.max(model.kwall)))
-            return 2.0 * z_ref * (alpha - 1.0) * k_max * float(power(r_mean, alpha - 2.0))
+            return 2.0 * z_ref * float(model.law.stiffness(np.array([r_mean]), k_max)[0])
         stiff = contacts.normal_stiffness
         per_particle = np.bincount(contacts.i, stiff, self.n)
         per_particle += np.bincount(contacts.j, stiff, self.n)
@@ -317,7 +318,7 @@ class Objective:
         return float(np.max(2.0 * per_particle + np.bincount(particle, wall_stiff, self.n)))
 
     def mean_contact_force(self, x: NDArray[np.float64]) -> float:
-        """Mean ``k delta^(alpha-1)`` over overlapping pairs at ``x`` (0 with no contacts)."""
+        """Mean contact force ``f(delta)`` over overlapping pairs at ``x`` (0 with no contacts)."""
         forces = find_contacts(self.packing(x, internal=True), self.model).force_magnitude
         return float(forces.mean()) if forces.size else 0.0
 
@@ -344,6 +345,16 @@ def _frozen_mask(frozen: NDArray[np.bool_], n: int) -> NDArray[np.bool_]:
     if mask.all():
         raise InputError("frozen: every particle is frozen; nothing is left to relax")
     return mask.copy()
+
+
+@cache
+def search_for(law: ContactLaw) -> Any:
+    """:func:`energy_search` for ``law``: this module's own for the power law, else compiled
+    once more over the law's loops (:func:`~athermal.model.contact.kernels`), once per law."""
+    law_evaluate = kernels(law)["evaluate"]
+    if law_evaluate is evaluate:
+        return energy_search
+    return rebound((energy_search,), {"evaluate": law_evaluate})["energy_search"]
 
 
 @_jit

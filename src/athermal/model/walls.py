@@ -4,10 +4,10 @@ on each wall.
 
 Along a walled axis ``a`` the walls lie at ``x_a = -L_a / 2`` (the lower one) and
 ``+L_a / 2`` (the upper one). A particle of radius ``r`` whose centre is ``l`` from a wall
-overlaps it by ``delta = r - l`` and stores ``k_w delta^alpha / alpha`` (the particles' contact
-law, wall stiffness :attr:`ContactModel.kwall <athermal.model.contact.ContactModel.kwall>`; the
+overlaps it by ``delta = r - l`` and stores the particles' contact law's ``E(delta)`` (wall
+stiffness :attr:`ContactModel.kwall <athermal.model.contact.ContactModel.kwall>`; the
 compiled kernel is :func:`athermal.model.contact.wall_energy_gradient`); the force
-on it, ``k_w delta^(alpha - 1)``, is along the wall's normal into the cell. In the stress
+on it, ``f(delta)``, is along the wall's normal into the cell. In the stress
 ``sigma = (1/V) sum_c l_c (x) f_c`` a wall contact's branch ``l_c`` runs from the contact point
 on the wall to the centre (``l n``): then at mechanical equilibrium ``sigma_aa`` equals the
 force per unit area on the walls normal to ``a`` (:func:`wall_pressures`).
@@ -21,8 +21,9 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .._portable import outer_sum, power
+from .._portable import outer_sum
 from .cell import AXES, Cell
+from .law import ContactLaw
 
 
 @dataclass(frozen=True, eq=False)
@@ -32,7 +33,7 @@ class WallContacts:
     ``particle``, ``axis`` ``(W,)`` int64; ``side`` ``(W,)`` +1 for the lower wall of its axis
     (normal ``+e_a`` into the cell), -1 for the upper one; ``distance`` ``(W,)`` from the wall
     to the centre, ``overlap`` ``(W,)`` = ``r - distance`` > 0, ``stiffness`` ``(W,)`` ``k_w``;
-    ``alpha``; ``dim``.
+    the contact ``law``; ``dim``.
     """
 
     particle: NDArray[np.int64]
@@ -41,7 +42,7 @@ class WallContacts:
     distance: NDArray[np.float64]
     overlap: NDArray[np.float64]
     stiffness: NDArray[np.float64]
-    alpha: float
+    law: ContactLaw
     dim: int
 
     def subset(self, keep: NDArray[np.bool_]) -> WallContacts:
@@ -53,7 +54,7 @@ class WallContacts:
             self.distance[keep],
             self.overlap[keep],
             self.stiffness[keep],
-            self.alpha,
+            self.law,
             self.dim,
         )
 
@@ -66,13 +67,13 @@ class WallContacts:
 
     @property
     def force_magnitude(self) -> NDArray[np.float64]:
-        """``k_w delta^(alpha-1)`` ``(W,)``, > 0 (repulsive)."""
-        return self.stiffness * power(self.overlap, self.alpha - 1.0)
+        """The law's ``f(delta)`` ``(W,)``, > 0 (repulsive)."""
+        return self.law.force(self.overlap, self.stiffness)
 
     @property
     def normal_stiffness(self) -> NDArray[np.float64]:
-        """``(alpha - 1) k_w delta^(alpha-2)`` ``(W,)`` (force / length)."""
-        return (self.alpha - 1.0) * self.stiffness * power(self.overlap, self.alpha - 2.0)
+        """The law's ``E''(delta)`` ``(W,)`` (force / length)."""
+        return self.law.stiffness(self.overlap, self.stiffness)
 
     @property
     def force(self) -> NDArray[np.float64]:
@@ -86,12 +87,12 @@ class WallContacts:
 
     @property
     def energy(self) -> NDArray[np.float64]:
-        """``k_w delta^alpha / alpha`` ``(W,)``."""
-        return self.stiffness * power(self.overlap, self.alpha) / self.alpha
+        """The law's ``E(delta)`` ``(W,)``."""
+        return self.law.energy(self.overlap, self.stiffness)
 
     def hessian_terms(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
-        """Each contact's one Hessian entry: particle, axis and ``(alpha - 1) k_w
-        delta^(alpha-2)`` at ``(particle d + axis)`` on the diagonal (a flat wall: no other)."""
+        """Each contact's one Hessian entry: particle, axis and ``E''(delta)`` at
+        ``(particle d + axis)`` on the diagonal (a flat wall: no other)."""
         return self.particle, self.axis, self.normal_stiffness
 
 
@@ -99,7 +100,7 @@ def find_wall_contacts(
     positions: NDArray[np.float64],
     radii: NDArray[np.float64],
     stiffness: NDArray[np.float64],
-    alpha: float,
+    law: ContactLaw,
     cell: Cell,
 ) -> WallContacts:
     """The wall contacts of particles at ``positions`` ``(N, d)`` with ``radii`` and wall
@@ -122,7 +123,7 @@ def find_wall_contacts(
         distance,
         radii[particle] - distance,
         stiffness[particle],
-        alpha,
+        law,
         cell.dim,
     )
 

@@ -8,6 +8,8 @@ import importlib.util
 import os
 from typing import TYPE_CHECKING, Any, Literal, cast
 
+import numpy as np
+
 from ...errors import JAX_MISSING
 from .. import Capabilities, Engine
 
@@ -40,8 +42,10 @@ class JaxEngine(Engine):
 
     def bind(self, objective: Objective, precon: str, *, A: float, solver: str) -> Device:
         """The device's :class:`athermal.engines.jax.device.Engine` for ``objective`` (``solver``
-        does not apply: the engine has one way)."""
+        does not apply: the engine has one way); refuses a contact law without a JAX form."""
         from .device import Engine as Device
+
+        objective.model.law.jax_pair(np.zeros(1), np.ones(1))
 
         return Device(objective, cast(Literal["none", "exp"], precon), A=A)
 

@@ -72,7 +72,7 @@ class Engine:
         A: float = 0.0,
     ) -> None:
         self.objective = objective
-        self.alpha = float(objective.model.alpha)
+        self.law = objective.model.law
         inner = objective.packing(objective.x0, internal=True)
         self.typeid = np.asarray(objective.model.typeid(inner), dtype=np.int64)
         self.margin = MARGIN * objective.max_step
@@ -195,7 +195,7 @@ class Engine:
         pairs = self._fresh_pairs(positions)
         lap = self._fresh_hierarchy(positions) if method != "fire" else None
         x = jnp.asarray(positions)
-        energy, grad = energy_gradient(x, pairs.arrays, self.alpha)
+        energy, grad = energy_gradient(x, pairs.arrays, self.law)
         energies, gradients = [float(energy)], [float(block_max(grad))]
         scale, factor, power = obj.hooks.noise
         dt = dt_max = dt_min = 0.0  # FIRE's alone
@@ -258,10 +258,10 @@ class Engine:
         while code == RUNNING:
             geometry = (pairs.reference, self._reach_sq(pairs), *self._precon_geometry(lap))
             if method == "fire":
-                state = run_loop("fire", state, (pairs.arrays, geometry, settings), (self.alpha,))
+                state = run_loop("fire", state, (pairs.arrays, geometry, settings), (self.law,))
             else:
                 hierarchy = lap.arrays if lap is not None else ()
-                statics = (self.alpha, method == "lbfgs", polak, lap is not None)
+                statics = (self.law, method == "lbfgs", polak, lap is not None)
                 operands = (pairs.arrays, geometry, hierarchy, settings)
                 state = run_loop("descent", state, operands, statics)
             recorded = int(state.recorded)

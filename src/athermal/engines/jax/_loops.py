@@ -27,6 +27,7 @@ import jax.numpy as jnp
 from ...minimize._conjugate import POWELL
 from ...minimize._wolfe import ACCEPTED, GO_ON
 from ...minimize.fire import ALPHA_START, F_ALPHA, F_DEC, F_INC, N_DELAY
+from ...model.law import ContactLaw
 from ._pairs import block_max, energy_gradient
 from ._precon import apply
 from ._search import begin, feed
@@ -95,12 +96,12 @@ def fire_loop(
     pairs: tuple[Any, ...],
     geometry: tuple[Any, ...],
     settings: tuple[Any, ...],
-    alpha: float,
+    law: ContactLaw,
 ) -> Fire:
     """FIRE 2.0 steps (:func:`athermal.minimize.fire.fire`: Guénolé et al. 2020) from
     ``state`` until a stop code; ``pairs`` the padded Verlet list, ``geometry`` the list's and
     the preconditioner's builds with their reaches, ``settings`` ``(gtol, etol, maxiter, dt_max,
-    dt_min, max_step, ...)``; the contact exponent ``alpha`` is static."""
+    dt_min, max_step, ...)``; the contact ``law`` is static."""
     dt_max, dt_min, max_step = settings[3:6]
 
     def body(s: Fire) -> Fire:
@@ -123,7 +124,7 @@ def fire_loop(
         length = dt * block_max(v)
         v = v * jnp.where(length > max_step, max_step / length, 1.0)
         x = x + dt * v
-        energy, grad = energy_gradient(x, pairs, alpha)
+        energy, grad = energy_gradient(x, pairs, law)
         gmax = block_max(grad)
         history = s.history.at[:, s.recorded].set(jnp.stack([energy, gmax]))
         code = _stop(step, s.recorded + 1, energy, gmax, x, geometry, settings)
@@ -197,7 +198,7 @@ def descent_loop(
     geometry: tuple[Any, ...],
     hierarchy: tuple[Any, ...],
     settings: tuple[Any, ...],
-    alpha: float,
+    law: ContactLaw,
     lbfgs: bool,
     polak: bool,
     preconditioned: bool,
@@ -206,7 +207,7 @@ def descent_loop(
     iterations from ``state`` until a stop code. ``pairs``, ``geometry`` as
     :func:`fire_loop`'s; ``hierarchy`` the preconditioner's :attr:`~._precon.Hierarchy.arrays`
     (used when ``preconditioned``); ``settings`` ``(gtol,
-    etol, maxiter, dt_max, dt_min, max_step, c2, noise scale, factor, power)``; ``alpha``,
+    etol, maxiter, dt_max, dt_min, max_step, c2, noise scale, factor, power)``; ``law``,
     ``lbfgs``, ``polak``, ``preconditioned`` static."""
     max_step, c2, scale, factor, power = settings[5:10]
 
@@ -214,7 +215,7 @@ def descent_loop(
         return apply(g, *hierarchy) if preconditioned else g
 
     def evaluate(point: Any) -> tuple[Any, Any]:
-        return energy_gradient(point, pairs, alpha)
+        return energy_gradient(point, pairs, law)
 
     def refuse(st: Descent, search: Any, *_: Any) -> Descent:
         """No Wolfe step: a restart along the (preconditioned) gradient, or the end when the

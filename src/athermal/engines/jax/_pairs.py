@@ -12,6 +12,7 @@ from numpy.typing import NDArray
 
 from ...model.cell import Cell
 from ...model.contact import ContactModel
+from ...model.law import ContactLaw
 from ...model.neighbors import build_neighbor_list
 
 
@@ -104,28 +105,29 @@ def _overlaps(x: Any, first: Any, second: Any, shift: Any, radius_sum: Any) -> t
     return sep, length, overlap
 
 
-def energy_gradient(x: Any, pairs: tuple[Any, ...], alpha: float) -> tuple[Any, Any]:
-    """The contact energy ``sum_c k delta^alpha / alpha`` and its gradient ``(N, d)`` at
-    positions ``x`` ``(N, d)`` over the padded pairs (:attr:`Pairs.arrays`); ``alpha`` static
-    (a traced one is a general power: ``docs/decisions.md``, "The contact exponent is
-    static")."""
+def energy_gradient(x: Any, pairs: tuple[Any, ...], law: ContactLaw) -> tuple[Any, Any]:
+    """The contact energy ``sum_c E(delta)`` and its gradient ``(N, d)`` at positions ``x``
+    ``(N, d)`` over the padded pairs (:attr:`Pairs.arrays`) by the ``law``'s JAX form
+    (static)."""
     first, second, shift, radius_sum, stiffness = pairs
     sep, length, overlap = _overlaps(x, first, second, shift, radius_sum)
-    energy = jnp.sum(stiffness * overlap**alpha) / alpha
-    force = stiffness * overlap ** (alpha - 1.0)  # on first, along +sep
+    terms, force = law.jax_pair(overlap, stiffness)  # force on first, along +sep
+    energy = law.jax_total(jnp.sum(terms))
     pull = (force / length)[:, None] * sep
     grad = jnp.zeros_like(x).at[first].add(-pull).at[second].add(pull)
     return energy, grad
 
 
-def stress_contacts(x: Any, pairs: tuple[Any, ...], alpha: float, volume: float) -> tuple[Any, Any]:
+def stress_contacts(
+    x: Any, pairs: tuple[Any, ...], law: ContactLaw, volume: float
+) -> tuple[Any, Any]:
     """The contact stress ``sigma = (1/V) sum_c l_c (x) f_c`` ``(d, d)`` (the convention of
     :func:`athermal.analysis.observables.stress`: positive pressure under compression) over a cell
     of ``volume``, and the number of overlapping pairs, at ``x`` ``(N, d)`` over the padded pairs
     (:attr:`Pairs.arrays`)."""
     first, second, shift, radius_sum, stiffness = pairs
     sep, length, overlap = _overlaps(x, first, second, shift, radius_sum)
-    force = stiffness * overlap ** (alpha - 1.0)
+    _, force = law.jax_pair(overlap, stiffness)
     weight = force / length
     stress = jnp.einsum("c,ca,cb->ab", weight, sep, sep) / volume
     return stress, jnp.sum(overlap > 0.0)
