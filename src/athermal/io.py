@@ -16,16 +16,16 @@ simulation cell is the container; HOOMD's box has no notion of walls (its period
 not in the schema), so a reader must take them from ``log/athermal/walls``.
 
 Float32 positions cannot resolve the contacts of a packing near jamming (overlaps of 1e-8 of a
-diameter): each frame therefore carries its contact network, found in float64 when it is
-written, as HOOMD bonds (``bonds/N``, ``types = ["contact"]``, ``typeid``, ``group`` the
-particle pairs ``(i, j)``), with ``log/bonds/overlap`` and, when a contact model is given,
-``log/bonds/force`` (the contact law's normal force ``f(delta)``) per bond, and
-``log/particles/rattler`` (1 for a rattler: fewer than ``d + 1`` contacts, removed
-iteratively), which OVITO imports as bond and particle properties; between walls, with a
-model, ``log/particles/wall_force`` is the force each particle's wall contacts exert on it (0 for a particle touching no wall), and a
-plane shear's frames add ``log/particles/glued`` (1 for a particle glued to a wall). A
-simulation code that reads bonds as bonded interactions (HOOMD-blue's neighbour lists exclude
-bonded pairs by default) must drop them first.
+diameter): each frame therefore carries its contact network, found in float64 when it is written, as
+HOOMD bonds (``bonds/N``, ``types = ["contact"]``, ``typeid``, ``group`` the particle pairs ``(i,
+j)``), with ``log/bonds/overlap`` and, when a contact model is given, ``log/bonds/force`` (the
+contact law's normal force ``f(delta)``) per bond, and ``log/particles/rattler`` (1 for a rattler:
+fewer than ``d + 1`` contacts, removed iteratively), which OVITO imports as bond and particle
+properties; between walls, with a model, ``log/particles/wall_force`` is the force each particle's
+wall contacts exert on it (0 for a particle touching no wall), and a plane shear's frames add
+``log/particles/glued`` (1 for a particle glued to a wall). A simulation code that reads bonds as
+bonded interactions (HOOMD-blue's neighbour lists exclude bonded pairs by default) must drop them
+first.
 
 Every failure raises :class:`~athermal.errors.FileFormatError` (bad arguments:
 :class:`~athermal.errors.InputError`) with a one-line message that names the file.
