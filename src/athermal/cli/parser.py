@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import re
+from collections.abc import Callable
 from typing import Any, NoReturn
 
 from .. import engines
@@ -19,6 +20,7 @@ from ..model.packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
 from ..relaxation import MAXITER, METHODS, RTOL
 from ..studies import bench
+from ..studies.experiments import CompressSpec, ShearSpec
 
 
 class _Help(argparse.HelpFormatter):
@@ -224,25 +226,38 @@ def _packing(parser: Options) -> None:
 
 def _compression_range(parser: Options) -> None:
     parser.add_argument(
-        "--from", dest="dphi_min", type=float, default=1e-7, help="smallest phi - phi_c"
+        "--from",
+        dest="dphi_min",
+        type=float,
+        default=CompressSpec.delta_min,
+        help="smallest phi - phi_c",
     )
     parser.add_argument(
-        "--to", dest="dphi_max", type=float, default=1e-1, help="largest phi - phi_c"
+        "--to",
+        dest="dphi_max",
+        type=float,
+        default=CompressSpec.delta_max,
+        help="largest phi - phi_c",
     )
-    parser.add_argument("--per-decade", type=int, default=4, help="compression steps per decade")
+    parser.add_argument(
+        "--per-decade",
+        type=int,
+        default=CompressSpec.per_decade,
+        help="compression steps per decade",
+    )
 
 
 def _shear_options(parser: Options) -> None:
     parser.add_argument(
         "--mode",
-        default="pure",
+        default=ShearSpec.mode,
         choices=SHEAR_MODES,
         help="simple or pure shear, uniaxial compression of the last axis (between walls "
         "normal to it: a wall moving in), or plane shear (walls normal to y or z: the particles "
         "near each wall glued to it, the upper one moved along x)",
     )
-    parser.add_argument("--strain", type=float, default=0.02, help="final strain")
-    parser.add_argument("--step", type=float, default=1e-4, help="strain increment")
+    parser.add_argument("--strain", type=float, default=ShearSpec.strain, help="final strain")
+    parser.add_argument("--step", type=float, default=ShearSpec.step, help="strain increment")
 
 
 def _frame(parser: argparse.ArgumentParser, what: str) -> None:
@@ -263,18 +278,8 @@ def _frame(parser: argparse.ArgumentParser, what: str) -> None:
     )
 
 
-def build() -> argparse.ArgumentParser:
-    """The parser of every subcommand."""
-    from . import _version
-
-    parser = _Parser(
-        prog="athermal", description="Quasi-static simulation of athermal soft-particle packings."
-    )
-    parser.add_argument("--version", action="version", version=f"athermal {_version()}")
-    sub = parser.add_subparsers(
-        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
-    )
-
+def _random_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal random``."""
     rnd = sub.add_parser(
         "random",
         help="random packing and its observables",
@@ -289,6 +294,9 @@ def build() -> argparse.ArgumentParser:
     rnd.add_argument("--overwrite", action="store_true", help="replace an existing output")
     _model(rnd, from_file=False)
 
+
+def _measure_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal measure``."""
     mea = sub.add_parser(
         "measure",
         help="observables of a configuration",
@@ -307,6 +315,9 @@ def build() -> argparse.ArgumentParser:
     mea.add_argument("--overwrite", action="store_true", help="replace an existing figure")
     _model(mea, from_file=True)
 
+
+def _modes_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal modes``."""
     mod = sub.add_parser(
         "modes",
         help="vibrational modes and density of states of a configuration",
@@ -345,6 +356,9 @@ def build() -> argparse.ArgumentParser:
     mod.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     _model(mod, from_file=True)
 
+
+def _moduli_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal moduli``."""
     mdl = sub.add_parser(
         "moduli",
         help="bulk and shear moduli of a configuration",
@@ -368,6 +382,9 @@ def build() -> argparse.ArgumentParser:
     )
     _model(mdl, from_file=True)
 
+
+def _certify_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal certify``."""
     cer = sub.add_parser(
         "certify",
         help="certify a jammed packing: force balance beyond float64",
@@ -392,6 +409,9 @@ def build() -> argparse.ArgumentParser:
     cer.add_argument("--overwrite", action="store_true", help="replace an existing output")
     _model(cer, from_file=True)
 
+
+def _criticality_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal criticality``."""
     cri = sub.add_parser(
         "criticality",
         help="weak forces and small gaps of jammed packings, and their critical exponents",
@@ -424,6 +444,9 @@ def build() -> argparse.ArgumentParser:
     cri.add_argument("--overwrite", action="store_true", help="replace an existing figure")
     _model(cri, from_file=True)
 
+
+def _relax_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal relax``."""
     rel = sub.add_parser(
         "relax",
         help="one energy minimization",
@@ -458,6 +481,9 @@ def build() -> argparse.ArgumentParser:
     )
     _model(rel, from_file=True)
 
+
+def _jam_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal jam``."""
     jam = sub.add_parser(
         "jam",
         help="jam a random packing (growth + bisection, after the paper's Algorithm 1)",
@@ -509,6 +535,9 @@ def build() -> argparse.ArgumentParser:
     _protocol_outputs(jam)
     _model(jam, from_file=False)
 
+
+def _compress_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal compress``."""
     com = sub.add_parser(
         "compress",
         help="quasi-static compression above jamming (scaling laws)",
@@ -537,6 +566,9 @@ def build() -> argparse.ArgumentParser:
     _compression_range(com)
     _quasi_static(com)
 
+
+def _shear_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal shear``."""
     she = sub.add_parser(
         "shear",
         help="quasi-static simple or pure shear",
@@ -559,8 +591,9 @@ def build() -> argparse.ArgumentParser:
     )
     _quasi_static(she)
 
-    _ensemble(sub)
 
+def _paper_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal paper``."""
     pap = sub.add_parser(
         "paper",
         help="reproduce the paper's figures, Table and exponents",
@@ -580,6 +613,9 @@ def build() -> argparse.ArgumentParser:
     pap.add_argument("--quiet", action="store_true", help="no progress on stderr")
     _json(pap)
 
+
+def _bench_command(sub: argparse._SubParsersAction) -> None:
+    """``athermal bench``."""
     ben = sub.add_parser(
         "bench",
         help="the paper's Table benchmark (docs/benchmarks.md, B1)",
@@ -614,6 +650,21 @@ def build() -> argparse.ArgumentParser:
     )
     ben.add_argument("--quiet", action="store_true", help="no progress on stderr")
     _json(ben)
+
+
+def build() -> argparse.ArgumentParser:
+    """The parser of every subcommand."""
+    from . import _version
+
+    parser = _Parser(
+        prog="athermal", description="Quasi-static simulation of athermal soft-particle packings."
+    )
+    parser.add_argument("--version", action="version", version=f"athermal {_version()}")
+    sub = parser.add_subparsers(
+        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
+    )
+    for command in COMMANDS:
+        command(sub)
     return parser
 
 
@@ -695,9 +746,27 @@ def _ensemble(sub: argparse._SubParsersAction) -> None:
             shearing.add_argument(
                 "--shear-delta-phi",
                 type=float,
-                default=1e-2,
+                default=ShearSpec.delta_phi,
                 help="start from the compressed state nearest this phi - phi_c",
             )
+
+
+COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
+    _random_command,
+    _measure_command,
+    _modes_command,
+    _moduli_command,
+    _certify_command,
+    _criticality_command,
+    _relax_command,
+    _jam_command,
+    _compress_command,
+    _shear_command,
+    _ensemble,
+    _paper_command,
+    _bench_command,
+)
+"""The subcommands' parsers, in the order ``athermal --help`` lists them."""
 
 
 def subparser(parser: argparse.ArgumentParser, command: str) -> argparse.ArgumentParser:

@@ -165,14 +165,19 @@ def jam_packing(
     )
 
 
+DELTA_PHI_RANGE = (1e-7, 1e-1)
+"""The ``Delta phi`` above jamming the compressions and the iteration experiment span by
+default: the paper's."""
+
+
 @dataclass(frozen=True)
 class CompressSpec:
     """Quasi-static compression above jamming: ``per_decade`` log-spaced ``Delta phi`` from
     ``delta_min`` to ``delta_max``, each relaxed to ``rtol`` x the mean contact force by
     ``minimizer``; the scaling laws are fitted over ``Delta phi >= fit_lower``."""
 
-    delta_min: float = 1e-7
-    delta_max: float = 1e-1
+    delta_min: float = DELTA_PHI_RANGE[0]
+    delta_max: float = DELTA_PHI_RANGE[1]
     per_decade: int = 4
     rtol: float = RTOL
     minimizer: Minimizer = field(default_factory=Minimizer)
@@ -261,7 +266,7 @@ class IterationSpec:
     each relaxation starting from the affinely sheared state (``start``, the paper's; or
     ``"linear"``, see :func:`~athermal.protocols.finite_strain_shear`)."""
 
-    delta_phis: tuple[float, ...] = tuple(float(d) for d in log_spaced(1e-7, 1e-1, 1))
+    delta_phis: tuple[float, ...] = tuple(float(d) for d in log_spaced(*DELTA_PHI_RANGE, 1))
     methods: tuple[Minimizer, ...] = ITERATION_METHODS
     strains: tuple[float, ...] = tuple(float(s) for s in DEFAULT_STRAINS)
     start: StepStart = "affine"
