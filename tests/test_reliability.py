@@ -258,7 +258,13 @@ def test_coincident_particles_are_named(tmp_path, capsys):
     with gsd.hoomd.open(str(tmp_path / "c.gsd"), "x") as out:
         out.append(frame)
     source, target = str(tmp_path / "c.gsd"), str(tmp_path / "r.gsd")
-    for argv in (["measure", source], ["relax", source, "-o", target]):
+    relax = ["relax", source, "-o", target]
+    for argv in (
+        ["measure", source],
+        relax,
+        [*relax, "--gtol", "1e-9"],
+        [*relax, "--pressure", "0.1"],
+    ):
         code = main(argv)
         _, err = capsys.readouterr()
         assert code == 2 and "particles 3 and 7 coincide" in err and err.count("\n") == 1

@@ -278,6 +278,27 @@ def relax(
     return relaxer.attempt(objective.x0, gtol=tol, maxiter=maxiter)
 
 
+def relax_once(
+    packing: Packing,
+    model: ContactModel,
+    how: Minimizer | None = None,
+    *,
+    gtol: float | None = None,
+    rtol: float | None = None,
+) -> Relaxation:
+    """One minimization of ``packing`` by ``how`` alone (default L-BFGS; no hand-over: what it
+    reaches is the method's own) to ``max_i |grad_i| <= gtol``, or ``rtol`` x the start's mean
+    contact force floored at round-off (:func:`force_tolerance`; default :data:`RTOL` when
+    neither is given): a packing at its jamming point, whose forces lie below what float64
+    resolves at its overlaps, is then already relaxed. Raises :class:`InputError` for two
+    coincident particles before any work."""
+    how = how or Minimizer()
+    if gtol is not None and rtol is not None:
+        raise InputError("give at most one of gtol (absolute) and rtol (x mean contact force)")
+    floored = force_tolerance(packing, model, RTOL if rtol is None else rtol)
+    return relax_objective(Objective(packing, model), how, gtol=floored if gtol is None else gtol)
+
+
 MAX_ESCAPES = 3
 """How often :meth:`Relaxer.relax_to_minimum` leaves a saddle along its negative mode before it
 gives up."""

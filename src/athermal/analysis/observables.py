@@ -195,3 +195,15 @@ def measure(
         if contacts.walls is None
         else wall_pressures(contacts.walls, packing.cell),
     )
+
+
+def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
+    """The observables written with a configuration."""
+    return {
+        "energy": obs.energy,
+        "pressure": obs.pressure,
+        "stress": obs.stress,
+        "fabric": obs.fabric,
+        "phi": obs.phi,
+        "z": obs.z,
+    }

@@ -13,13 +13,12 @@ import numpy as np
 
 from .. import engines
 from ..analysis.forces import ForceStatistics, force_statistics
-from ..analysis.observables import Observables, measure
+from ..analysis.observables import Observables, file_observables, measure
 from ..enthalpy import relax_at_pressure
 from ..io import count_frames, read_gsd, write_gsd
 from ..minimize import MinimizeResult
-from ..model.objective import Objective
 from ..model.packing import random_packing
-from ..relaxation import RTOL, force_tolerance, relax_objective
+from ..relaxation import RTOL, relax_once
 from ..studies import bench as table1
 from ..studies.checkpoint import readable_log
 from ..studies.plot import force_distribution_figure, save
@@ -27,7 +26,6 @@ from .common import (
     NotConverged,
     bits,
     cell_from,
-    file_observables,
     minimizer_from,
     model_from,
     sizes_from,
@@ -138,15 +136,12 @@ def relax(args: argparse.Namespace) -> None:
     """``athermal relax``: one energy minimization."""
     frame = read_gsd(args.input)
     model = model_from(args, frame.model)
-    measure(frame.packing, model)  # refuses coincident particles before any work
-    rtol = RTOL if args.gtol is None and args.rtol is None else args.rtol
     at_pressure: dict[str, Any] = {}
     res: MinimizeResult
     if args.pressure is None:
-        # relative to the start's forces, floored at round-off (a packing at its jamming point
-        # has forces far below what float64 resolves at its overlaps)
-        gtol = args.gtol if rtol is None else force_tolerance(frame.packing, model, rtol)
-        relaxed = relax_objective(Objective(frame.packing, model), minimizer_from(args), gtol=gtol)
+        relaxed = relax_once(
+            frame.packing, model, minimizer_from(args), gtol=args.gtol, rtol=args.rtol
+        )
         res, final = relaxed, relaxed.packing
     else:
         found = relax_at_pressure(
@@ -157,7 +152,7 @@ def relax(args: argparse.Namespace) -> None:
             method=args.method,
             precon=args.precon or "none",
             gtol=args.gtol,
-            rtol=rtol,
+            rtol=RTOL if args.gtol is None and args.rtol is None else args.rtol,
             maxiter=args.maxiter,
         )
         res, final = found.result, found.packing

@@ -7,9 +7,6 @@ import argparse
 import sys
 from typing import Any, cast
 
-import numpy as np
-
-from ..analysis.observables import Observables
 from ..certify import Certificate
 from ..engines.precon import PreconName
 from ..model.cell import Cell
@@ -81,18 +78,6 @@ def sizes_from(args: argparse.Namespace) -> dict[str, Any]:
 def cell_from(args: argparse.Namespace) -> Cell:
     """The unit cell with the walls of ``--walls``."""
     return Cell.unit(args.dim, args.walls)
-
-
-def file_observables(obs: Observables) -> dict[str, float | np.ndarray]:
-    """The observables written with a configuration."""
-    return {
-        "energy": obs.energy,
-        "pressure": obs.pressure,
-        "stress": obs.stress,
-        "fabric": obs.fabric,
-        "phi": obs.phi,
-        "z": obs.z,
-    }
 
 
 def check_certified(certificate: Certificate) -> None:

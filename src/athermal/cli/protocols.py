@@ -12,7 +12,7 @@ import hashlib
 import time
 import warnings
 from collections.abc import Callable, Iterable
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any, Generic, TypeVar
 
@@ -20,10 +20,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import engines
-from ..analysis.observables import Observables, measure
-from ..certify import CertifiedPacking, bisect_jamming_point, certify
-from ..errors import ConvergenceError, InputError
-from ..io import Frame, count_frames, read_gsd, write_gsd
+from ..errors import InputError
+from ..io import Frame, count_frames, read_gsd
 from ..model.contact import ContactModel, find_contacts
 from ..model.packing import Packing
 from ..protocols import (
@@ -37,7 +35,7 @@ from ..protocols import (
     start_fraction,
 )
 from ..protocols.compress import FIT_LAWS
-from ..protocols.pressure import check_reachable, pressure_search, warn_if_near_jamming
+from ..protocols.pressure import check_reachable
 from ..protocols.shear import check_mode, rough_walls
 from ..studies.checkpoint import (
     Step,
@@ -48,13 +46,13 @@ from ..studies.checkpoint import (
     shear_step,
 )
 from ..studies.experiments import JamSpec, jam_packing
+from ..studies.jammed import finish_jamming
 from ..studies.tables import Row, write_table
 from .common import (
     NotConverged,
     Progress,
     bits,
     check_certified,
-    file_observables,
     minimizer_from,
     model_from,
     precon_from,
@@ -197,83 +195,18 @@ def jam(args: argparse.Namespace) -> None:
     )
     result = jam_packing(spec, args.seed, resume=done, on_step=record)
     record.close()
-    obs, check, final = result.observables, result.check, result.packing
-    jammed = obs  # the jamming check belongs to the jammed packing, whatever packing is written
-    jamming_check = {
-        "phi": jammed.phi,
-        "energy": jammed.energy,
-        "pressure": jammed.pressure,
-        "z": jammed.z,
-        "contacts": jammed.contacts,
-        "n_rattlers": jammed.n_rattlers,
-        "excess_contacts": check.excess_contacts,
-        "allowed_excess": round(check.allowed_excess, 2),
-        "unjams_when_decompressed": check.unjams,
-        "decompression": check.decompression,
-        "stable": check.stable,
-        "passed": check.passed,
-    }
-    written = "the jammed packing at phi_c"
-    at_pressure: dict[str, Any] = {}
-    if args.pressure is not None:
-        found = pressure_search(
-            result.packing,
-            model,
-            args.pressure,
-            phi_low=result.phi_low,
-            phi_c=result.phi_c,
-            rtol=args.pressure_rtol,
-            minimizer=spec.minimizer,
-        )
-        warn_if_near_jamming(found, args.epsilon)
-        obs, final = found.observables, found.packing
-        written = f"the packing at pressure {found.target:g} (phi = {found.phi:.9f})"
-        at_pressure = {
-            "target_pressure": found.target,
-            "phi": found.phi,
-            "delta_phi": found.delta_phi,
-            "pressure_trials": len(found.trials),
-            "pressure_drops": found.pressure_drops,
-            "pressure_iterations": found.iterations,
-        }
-    certified, refused, bisected = None, None, {}
-    phi_c, phi_low = result.phi_c, result.phi_low
-    if args.certify:
-        try:
-            if args.epsilon < RESOLUTION:  # below float64's verdict: bisect in double-double
-                point = bisect_jamming_point(result.packing, model, args.epsilon)
-                certified, phi_c, phi_low = point.jammed, point.phi_high, point.phi_low
-                obs = _certified_observables(certified, model)
-                bisected = {
-                    "float64_phi_low": result.phi_low,
-                    "float64_phi_high": result.phi_c,
-                    **point.march(),
-                }
-            else:
-                certified = certify(result.packing, model)
-            final = certified.packing
-        except (InputError, ConvergenceError) as exc:  # the jammed packing is written as it is
-            refused = str(exc)
-    write_gsd(
-        args.output,
-        final,
-        model=model,
-        seed=args.seed,
-        position_lo=None if certified is None else certified.position_lo,
-        observables={
-            **({} if certified is None else certified.certificate.log()),
-            **file_observables(obs),
-            "phi_c": phi_c,
-            "phi_low": phi_low,
-            "phi_high": phi_c,
-            **{k: v for k, v in at_pressure.items() if k in ("target_pressure", "delta_phi")},
-            **{
-                f"jamming_check_{k}": float(v)
-                for k, v in jamming_check.items()
-                if k in ("energy", "pressure", "z", "contacts", "excess_contacts")
-            },
-        },
+    kept = finish_jamming(
+        result,
+        model,
+        epsilon=args.epsilon,
+        pressure=args.pressure,
+        pressure_rtol=args.pressure_rtol,
+        minimizer=spec.minimizer,
+        certifying=args.certify,
     )
+    kept.write(args.output, model, args.seed)
+    obs, final, certified = kept.observables, kept.packing, kept.certified
+    phi_c, phi_low = kept.phi_c, kept.phi_low
     width = phi_c - phi_low
     phi_text = f"{phi_c:.{_digits(width)}f} (bracket {width:.1g})"
     picture = None
@@ -294,18 +227,18 @@ def jam(args: argparse.Namespace) -> None:
             "phi_low": bound(phi_low),
             "phi_high": bound(phi_c),
             "protocol": args.bisection,
-            "written": written,
+            "written": kept.written,
             "energy": obs.energy,
             "pressure": obs.pressure,
             "z": obs.z,
             "n_rattlers": obs.n_rattlers,
             "contacts": obs.contacts,
-            **at_pressure,
-            "jamming_check": jamming_check,
-            "checks_passed": check.passed,
+            **kept.at_pressure(),
+            "jamming_check": kept.jamming_check(),
+            "checks_passed": result.check.passed,
             **({} if certified is None else {"certificate": asdict(certified.certificate)}),
-            **({"bisected_in_double_double": bisected} if bisected else {}),
-            **({} if refused is None else {"certificate": {"refused": refused}}),
+            **({"bisected_in_double_double": kept.bisected} if kept.bisected else {}),
+            **({} if kept.refused is None else {"certificate": {"refused": kept.refused}}),
             "steps": result.steps,
             "resumed_steps": len(done),
             "iterations": result.iterations,
@@ -322,25 +255,10 @@ def jam(args: argparse.Namespace) -> None:
     )
     if certified is not None:
         check_certified(certified.certificate)
-    if refused is not None:
-        raise NotConverged(f"not certified ({refused}); the jammed packing is written uncertified")
-
-
-def _certified_observables(certified: CertifiedPacking, model: ContactModel) -> Observables:
-    """The observables of a packing bisected in double-double: energy, pressure, contacts,
-    rattlers and z from its certificate (float64 misses its smallest overlaps, ~1e-17), the
-    tensors from float64."""
-    cert = certified.certificate
-    live = certified.packing.n - cert.n_rattlers
-    return replace(
-        measure(certified.packing, model),
-        energy=cert.energy,
-        pressure=cert.pressure,
-        contacts=cert.contacts,
-        contacts_nonrattler=cert.contacts,
-        n_rattlers=cert.n_rattlers,
-        z=2.0 * cert.contacts / live,
-    )
+    if kept.refused is not None:
+        raise NotConverged(
+            f"not certified ({kept.refused}); the jammed packing is written uncertified"
+        )
 
 
 def _frame_index(args: argparse.Namespace) -> int:
