@@ -236,6 +236,16 @@ class EnthalpyResult:
     result: MinimizeResult
 
 
+def check_enthalpy_method(method: str, precon: str) -> None:
+    """:class:`InputError` unless ``method`` is one of :data:`ENTHALPY_METHODS` and ``precon``
+    none or exp (the Exp preconditioner extended to the cell)."""
+    if method not in ENTHALPY_METHODS:
+        raise InputError(
+            f"method: {method} cannot minimize an enthalpy; use {' / '.join(ENTHALPY_METHODS)}"
+        )
+    choice(precon, "precon", ("none", "exp"))
+
+
 def relax_at_pressure(
     packing: Packing,
     model: ContactModel,
@@ -265,9 +275,8 @@ def relax_at_pressure(
     >>> r.result.converged, abs(r.pressure / 1e-3 - 1) < 1e-6
     (True, True)
     """
+    check_enthalpy_method(method, precon)
     problem = Enthalpy(packing, model, pressure, cell)
-    choice(method, "method", ENTHALPY_METHODS)
-    choice(precon, "precon", ("none", "exp"))
     pre = EnthalpyPreconditioner(problem) if precon == "exp" else None
     if gtol is None:  # the start's forces may be far from those at P (an unjammed start)
         diameter = 2.0 * float(np.mean(packing.radii))

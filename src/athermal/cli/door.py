@@ -15,16 +15,19 @@ import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import TypeVar
 
 from .. import engines
-from ..enthalpy import ENTHALPY_METHODS
+from ..enthalpy import check_enthalpy_method
 from ..errors import InputError
 from ..io import SEED_BOUND
 from ..model.cell import wall_axes
 from ..model.law import PowerContact
 from ..model.packing import check_width
 from ..protocols import RESOLUTION, check_growth, start_fraction
+from ..protocols.compress import log_count
 from ..protocols.jamming import JAMMED_PHI
+from ..protocols.shear import strain_steps
 from ..relaxation import Minimizer
 from ..studies.bench import check_alphas
 from ..studies.ensemble import INSTALL_HINT, check_batch
@@ -41,6 +44,7 @@ MAX_STEPS = 100_000
 steps): more is an increment too small to make progress."""
 
 
+T = TypeVar("T")
 FLAGS = {"dphi_min": "--from", "dphi_max": "--to"}
 """Options whose flag is not their attribute's name."""
 
@@ -139,9 +143,7 @@ def _work(args: argparse.Namespace) -> None:
                 f"reach phi = 1 (at most {MAX_STEPS}); take a larger increment"
             )
     if hasattr(args, "dphi_min"):  # compress, ensemble compress and shear
-        if not args.dphi_min < args.dphi_max:
-            raise InputError(f"--from {args.dphi_min:g} must be below --to {args.dphi_max:g}")
-        count = math.log10(args.dphi_max / args.dphi_min) * args.per_decade
+        count = _library(log_count, args.dphi_min, args.dphi_max, args.per_decade)
         if count > MAX_STEPS:
             raise InputError(f"--per-decade: {count:.2g} compression steps (at most {MAX_STEPS})")
     if hasattr(args, "backend"):
@@ -156,13 +158,7 @@ def _work(args: argparse.Namespace) -> None:
         except InputError as exc:
             raise InputError(f"--{exc}") from None
     if args.command == "relax" and args.pressure is not None:
-        if args.method not in ENTHALPY_METHODS:
-            raise InputError(
-                f"--method: {args.method} cannot minimize an enthalpy; use "
-                f"{' / '.join(ENTHALPY_METHODS)} with --pressure"
-            )
-        if args.precon not in (None, "none", "exp"):
-            raise InputError("--precon: --pressure takes none or exp (extended to the cell)")
+        _library(check_enthalpy_method, args.method, args.precon or "none")
     if args.command == "criticality":
         for option in ("force_window", "gap_window"):
             low, high = getattr(args, option)
@@ -200,18 +196,17 @@ def _work(args: argparse.Namespace) -> None:
         if args.lowest is not None and args.vectors > args.lowest:
             raise InputError(f"--vectors {args.vectors} exceeds --lowest {args.lowest}")
     if hasattr(args, "strain"):  # shear, ensemble shear
-        if args.step > args.strain:
-            raise InputError(f"--step {args.step:g} exceeds --strain {args.strain:g}")
-        if args.strain / args.step > MAX_STEPS:
+        if _library(strain_steps, args.strain, args.step) > MAX_STEPS:
             raise InputError(
                 f"--step: {args.strain / args.step:.2g} strain steps (at most {MAX_STEPS})"
             )
 
 
-def _library(check: Callable[..., object], *args: object, **kwargs: object) -> None:
-    """Run one of the library's own checks; its refusal names the command-line option."""
+def _library(check: Callable[..., T], *args: object, **kwargs: object) -> T:
+    """Run one of the library's own checks and return what it returns; its refusal names the
+    command-line option."""
     try:
-        check(*args, **kwargs)
+        return check(*args, **kwargs)
     except InputError as exc:
         raise InputError(flagged(str(exc), None)) from None
 

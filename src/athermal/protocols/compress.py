@@ -77,12 +77,20 @@ more than this many times ``max(phi - phi_c, first Delta phi)`` above its jammin
 
 def log_spaced(start: float = 1e-7, stop: float = 1e-1, per_decade: int = 4) -> NDArray[np.float64]:
     """``Delta phi`` values from ``start`` to ``stop``, ``per_decade`` per decade (both ends)."""
+    count = log_count(start, stop, per_decade)
+    return np.logspace(np.log10(start), np.log10(stop), count)
+
+
+def log_count(start: float, stop: float, per_decade: int) -> int:
+    """How many values :func:`log_spaced` gives; :class:`InputError` for a range or a density
+    it cannot take."""
     if not 0.0 < start < stop:
-        raise InputError(f"delta phi range: need 0 < start < stop, got {start}, {stop}")
+        raise InputError(
+            f"dphi_min: must lie in (0, {stop:g}), below the largest Delta phi, got {start:g}"
+        )
     if int(per_decade) != per_decade or per_decade < 1:
         raise InputError(f"per_decade: must be an integer >= 1, got {per_decade!r}")
-    count = round(float(np.log10(stop / start)) * per_decade) + 1
-    return np.logspace(np.log10(start), np.log10(stop), count)
+    return round(float(np.log10(stop / start)) * per_decade) + 1
 
 
 def excess_z(obs: Observables, periodic: int) -> float:

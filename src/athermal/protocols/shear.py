@@ -107,6 +107,16 @@ def _check_plane(cell: Cell) -> None:
         )
 
 
+def strain_steps(strain: float, step: float) -> int:
+    """The number of increments ``step`` to the final ``strain`` (the last one may be shorter);
+    :class:`InputError` for an increment beyond the strain."""
+    strain = positive_scalar(strain, "strain")
+    step = positive_scalar(step, "step")
+    if step > strain:
+        raise InputError(f"step: the increment {step:g} exceeds the final strain {strain:g}")
+    return int(np.ceil(strain / step - 1e-9))
+
+
 def check_mode(mode: ShearMode, strain: float, cell: Cell, wall_layer: float | None = None) -> None:
     """Refuse (:class:`InputError`) a ``mode`` the cell's walls cannot take (simple shear
     tilts x along y; plane shear needs walls normal to one axis other than x), a uniaxial
@@ -232,10 +242,7 @@ def shear_steps(
     """
     strain = positive_scalar(strain, "strain")
     check_mode(mode, strain, start.cell, wall_layer)
-    step = positive_scalar(step, "step")
-    if step > strain:
-        raise InputError(f"step: the increment {step:g} exceeds the final strain {strain:g}")
-    n_steps = int(np.ceil(strain / step - 1e-9))
+    n_steps = strain_steps(strain, step)
     strains = np.minimum(np.arange(n_steps + 1) * step, strain)
     config = minimizer or Minimizer()
     frozen, lower, upper = None, np.zeros(0, bool), np.zeros(0, bool)
