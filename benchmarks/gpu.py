@@ -164,11 +164,11 @@ def kernel_ms(k: int, calls: int) -> dict[str, Any]:
     )
     x = jaxengine.jnp.asarray(packing.positions)
     function = jaxengine.jax.jit(jaxengine.energy_gradient, static_argnums=2)
-    function(x, pairs.arrays, 2.0)[1].block_until_ready()
+    function(x, pairs.arrays, model.law)[1].block_until_ready()
     times = []
     for _ in range(calls):
         t0 = time.perf_counter()
-        function(x, pairs.arrays, 2.0)[1].block_until_ready()
+        function(x, pairs.arrays, model.law)[1].block_until_ready()
         times.append(time.perf_counter() - t0)
     return {"n": packing.n, "pairs": pairs.count, "ms": 1e3 * statistics.median(times)}
 

@@ -34,7 +34,7 @@ def on_device(packing: Packing, model: ContactModel, x: np.ndarray | None = None
     pairs = je.device_pairs(
         positions, packing.radii, packing.cell, model, typeid, 0.1 * packing.radii.mean()
     )
-    energy, grad = je.energy_gradient(je.jnp.asarray(positions), pairs.arrays, model.alpha)
+    energy, grad = je.energy_gradient(je.jnp.asarray(positions), pairs.arrays, model.law)
     return float(energy), np.asarray(grad).ravel()
 
 
@@ -74,7 +74,7 @@ def test_stress_and_contacts_match_the_observables(sheared):
     typeid = np.asarray(model.typeid(packing), dtype=np.int64)
     pairs = je.device_pairs(packing.positions, packing.radii, packing.cell, model, typeid, 0.05)
     sigma, count = je.stress_contacts(
-        je.jnp.asarray(packing.positions), pairs.arrays, model.alpha, packing.cell.volume
+        je.jnp.asarray(packing.positions), pairs.arrays, model.law, packing.cell.volume
     )
     contacts = find_contacts(packing, model)
     expected = stress(contacts, packing.cell)
