@@ -1,6 +1,6 @@
 """The energy+gradient and the neighbour list on many cores: the slab kernel on 1 ... T numba
 threads against the one-thread kernel, in the same run
-(:func:`athermal.model.contact.energy_gradient_slabs`), and the neighbour-list build on 1 ... T
+(:func:`athermal.model.loops.energy_gradient_slabs`), and the neighbour-list build on 1 ... T
 threads (:func:`athermal.model.neighbors.collect_chunks` from ``PARALLEL_BUILD`` particles).
 
 For each size a bidisperse random packing (``random_packing(N, phi, dim=d, seed=1)``, phi = 0.84

@@ -16,8 +16,9 @@ from athermal.analysis.observables import stress
 from athermal.certify import certify
 from athermal.errors import InputError
 from athermal.model.cell import simple_shear
-from athermal.model.contact import find_contacts, gradient, hessian, kernels, total_energy
+from athermal.model.contact import find_contacts, gradient, hessian, total_energy
 from athermal.model.law import power_curvature, power_pair, power_total
+from athermal.model.loops import kernels
 from athermal.protocols import finite_strain_shear
 from athermal.relaxation import minimize_objective
 from conftest import network_strain

@@ -47,7 +47,7 @@ def test_the_objective_takes_the_threads_kernel_for_large_lists(monkeypatch):
     round-off), in Python and in the compiled searches, and a relaxation converges."""
     import numba
 
-    import athermal.model.contact as contact
+    import athermal.model.loops as loops
     from athermal.relaxation import Minimizer, relax
 
     if min(numba.get_num_threads(), len(os.sched_getaffinity(0))) < 2:
@@ -56,7 +56,7 @@ def test_the_objective_takes_the_threads_kernel_for_large_lists(monkeypatch):
     model = ContactModel(2.0)
     serial = Objective(p, model)
     e_serial, g_serial = serial(serial.x0)
-    monkeypatch.setattr(contact, "PARALLEL_PAIRS", 0)
+    monkeypatch.setattr(loops, "PARALLEL_PAIRS", 0)
     threaded = Objective(p, model)
     e, g = threaded(threaded.x0)
     assert threaded._slabs[0].size > 4 and threaded._slabs[1]
@@ -70,12 +70,13 @@ def test_a_large_list_sums_in_its_slabs_order_on_any_number_of_threads(monkeypat
     """From ``PARALLEL_PAIRS`` on, the energy and gradient are summed slab by slab whether the
     threads run or not (a worker thread, one core): the same bits."""
     import athermal.model.contact as contact
+    import athermal.model.loops as loops
 
     p = random_packing(2048, 0.86, seed=5)
     model = ContactModel(2.5)
-    monkeypatch.setattr(contact, "PARALLEL_PAIRS", 0)
+    monkeypatch.setattr(loops, "PARALLEL_PAIRS", 0)
     nlist = build_neighbor_list(p.positions, p.radii, p.cell)
-    slabs, _ = contact.parallel_slabs(nlist)
+    slabs, _ = loops.parallel_slabs(nlist)
     assert slabs.size > 4
     results = []
     for threads in (True, False):

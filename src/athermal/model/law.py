@@ -10,7 +10,7 @@ bound, round-off floors). Its forms:
 * **float64 in numpy** (:class:`ContactLaw`'s ``energy``, ``force``, ``stiffness``): the analyses;
 * **float64 compiled by numba** (:class:`NumbaForm`): the pair loops of the energy, gradient and
   Hessian (:mod:`athermal.model.contact`) call these scalar functions; a law's own form gets the
-  loops compiled once more for it (:func:`athermal.model.contact.kernels`);
+  loops compiled once more for it (:func:`athermal.model.loops.kernels`);
 * **JAX** (``jax_pair``, ``jax_total``): the JAX engine's pair sums;
 * **double-double** (:meth:`ContactLaw.half_steps` and :func:`power_pair_dd`): the certificate's
   sums beyond float64 (:mod:`athermal.certify.extended`).

@@ -63,7 +63,7 @@ class NeighborList:
         slab ``s`` holds the pairs whose ``first`` was binned in ``s``'s rows of bins along the
         last binned axis, at least two rows each; its pairs touch particles of those rows and
         of the rows next to them, so slabs of one parity share no particle and their pairs can
-        be summed at once (:func:`~athermal.model.contact.energy_gradient_slabs`).
+        be summed at once (:func:`~athermal.model.loops.energy_gradient_slabs`).
     """
 
     first: NDArray[np.int32]

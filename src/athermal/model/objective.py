@@ -24,18 +24,9 @@ from ..errors import InputError
 from ..linalg import pin_rows
 from ..minimize import CompiledSearch, Hooks, SparseHessian, compiled_function
 from ..minimize._wolfe import GO_ON, STATE_SIZE, TRIAL, feed
-from .contact import (
-    ONE_THREAD,
-    ContactModel,
-    HessianOperator,
-    count_overlaps,
-    energy_gradient_contacts,
-    evaluate,
-    find_contacts,
-    kernels,
-    parallel_slabs,
-)
+from .contact import ContactModel, HessianOperator, energy_gradient_contacts, find_contacts
 from .law import ContactLaw
+from .loops import ONE_THREAD, count_overlaps, evaluate, kernels, parallel_slabs
 from .neighbors import NeighborList, build_neighbor_list, default_skin
 from .packing import Packing
 from .walls import WallContacts, find_wall_contacts
@@ -193,7 +184,7 @@ class Objective:
     def search_arguments(self, x: NDArray[np.float64]) -> tuple[Any, ...]:
         """The last argument of :func:`energy_search`: the radii, the current Verlet list (built
         at ``x`` ``(N d,)`` if there is none), the walls, the slabs of the threads' kernel
-        (:func:`~athermal.model.contact.parallel_slabs`), and the positions the list was built at
+        (:func:`~athermal.model.loops.parallel_slabs`), and the positions the list was built at
         and its reach."""
         nlist = self.neighbor_list(x) if self._nlist is None else self._nlist
         return (
@@ -350,7 +341,7 @@ def _frozen_mask(frozen: NDArray[np.bool_], n: int) -> NDArray[np.bool_]:
 @cache
 def search_for(law: ContactLaw) -> Any:
     """:func:`energy_search` for ``law``: this module's own for the power law, else compiled
-    once more over the law's loops (:func:`~athermal.model.contact.kernels`), once per law."""
+    once more over the law's loops (:func:`~athermal.model.loops.kernels`), once per law."""
     law_evaluate = kernels(law)["evaluate"]
     if law_evaluate is evaluate:
         return energy_search
@@ -363,8 +354,8 @@ def energy_search(state, code, x, direction, trial, grad, arguments):  # type: i
     ``direction`` from ``x`` ``(N d,)``: each trial point is written into ``trial``, its
     gradient into ``grad``, by the energy kernel over the Verlet list in ``arguments``
     (:meth:`Objective.search_arguments`: the radii, ``first``, ``second``, ``images`` and the
-    rest as :func:`~athermal.model.contact.energy_gradient_2d` takes them, the walls and slabs as
-    :func:`~athermal.model.contact.evaluate` takes them, then the positions
+    rest as :func:`~athermal.model.loops.energy_gradient_2d` takes them, the walls and slabs as
+    :func:`~athermal.model.loops.evaluate` takes them, then the positions
     ``reference`` ``(N, d)`` the list was built at and its reach ``reach_sq``), until the
     search ends or a trial point is farther than ``sqrt(reach_sq)`` from ``reference``.
     Returns the code, the evaluations made, the last energy and contact count, and whether it

@@ -6,7 +6,7 @@ Along a walled axis ``a`` the walls lie at ``x_a = -L_a / 2`` (the lower one) an
 ``+L_a / 2`` (the upper one). A particle of radius ``r`` whose centre is ``l`` from a wall
 overlaps it by ``delta = r - l`` and stores the particles' contact law's ``E(delta)`` (wall
 stiffness :attr:`ContactModel.kwall <athermal.model.contact.ContactModel.kwall>`; the
-compiled kernel is :func:`athermal.model.contact.wall_energy_gradient`); the force
+compiled kernel is :func:`athermal.model.loops.wall_energy_gradient`); the force
 on it, ``f(delta)``, is along the wall's normal into the cell. In the stress
 ``sigma = (1/V) sum_c l_c (x) f_c`` a wall contact's branch ``l_c`` runs from the contact point
 on the wall to the centre (``l n``): then at mechanical equilibrium ``sigma_aa`` equals the
