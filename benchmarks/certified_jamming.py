@@ -1,5 +1,5 @@
 """Jamming points bracketed below float64's resolution: the float64 bracket of ``jam`` (epsilon
-1e-6), then :func:`athermal.certify.bisect_jamming_point` to epsilon 1e-12 in double-double,
+1e-6), then ``bisect_jamming_point`` to epsilon 1e-12 in double-double,
 per packing: where the certified point lies in the float64 bracket, the trials, the contacts
 shed and formed and the rattlers readmitted on the way, the certificate at the jammed bound,
 the time against the jamming run (wall time on one core, warm), and where the jamming point by
@@ -21,7 +21,8 @@ import argparse
 import time
 from typing import Any
 
-from athermal.certify import bisect_jamming_point, certify
+from athermal.certify import certify
+from athermal.certify.bisection import bisect_jamming_point
 from athermal.errors import ConvergenceError, InputError
 from athermal.studies.experiments import JamSpec, jam_packing
 from benchmarks.machine import ROOT, pin, save

@@ -8,7 +8,7 @@ directory (a rerun reuses it). Their forces and gaps are pooled
 (:func:`athermal.certify.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and
 ``gamma`` fitted over the default windows and over a scan of others, so that the dependence on the
 window is shown beside the value. With ``--epsilon E`` below 1e-9 each jamming point is bracketed to
-E in double-double (:func:`athermal.certify.bisect_jamming_point`) and the certified packing at its
+E in double-double (``bisect_jamming_point``) and the certified packing at its
 jammed bound is taken. Run from the repository root::
 
     python -m benchmarks.criticality --n 1024 --packings 120
@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from athermal.certify import bisect_jamming_point, certify
+from athermal.certify import certify
+from athermal.certify.bisection import bisect_jamming_point
 from athermal.certify.criticality import (
     FORCE_WINDOW,
     GAMMA,

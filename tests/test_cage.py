@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 import athermal as at
-from athermal.certify import GAP_REACH, _free_rattlers
+from athermal.certify import GAP_REACH, free_rattlers
 from athermal.certify.cage import CLEARANCE, free_place, free_places, nearest_clear
 from athermal.certify.extended import NearPairs
 
@@ -135,7 +135,7 @@ def test_a_rattler_with_no_room_is_reported_as_bearing_load():
     model = at.ContactModel(2.0)
     hi, lo = positions.copy(), np.zeros_like(positions)
     rattler = np.arange(7) == 0
-    _, squeezed = _free_rattlers(NearPairs(packing, model, GAP_REACH), hi, lo, rattler)
+    _, squeezed = free_rattlers(NearPairs(packing, model, GAP_REACH), hi, lo, rattler)
     assert squeezed.tolist() == [0]
     assert np.allclose(hi[0], [0.5, 0.5], atol=1e-12)  # the middle overlaps least
 
@@ -150,7 +150,7 @@ def test_the_certifier_frees_a_rattler_squeezed_between_two_neighbours():
     pairs = NearPairs(packing, model, GAP_REACH)
     hi, lo = positions.copy(), np.zeros_like(positions)
     rattler = np.array([False, True, False])
-    sums, squeezed = _free_rattlers(pairs, hi, lo, rattler)
+    sums, squeezed = free_rattlers(pairs, hi, lo, rattler)
     assert not squeezed.size and not np.any(sums.overlap[0] > 0.0)
     assert np.array_equal(hi[[0, 2]], positions[[0, 2]])  # the cage held
     assert abs(hi[1, 1] - 0.5) == pytest.approx(np.sqrt(4 * r * squeeze), rel=1e-3)

@@ -15,12 +15,11 @@ from athermal.certify import (
     GAP_REACH,
     TARGET,
     _same_network,
-    _trial,
-    bisect_jamming_point,
     certify,
     contact_network,
     toward_jamming,
 )
+from athermal.certify.bisection import _trial, bisect_jamming_point
 from athermal.certify.extended import NearPairs
 from athermal.cli import main
 from athermal.errors import InputError

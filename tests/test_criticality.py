@@ -11,11 +11,11 @@ import athermal as at
 from athermal.analysis.observables import rattlers
 from athermal.certify import (
     GAP_REACH,
-    bisect_jamming_point,
     certify,
     contact_network,
     toward_jamming,
 )
+from athermal.certify.bisection import bisect_jamming_point
 from athermal.certify.criticality import (
     critical_exponents,
     fit_truncated_power_law,

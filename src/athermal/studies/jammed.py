@@ -10,7 +10,8 @@ from typing import Any
 from numpy.typing import NDArray
 
 from ..analysis.observables import Observables, file_observables, measure
-from ..certify import CertifiedPacking, bisect_jamming_point, certify
+from ..certify import CertifiedPacking, certify
+from ..certify.bisection import bisect_jamming_point
 from ..errors import ConvergenceError, InputError
 from ..io import write_gsd
 from ..model.contact import ContactModel

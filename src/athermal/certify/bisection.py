@@ -1,0 +1,398 @@
+"""The jamming point bracketed below float64's resolution: a bisection in packing fraction whose
+every verdict is taken in double-double on the packing's contact network
+(:func:`bisect_jamming_point`; ``docs/decisions.md``, "Jamming below float64's resolution")."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .._portable import root, row_dots
+from ..analysis.modes import lowest_eigenpairs, zero_tolerance
+from ..analysis.moduli import nonrattler_hessian, pinned_solve
+from ..analysis.observables import rattlers
+from ..errors import ConvergenceError, InputError
+from ..model.contact import ContactModel, Contacts
+from ..model.objective import Objective
+from ..model.packing import Packing
+from ..protocols.jamming import FINAL_RTOL, JAMMING_MINIMIZER, energy_threshold
+from ..relaxation import Relaxer, energy_scale, force_tolerance
+from . import (
+    GAP_REACH,
+    CertifiedPacking,
+    carry_rattlers,
+    certify,
+    contact_network,
+    free_rattlers,
+    pair_rates,
+)
+from .extended import NearPairs, displace
+
+FIRST_STEP = 1e-9
+"""The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
+LARGEST_STEP = 1e-8
+"""Its largest step (``docs/decisions.md``, "Jamming below float64's resolution")."""
+MAX_TRIALS = 2000
+"""Its trials at most."""
+TRIAL_ITERATIONS = 30
+"""Newton steps, and network changes, of one trial at most."""
+BLOCKED_MOVE = 1e-3
+"""How far (in mean diameters, the largest particle's move) a trial's network, unstable once a
+bond parted, is moved along its unstable mode to close the gap that holds it
+(:func:`_blocking_pair`): a small rearrangement, well within the pairs' :data:`GAP_REACH`."""
+TRIAL_BALANCE = 1e-14
+"""A trial's verdict needs its network's forces balanced to this fraction of their mean."""
+
+
+@dataclass(frozen=True, eq=False)
+class CertifiedJamming:
+    """A jamming point bracketed below float64's resolution (:func:`bisect_jamming_point`): the
+    jammed bound at ``phi_high`` with its certificate, the unjammed bound ``phi_low``, the
+    trials, the contacts the network shed on the way (a hyperstatic network loses the contacts
+    whose forces vanish first) and formed, the rattlers readmitted (squeezed by their cage), and
+    the instabilities: how often a network that a parted contact left unstable was held by a
+    gap that closed along its unstable mode, and the rearrangements: trials relaxed in float64
+    because their network gave way at any step."""
+
+    jammed: CertifiedPacking
+    phi_low: float
+    phi_high: float
+    trials: int
+    contacts_shed: int
+    contacts_formed: int
+    rattlers_readmitted: int
+    instabilities: int
+    rearrangements: int
+
+    def march(self) -> dict[str, int]:
+        """The trials and what happened on the way, by name (``jam --json``'s
+        ``bisected_in_double_double``)."""
+        names = ("trials", "contacts_shed", "contacts_formed", "rattlers_readmitted")
+        return {n: getattr(self, n) for n in (*names, "instabilities", "rearrangements")}
+
+
+def bisect_jamming_point(
+    packing: Packing, model: ContactModel, epsilon: float, *, max_trials: int = MAX_TRIALS
+) -> CertifiedJamming:
+    """Bracket the jamming point of a jammed ``packing`` (``jam``'s output) to ``epsilon`` in
+    packing fraction, each verdict taken in double-double on its contact network.
+
+    Near its jamming point a packing keeps its contact network, and the contact forces vanish as
+    ``phi`` falls to ``phi_c``. A trial ``phi`` (the radii scaled, float64) balances the forces
+    by Newton's method in double-double with the network's contacts as springs of rest length
+    ``r_i + r_j`` (pushing when they overlap, pulling when apart); a pair that comes to overlap
+    joins the network. The trial is jammed when every contact of the balanced network overlaps
+    (a minimum with positive pressure) and every rattler has room in its cage, unjammed when
+    every contact is apart (the network holds only in tension: relaxed, the packing loses its
+    load). Contacts that part while others hold leave the network (a hyperstatic network sheds
+    contacts on its way to ``phi_c``) and the trial is balanced again; a particle left with
+    fewer than ``d + 1`` contacts becomes a rattler. Rattlers carry no force in the trials; one
+    that has no room in its cage (the network closed in on it) bears load and is readmitted with
+    the contacts it has at the least overlapping place there. When the network's Hessian
+    (pre-stress included) is not positive definite, and has a negative eigenvalue (a parted
+    contact left it unstable), the network is moved along that mode, in the sense that opens the
+    most stretched contact that parted, until a near gap closes; that pair joins the network
+    (``docs/decisions.md``, "Jamming below float64's resolution"). A singular one is solved by
+    MINRES, and a jammed verdict needs a positive definite Hessian. A trial that gives no
+    verdict at any step (a network that turns floppy and collapses, or comes apart into rattlers
+    while it bears load: not unjammed, ``docs/decisions.md``) is relaxed in float64 from where
+    it first moved along an unstable mode, the packing rearranging, and the march goes on from
+    its network.
+    The trials march down from the certified packing, each from the last jammed one and at
+    most a step away (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered
+    after one that gives no verdict: the network's response runs along its soft modes), then
+    bisect the last step. float64 cannot do this below ~1e-9: overlaps of ~1e-17 and energies
+    of ~1e-28 are round-off there, and a float64 minimum lies ~1e-8 away along the soft modes.
+    Harmonic contacts (alpha = 2) only: a spring in tension continues the contact's force
+    linearly. Rattlers are placed with a clearance of :data:`athermal.certify.cage.CLEARANCE` x the
+    sum of the radii, which bounds the epsilon this resolves (``docs/decisions.md``).
+
+    Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
+    :class:`ConvergenceError` when a trial that gives no verdict at a step of ``epsilon / 4``
+    cannot be relaxed, or its relaxed network balanced, or ``max_trials`` run out (never a
+    verdict on an unbalanced state, a saddle, or a rattler with no room); what :func:`certify`
+    raises for the start and the jammed bound. The returned certificate states the force
+    balance reached: at a pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean
+    contact force.
+    """
+    if model.law.half_steps() != 2:
+        raise InputError("alpha: the certified bisection takes harmonic contacts (alpha = 2)")
+    if not 1e-15 <= epsilon <= 1e-6:
+        raise InputError(f"epsilon: must lie in [1e-15, 1e-6], got {epsilon}")
+    start = certify(packing, model)
+    pairs = NearPairs(start.packing, model, GAP_REACH)
+    sums = pairs.sums(start.packing.positions, start.position_lo)
+    _, rattler = contact_network(pairs, start.packing.positions, sums)
+    stiffness = pairs.stiffness
+    bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
+    first = bonds.copy()
+    hi, lo = start.packing.positions.copy(), start.position_lo.copy()
+    phi0, radii0, dim = packing.phi, packing.radii, packing.dim
+    high, low, step, trials, radii = phi0, -1.0, FIRST_STEP, 0, radii0
+    readmitted, instabilities, rearranged, shed, formed = 0, 0, 0, 0, 0
+    while low < 0.0 or high - low > epsilon:
+        if trials == max_trials:
+            raise ConvergenceError(f"certify: no bracket of {epsilon:g} in {max_trials} trials")
+        phi = high - step if low < 0.0 else max(0.5 * (low + high), high - step)
+        trial_radii = radii0 * root(phi / phi0, dim)
+        trial_hi, trial_lo = hi.copy(), lo.copy()
+        trials += 1
+        verdict, trial_bonds, trial_rattler, held = _trial(
+            pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler
+        )
+        if verdict is None and step >= epsilon / 4.0:
+            step /= 4.0
+            continue
+        if verdict is None:  # at any step the network gives way: the packing rearranges
+            trial_hi, trial_lo = hi.copy(), lo.copy()
+            _trial(pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler, escape=True)
+            start_moved = Packing(trial_hi + trial_lo, trial_radii, packing.cell)
+            relaxed = _rearranged(start_moved, model, phi)
+            rearranged += 1
+            if relaxed is None:
+                low = phi
+                continue
+            moved = NearPairs(relaxed, model, GAP_REACH)
+            trial_hi, trial_lo = relaxed.positions.copy(), np.zeros_like(relaxed.positions)
+            sums = moved.sums(trial_hi, trial_lo)
+            _, start_rattler = contact_network(moved, trial_hi, sums)
+            live = ~(start_rattler[moved.first] | start_rattler[moved.second])
+            start_bonds = live & (sums.overlap[0] > 0.0)
+            full = moved.stiffness.copy()
+            verdict, trial_bonds, trial_rattler, held = _trial(
+                moved, full, trial_hi, trial_lo, trial_radii, start_bonds, start_rattler
+            )
+            moved.stiffness = full
+            if verdict is None:
+                raise ConvergenceError(
+                    f"certify: at phi = {phi:.15f} the network gives way, and the network of the "
+                    "packing relaxed there does not balance"
+                )
+            if verdict:  # another packing from here on: it may stay jammed below the old bound
+                shed += int(np.sum(first & ~bonds))
+                formed += int(np.sum(bonds & ~first))
+                pairs, stiffness, first, rattler = moved, full, start_bonds, start_rattler
+                low = -1.0
+        if verdict:
+            readmitted += int(np.sum(rattler & ~trial_rattler))
+            instabilities += held
+            high, hi, lo, radii = phi, trial_hi, trial_lo, trial_radii
+            bonds, rattler = trial_bonds, trial_rattler
+            step = min(2.0 * step, LARGEST_STEP)
+        else:
+            low = phi
+    pairs.stiffness = stiffness
+    final = Packing(hi, radii, packing.cell)
+    jammed = certify(final, model, lo)
+    return CertifiedJamming(
+        jammed,
+        low,
+        jammed.packing.phi,
+        trials,
+        shed + int(np.sum(first & ~bonds)),
+        formed + int(np.sum(bonds & ~first)),
+        readmitted,
+        instabilities,
+        rearranged,
+    )
+
+
+def _clear(
+    pairs: NearPairs, hi: NDArray[np.float64], lo: NDArray[np.float64], radii: NDArray[np.float64]
+) -> bool | None:
+    """A trial whose network came apart (its tensile contacts parted, and the particles left
+    with too few contacts cascaded into rattlers): False (unjammed) when every particle that
+    still overlaps a neighbour moves to a place clear of all of them (:func:`free_rattlers`,
+    ``hi + lo`` updated), none by more than :data:`BLOCKED_MOVE` mean diameters: a state
+    without overlaps, so without load, lies a small move away. None (no verdict: the packing
+    rearranges) when some bear load, or clear only farther away."""
+    start = hi.copy(), lo.copy()
+    try:
+        _, squeezed = free_rattlers(pairs, hi, lo, np.ones(hi.shape[0], dtype=bool), radii)
+    except ConvergenceError:
+        return None
+    moved = float(np.abs((hi - start[0]) + (lo - start[1])).max())
+    if squeezed.size or moved > BLOCKED_MOVE * 2.0 * float(radii.mean()):
+        return None
+    return False
+
+
+def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | None:
+    """A trial whose network gives no verdict at any step: a contact parts, the network turns
+    floppy and collapses, and the packing rearranges. Relaxed from ``start`` (the trial's radii;
+    the last jammed positions moved along the network's first unstable mode until a gap closes,
+    so that a contact parted by less than float64 resolves starts the rearrangement, or where
+    the trial, run again with ``escape``, stopped without meeting one) in float64 to a minimum,
+    as ``jam``'s own steps are: that minimum, or None (unjammed) when its energy lies below
+    ``jam``'s threshold. Raises :class:`ConvergenceError` when no minimum is found."""
+    objective = Objective(start, model)
+    floor = energy_threshold(start.dim, model.alpha) * start.n * energy_scale(start.radii, model)
+    try:
+        result, _ = Relaxer(objective, JAMMING_MINIMIZER).relax_to_minimum(
+            objective.x0, gtol=force_tolerance(start, model, FINAL_RTOL), etol=floor
+        )
+    except ConvergenceError as exc:
+        raise ConvergenceError(
+            f"certify: at phi = {phi:.15f} the network gives way, and relaxing the packing there "
+            f"found no minimum ({exc})"
+        ) from exc
+    return None if result.energy <= floor else result.packing
+
+
+def _unstable_mode(
+    contacts: Contacts, rattler: NDArray[np.bool_], shape: tuple[int, ...]
+) -> NDArray[np.float64] | None:
+    """The eigenvector ``shape`` ``(N, d)`` of the lowest eigenvalue of the non-rattlers'
+    Hessian (pre-stress included) when that eigenvalue is negative; None otherwise."""
+    h, dofs = nonrattler_hessian(contacts, rattler, shape[1])
+    values, vectors = lowest_eigenpairs(h, min(shape[1] + 2, h.shape[0] - 2))
+    if not values[0] < -zero_tolerance(h):
+        return None
+    flat = np.zeros(shape[0] * shape[1])
+    flat[dofs] = vectors[:, 0]
+    return flat.reshape(shape)
+
+
+def _blocking_pair(
+    pairs: NearPairs,
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    mode: NDArray[np.float64],
+    rattler: NDArray[np.bool_],
+    bonds: NDArray[np.bool_],
+    overlap: NDArray[np.float64],
+    parted: NDArray[np.bool_] | None,
+) -> int | None:
+    """A network unstable along ``mode`` (a negative eigenvalue of its Hessian: the pre-stress
+    of the bonds left after some parted) gives way along it until a near gap closes, and the new
+    contact holds the mode. Moves ``hi + lo`` (rattlers carried) along ``mode`` until the first
+    gap closes, exactly, and returns that pair: in the sense that opens the most stretched of
+    the bonds ``parted`` (they parted in tension; none of them is taken), or where none did,
+    the sense that closes a gap first. None when no gap closes within :data:`BLOCKED_MOVE`."""
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    candidate = live & ~bonds & (overlap <= 0.0)
+    senses: tuple[float, ...] = (1.0, -1.0)
+    if parted is not None and parted.any():
+        candidate &= ~parted
+        worst = int(np.argmin(np.where(parted, pairs.stiffness * overlap, np.inf)))
+        senses = (1.0,) if pair_rates(pairs, hi, mode, np.array([worst]))[0] > 0.0 else (-1.0,)
+    near = np.flatnonzero(candidate)
+    sep = pairs.separations(hi)[near]
+    length = np.linalg.norm(sep, axis=1)
+    gap = -overlap[near]
+    best: tuple[float, int, float] | None = None
+    for sense in senses:  # |sep + t sense (m_i - m_j)| = r_i + r_j, the smallest t > 0
+        along = sense * (mode[pairs.first[near]] - mode[pairs.second[near]])
+        a = row_dots(along, along)
+        b = 2.0 * row_dots(sep, along)
+        c = gap * (2.0 * length - gap)  # |sep|^2 - (r_i + r_j)^2, from the double-double gap
+        disc = b * b - 4.0 * a * c
+        closing = (b < 0.0) & (disc >= 0.0)
+        if not closing.any():
+            continue
+        t = 2.0 * c[closing] / (-b[closing] + np.sqrt(disc[closing]))
+        k = int(np.argmin(t))
+        if best is None or t[k] < best[0]:
+            best = (float(t[k]), int(near[closing][k]), sense)
+    diameter = 2.0 * float(pairs.packing.radii.mean())
+    if best is None or best[0] * np.abs(mode).max() > BLOCKED_MOVE * diameter:
+        return None
+    step = best[2] * best[0] * (1.0 + 1e-9) * mode
+    carry_rattlers(pairs, step, rattler)
+    displace(hi, lo, step)
+    return best[1]
+
+
+def _trial(
+    pairs: NearPairs,
+    stiffness: NDArray[np.float64],
+    hi: NDArray[np.float64],
+    lo: NDArray[np.float64],
+    radii: NDArray[np.float64],
+    bonds: NDArray[np.bool_],
+    rattler: NDArray[np.bool_],
+    *,
+    escape: bool = False,
+) -> tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_], int]:
+    """Balance the network ``bonds`` at ``radii`` from ``hi + lo`` (updated in place), the
+    rattlers' pairs without force: whether it is jammed (None: Newton did not converge in
+    :data:`TRIAL_ITERATIONS`, or its correction could not be solved: never a verdict), its bonds,
+    its rattlers (a particle left with fewer than ``d + 1`` bonds by shed contacts joins them)
+    and how often its network gave way and a closing gap held it (:func:`_blocking_pair`).
+    With ``escape``, it stops (no verdict) once it has moved along the first unstable mode:
+    where a rearrangement starts, below float64's resolution."""
+    n, dim = hi.shape
+    live = ~(rattler[pairs.first] | rattler[pairs.second])
+    pairs.stiffness = np.where(live, stiffness, 0.0)
+    sums = pairs.sums(hi, lo, radii, bonds)
+    parted: NDArray[np.bool_] | None = None  # the bonds that parted last, until a solve
+    definite, held = False, 0  # definite: the last factor was of the network as it is
+    for _ in range(TRIAL_ITERATIONS):
+        overlap = sums.overlap[0] + sums.overlap[1]
+        formed = live & ~bonds & (overlap > 0.0)
+        if formed.any():
+            bonds, definite = bonds | formed, False
+            sums = pairs.sums(hi, lo, radii, bonds)
+        scale = float(np.abs(pairs.stiffness * overlap)[bonds].mean())
+        contacts = pairs.contacts(hi, sums.overlap[0], bonds)
+        force = sums.gradient[0].reshape(n, dim, 1)
+        if sums.largest_force() <= TRIAL_BALANCE * scale:
+            apart = bonds & (overlap <= 0.0)
+            if not apart.any():
+                if (
+                    not definite
+                    and pinned_solve(contacts, rattler, force, iterative=False)[1] == np.inf
+                ):
+                    return None, bonds, rattler, held  # balanced on a saddle: no verdict
+                pairs.stiffness = stiffness
+                try:
+                    free, squeezed = free_rattlers(pairs, hi, lo, rattler, radii)
+                except ConvergenceError:
+                    return None, bonds, rattler, held
+                if not squeezed.size:
+                    return True, bonds, rattler, held
+                rattler = rattler.copy()  # readmitted: they bear load
+                rattler[squeezed] = False
+                live = ~(rattler[pairs.first] | rattler[pairs.second])
+                bonds, definite = bonds | (live & (free.overlap[0] > 0.0)), False
+                ends = np.concatenate([pairs.first[bonds], pairs.second[bonds]])
+                if np.any(np.bincount(ends, minlength=n)[squeezed] < dim + 1):
+                    return None, bonds, rattler, held  # held at fewer contacts: not a minimum
+                pairs.stiffness = np.where(live, stiffness, 0.0)
+                sums = pairs.sums(hi, lo, radii, bonds)
+                continue
+            if apart.sum() == bonds.sum():
+                return False, bonds, rattler, held
+            parted = apart
+            bonds, definite = bonds & ~apart, False
+            rattler = rattler | rattlers(pairs.contacts(hi, overlap, bonds), n, dim)
+            live = ~(rattler[pairs.first] | rattler[pairs.second])
+            bonds = bonds & live
+            if not bonds.any():  # the network came apart: unjammed if nothing overlaps
+                return _clear(pairs, hi, lo, radii), bonds, rattler, held
+            pairs.stiffness = np.where(live, stiffness, 0.0)
+            sums = pairs.sums(hi, lo, radii, bonds)
+            continue
+        y, residual, solver = pinned_solve(contacts, rattler, force, iterative=False)
+        if residual == np.inf:  # not positive definite: unstable, or singular
+            mode = _unstable_mode(contacts, rattler, hi.shape)
+            if mode is not None:
+                blocking = _blocking_pair(pairs, hi, lo, mode, rattler, bonds, overlap, parted)
+                if blocking is None or escape:  # it gives way further than a small move
+                    return None, bonds, rattler, held
+                held, parted, definite = held + 1, None, False
+                bonds = bonds.copy()
+                bonds[blocking] = True
+                sums = pairs.sums(hi, lo, radii, bonds)
+                continue
+            y, residual, solver = pinned_solve(contacts, rattler, force)  # singular, consistent
+        if not np.all(np.isfinite(y)) or residual > 1e-6:
+            return None, bonds, rattler, held
+        parted, definite = None, solver == "cholmod"
+        step = -y.reshape(n, dim)
+        carry_rattlers(pairs, step, rattler)
+        displace(hi, lo, step)
+        sums = pairs.sums(hi, lo, radii, bonds)
+    return None, bonds, rattler, held
