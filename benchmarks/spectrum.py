@@ -54,7 +54,6 @@ from athermal.relaxation import force_tolerance, minimize_objective
 from athermal.studies import plot
 from athermal.studies.experiments import JamSpec, child_seeds, compression_steps
 from benchmarks.machine import pin, save
-from benchmarks.newton_diagnostics import pair_set
 from benchmarks.physics import EPSILON, GROWTH, RESULTS, jammed
 
 MODEL = ContactModel(2.0)
@@ -75,6 +74,12 @@ ZERO = 1e-11
 rattlers): round-off leaves them below 1e-14 of it here, the softest physical mode is above
 1e-8."""
 
+
+
+def pair_set(packing: Packing, model: ContactModel) -> set[tuple[int, int]]:
+    """The contacts of ``packing`` as pairs ``(i, j)``."""
+    contacts = find_contacts(packing, model)
+    return set(zip(contacts.i.tolist(), contacts.j.tolist(), strict=True))
 
 def n_rattlers(packing: Packing, model: ContactModel) -> int:
     """The rattlers of ``packing`` (:func:`~athermal.analysis.observables.rattlers`)."""

@@ -23,7 +23,7 @@ README = BENCHMARKS / "README.md"
 ALLOWED_INTERNAL: dict[str, set[str]] = {}
 # ... the private attributes the profiler touches, and the scripts that patch with mock
 ALLOWED_PRIVATE_ATTRIBUTES = {"breakdown.py": {"_rebuild"}}
-ALLOWED_MOCK = {"breakdown.py", "newton_curvature.py"}
+ALLOWED_MOCK = {"breakdown.py"}
 
 
 def private(name: str) -> bool:
