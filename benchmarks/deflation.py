@@ -57,13 +57,19 @@ class Deflated:
     ) -> None:
         self.base, self.modes, self.coefficients = base, modes, 1.0 / values - 1.0
         self.n_builds = 0
+        self.n_solves = 0
 
     def update(self, x: NDArray[np.float64]) -> None:
         self.base.update(x)
         self.n_builds = self.base.n_builds
 
     def solve(self, g: NDArray[np.float64]) -> NDArray[np.float64]:
+        self.n_solves += 1
         return self.base.solve(g) + self.modes @ (self.coefficients * (self.modes.T @ g))
+
+    def compiled_solver(self) -> None:
+        """None: the deflation is applied from Python."""
+        return None
 
     def dot(self, v: NDArray[np.float64]) -> NDArray[np.float64]:
         raise NotImplementedError("the deflated preconditioner is applied through solve only")

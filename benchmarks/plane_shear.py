@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -124,6 +125,8 @@ def main() -> None:
     parser.add_argument("--tag", default="", help="results under plane_shear-TAG (a variant)")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--core", type=int, default=None)
+    parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
+    parser.add_argument("--figure-dir", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
     n, seeds, strain = (256, 2, 0.05) if args.quick else (args.n, args.seeds, args.strain)
     steady = min(args.steady, 0.5 * strain)
@@ -164,7 +167,7 @@ def main() -> None:
     }
     name = f"plane_shear-{args.tag}" if args.tag else "plane_shear"
     if not args.tag:
-        figure(gamma, rows, ROOT / "docs" / "figures" / "plane_shear.png")
+        figure(gamma, rows, args.figure_dir / "plane_shear.png")
     lines = [
         "# Plane shear between rough walls (benchmarks/plane_shear.py)",
         "",
@@ -203,7 +206,7 @@ def main() -> None:
         lines.append(f"| {gamma[k]:.3f} | {tau[k]:.4e} | {normal[k]:.4e} | {mu_curve[k]:.4f} |")
     lines += ["", "Figure: `docs/figures/plane_shear.png`.", ""]
     save(
-        ROOT / "benchmarks" / "results",
+        args.output_dir,
         name,
         {"summary": summary, "rows": rows, "pinned": pinned},
         "\n".join(lines),

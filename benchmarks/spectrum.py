@@ -75,11 +75,11 @@ rattlers): round-off leaves them below 1e-14 of it here, the softest physical mo
 1e-8."""
 
 
-
 def pair_set(packing: Packing, model: ContactModel) -> set[tuple[int, int]]:
     """The contacts of ``packing`` as pairs ``(i, j)``."""
     contacts = find_contacts(packing, model)
     return set(zip(contacts.i.tolist(), contacts.j.tolist(), strict=True))
+
 
 def n_rattlers(packing: Packing, model: ContactModel) -> int:
     """The rattlers of ``packing`` (:func:`~athermal.analysis.observables.rattlers`)."""

@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numba
@@ -150,6 +151,7 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--calls", type=int, default=10)
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     args = parser.parse_args()
     cores = numba.config.NUMBA_NUM_THREADS
     threads = sorted({1, *range(2, cores + 1, 2), cores})
@@ -189,7 +191,7 @@ def main() -> None:
             f"{r['build_speedup']:.2f} | {100 * r['build_speedup'] / r['threads']:.0f}% | "
             f"{lo:.2f} ... {hi:.2f} |"
         )
-    save(ROOT / "benchmarks" / "results", "threads", {"rows": rows}, "\n".join(lines) + "\n")
+    save(args.output_dir, "threads", {"rows": rows}, "\n".join(lines) + "\n")
 
 
 if __name__ == "__main__":

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -124,6 +125,8 @@ def main() -> None:
     parser.add_argument("--slab", type=float, default=0.05, help="slab width, mean diameters")
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--core", type=int, default=None)
+    parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
+    parser.add_argument("--figure-dir", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
     n, seeds = (256, 4) if args.quick else (args.n, args.seeds)
     pinned = pin(args.core)
@@ -150,7 +153,7 @@ def main() -> None:
         "jam_seconds_walls": float(np.median([r["walls"]["seconds"] for r in rows])),
         "jam_seconds_periodic": float(np.median([r["periodic"]["seconds"] for r in rows])),
     }
-    figure(h, phi, float(periodic.mean()), ROOT / "docs" / "figures" / "walls_profile.png")
+    figure(h, phi, float(periodic.mean()), args.figure_dir / "walls_profile.png")
     lines = [
         "# Packings jammed between walls (benchmarks/walls.py)",
         "",
@@ -183,7 +186,7 @@ def main() -> None:
     for r in rows:  # each packing's slab areas are summed into the profile
         del r["profile"]
     data = {"summary": summary, "rows": rows, "profile": {"h": h.tolist(), "phi": phi.tolist()}}
-    save(ROOT / "benchmarks" / "results", "walls", {**data, "pinned": pinned}, "\n".join(lines))
+    save(args.output_dir, "walls", {**data, "pinned": pinned}, "\n".join(lines))
 
 
 if __name__ == "__main__":
