@@ -1,281 +1,33 @@
-"""The ``athermal`` command's parser: every subcommand, option and default (docs/contract.md).
-
-Every option's default is stated once, in its ``default=``; the help formatter prints it.
+"""The ``athermal`` command's parser: every subcommand, option and default (docs/contract.md), one
+function per subcommand; the shared option groups are :mod:`athermal.cli.options`.
 """
 
 from __future__ import annotations
 
 import argparse
-import re
 from collections.abc import Callable
-from typing import Any, NoReturn
 
-from .. import engines
 from ..certify import TARGET
 from ..certify.criticality import FORCE_WINDOW, GAP_WINDOW
 from ..engines.precon import PRECONDITIONERS
 from ..enthalpy import CELL_FREEDOMS
-from ..linalg import SOLVERS
-from ..model.packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
-from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
-from ..relaxation import MAXITER, METHODS, RTOL
+from ..relaxation import METHODS, RTOL
 from ..studies import bench
-from ..studies.experiments import CompressSpec, ShearSpec
-
-
-class _Help(argparse.HelpFormatter):
-    """Help with every default printed as ``(default: X)``; options without one say in their
-    help what they do when absent."""
-
-    def _get_help_string(self, action: argparse.Action) -> str:
-        text = action.help or ""
-        default = action.default
-        if (
-            "%(default)" in text
-            or default is None
-            or default is False
-            or default is argparse.SUPPRESS
-            or default == ""
-            or not action.option_strings
-        ):
-            return text
-        if isinstance(default, list):
-            return text + " (default: " + " ".join(str(d) for d in default) + ")"
-        return text + " (default: %(default)s)"
-
-
-class _Parser(argparse.ArgumentParser):
-    """argparse with a one-line error (``athermal CMD: error: ...``, exit 2) naming the
-    subcommand, no usage dump."""
-
-    def __init__(self, *args: Any, **kwargs: Any) -> None:
-        kwargs.setdefault("formatter_class", _Help)
-        super().__init__(*args, **kwargs)
-        # read "-1e-6" as a (bad) number, not as an option: argparse's own pattern misses
-        # exponents, and then says only "expected one argument"
-        self._negative_number_matcher = NEGATIVE_NUMBER
-
-    def error(self, message: str) -> NoReturn:
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
-
-
-NEGATIVE_NUMBER = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$")
-
-
-Options = argparse.ArgumentParser | argparse._ArgumentGroup
-"""Where an option helper adds its options: a parser, or a group of one's options."""
-
-
-def _json(parser: Options) -> None:
-    parser.add_argument(
-        "--json", action="store_true", help="print one JSON object on stdout and nothing else"
-    )
-
-
-def _model(parser: argparse.ArgumentParser, *, from_file: bool) -> None:
-    """``--alpha`` and ``--stiffness``: a command with an input file defaults to the file's."""
-    if from_file:
-        parser.add_argument(
-            "--alpha",
-            type=float,
-            default=None,
-            help="contact exponent alpha >= 2 (2 = Hooke, 2.5 = Hertz; default: the file's, "
-            "else 2)",
-        )
-        parser.add_argument(
-            "--stiffness",
-            type=float,
-            default=None,
-            help="contact stiffness k (default: the file's, else 1)",
-        )
-    else:
-        parser.add_argument(
-            "--alpha",
-            type=float,
-            default=2.0,
-            help="contact exponent alpha >= 2 (2 = Hooke, 2.5 = Hertz)",
-        )
-        parser.add_argument(
-            "--stiffness", type=float, default=None, help="contact stiffness k (default: 1)"
-        )
-    _json(parser)
-
-
-def _minimizer(parser: argparse.ArgumentParser, what: str, precon: str = "none") -> None:
-    parser.add_argument(
-        "--method",
-        default="lbfgs",
-        choices=METHODS,
-        help=f"minimizer {what} (plbfgs / pcg: lbfgs / cg with --precon exp)".replace("  ", " "),
-    )
-    parser.add_argument(
-        "--precon",
-        default=None,
-        choices=PRECONDITIONERS,
-        help=f"preconditioner (default: {precon}; none with --method newton)",
-    )
-    parser.set_defaults(default_precon=precon)
-    parser.add_argument("--A", type=float, default=0.0, help="Exp preconditioner parameter A")
-    parser.add_argument(
-        "--solver",
-        default="auto",
-        choices=SOLVERS,
-        help="linear solver of the preconditioner (ic0: incomplete Cholesky)",
-    )
-    parser.add_argument("--maxiter", type=int, default=MAXITER, help="iteration limit")
-    _backend(parser)
-
-
-def _backend(parser: Options) -> None:
-    parser.add_argument(
-        "--backend",
-        default=engines.DEFAULT,
-        choices=engines.names(),
-        help="engine: "
-        + "; ".join(
-            f"{name} ({', '.join(engines.capabilities_of(name).methods)})"
-            for name in engines.names()
-        )
-        + " (jax: the extra athermal[jax], no --solver)",
-    )
-    parser.add_argument(
-        "--deterministic",
-        action="store_true",
-        help="with --backend jax on a GPU: XLA's deterministic scatter-adds, the same bits from "
-        "run to run (slower; the numba engine is the same bits everywhere already)",
-    )
-
-
-def _jamming(parser: Options) -> None:
-    """The jamming protocol's options."""
-    parser.add_argument("--dphi", type=float, default=DPHI, help="growth increment of phi")
-    parser.add_argument(
-        "--epsilon",
-        type=float,
-        default=EPSILON,
-        help=f"bisection accuracy of phi_c (>= {RESOLUTION:g})",
-    )
-    parser.add_argument(
-        "--protocol",
-        dest="bisection",
-        default=JAM_PROTOCOL,
-        choices=JAM_PROTOCOLS,
-        help="where each bisection trial starts: seed = the last unjammed configuration "
-        "(the paper's Algorithm 1), ohern = the previous trial (O'Hern et al.'s compression and "
-        "decompression of one configuration)",
-    )
-
-
-def _protocol_outputs(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument(
-        "--table", default=None, help="per-step CSV table (default: the output with .csv)"
-    )
-    parser.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    again = parser.add_mutually_exclusive_group()
-    again.add_argument(
-        "--resume",
-        action="store_true",
-        help="continue the interrupted run that wrote the trajectory (same arguments)",
-    )
-    again.add_argument(
-        "--overwrite",
-        action="store_true",
-        help="replace existing outputs (removed only once the first step is done)",
-    )
-
-
-def _quasi_static(parser: argparse.ArgumentParser) -> None:
-    """The options of a protocol that relaxes every step of a file's packing."""
-    parser.add_argument(
-        "--rtol", type=float, default=RTOL, help="force tolerance, x the mean contact force"
-    )
-    _minimizer(parser, "of every step")
-    _protocol_outputs(parser)
-    _model(parser, from_file=True)
-
-
-def _packing(parser: Options) -> None:
-    parser.add_argument("--n", type=int, default=1024, help="number of particles")
-    parser.add_argument("--dim", type=int, default=2, choices=(2, 3), help="dimensions")
-    parser.add_argument(
-        "--sizes",
-        default="bidisperse",
-        choices=SIZE_DISTRIBUTIONS,
-        help="size distribution: a 1:1 bidisperse mixture, or radii drawn (seeded) from a "
-        "uniform or log-normal distribution of width --polydispersity",
-    )
-    parser.add_argument(
-        "--size-ratio",
-        type=float,
-        default=1.4,
-        help="large / small radius of the bidisperse mixture (number ratio 1:1)",
-    )
-    parser.add_argument(
-        "--polydispersity",
-        type=float,
-        default=POLYDISPERSITY,
-        help="standard deviation / mean of the radii (uniform: < 0.577, log-normal: <= 1)",
-    )
-    parser.add_argument(
-        "--walls",
-        default="",
-        help="flat frictionless walls normal to these axes ('y', 'x', 'xy'; 'z' in 3D), the "
-        "cell's faces there; the other axes periodic (default: none, periodic)",
-    )
-
-
-def _compression_range(parser: Options) -> None:
-    parser.add_argument(
-        "--from",
-        dest="dphi_min",
-        type=float,
-        default=CompressSpec.delta_min,
-        help="smallest phi - phi_c",
-    )
-    parser.add_argument(
-        "--to",
-        dest="dphi_max",
-        type=float,
-        default=CompressSpec.delta_max,
-        help="largest phi - phi_c",
-    )
-    parser.add_argument(
-        "--per-decade",
-        type=int,
-        default=CompressSpec.per_decade,
-        help="compression steps per decade",
-    )
-
-
-def _shear_options(parser: Options) -> None:
-    parser.add_argument(
-        "--mode",
-        default=ShearSpec.mode,
-        choices=SHEAR_MODES,
-        help="simple or pure shear, uniaxial compression of the last axis (between walls "
-        "normal to it: a wall moving in), or plane shear (walls normal to y or z: the particles "
-        "near each wall glued to it, the upper one moved along x)",
-    )
-    parser.add_argument("--strain", type=float, default=ShearSpec.strain, help="final strain")
-    parser.add_argument("--step", type=float, default=ShearSpec.step, help="strain increment")
-
-
-def _frame(parser: argparse.ArgumentParser, what: str) -> None:
-    """``--frame K`` or ``--delta-phi D``: which state of a multi-frame input to start from."""
-    which = parser.add_mutually_exclusive_group()
-    which.add_argument(
-        "--frame",
-        type=int,
-        default=None,
-        help=f"frame of the input to {what} (negative counts from the end; default: the last)",
-    )
-    which.add_argument(
-        "--delta-phi",
-        type=float,
-        default=None,
-        help=f"{what} the frame whose logged phi - phi_c is nearest this (a compression "
-        "trajectory)",
-    )
+from ..studies.experiments import ShearSpec
+from .options import (
+    Parser,
+    add_backend,
+    add_compression_range,
+    add_frame,
+    add_jamming,
+    add_json,
+    add_minimizer,
+    add_model,
+    add_packing,
+    add_protocol_outputs,
+    add_quasi_static,
+    add_shear_options,
+)
 
 
 def _random_command(sub: argparse._SubParsersAction) -> None:
@@ -287,12 +39,12 @@ def _random_command(sub: argparse._SubParsersAction) -> None:
         "--size-ratio, or polydisperse: --sizes) in the unit cell at packing fraction --phi, "
         "write them to a GSD file and print their observables.",
     )
-    _packing(rnd)
+    add_packing(rnd)
     rnd.add_argument("--phi", type=float, default=0.84, help="packing fraction")
     rnd.add_argument("--seed", type=int, default=0, help="random seed")
     rnd.add_argument("-o", "--output", required=True, help="GSD file to write")
     rnd.add_argument("--overwrite", action="store_true", help="replace an existing output")
-    _model(rnd, from_file=False)
+    add_model(rnd, from_file=False)
 
 
 def _measure_command(sub: argparse._SubParsersAction) -> None:
@@ -313,7 +65,7 @@ def _measure_command(sub: argparse._SubParsersAction) -> None:
         help="also draw the contact-force distribution P(f/<f>) to this image file",
     )
     mea.add_argument("--overwrite", action="store_true", help="replace an existing figure")
-    _model(mea, from_file=True)
+    add_model(mea, from_file=True)
 
 
 def _modes_command(sub: argparse._SubParsersAction) -> None:
@@ -354,7 +106,7 @@ def _modes_command(sub: argparse._SubParsersAction) -> None:
         "needs the full spectrum)",
     )
     mod.add_argument("--overwrite", action="store_true", help="replace existing outputs")
-    _model(mod, from_file=True)
+    add_model(mod, from_file=True)
 
 
 def _moduli_command(sub: argparse._SubParsersAction) -> None:
@@ -380,7 +132,7 @@ def _moduli_command(sub: argparse._SubParsersAction) -> None:
         metavar="S",
         help="also measure B and G by quasi-static strain steps up to S (e.g. 1e-5)",
     )
-    _model(mdl, from_file=True)
+    add_model(mdl, from_file=True)
 
 
 def _certify_command(sub: argparse._SubParsersAction) -> None:
@@ -407,7 +159,7 @@ def _certify_command(sub: argparse._SubParsersAction) -> None:
         help="force balance to reach, x the mean contact force",
     )
     cer.add_argument("--overwrite", action="store_true", help="replace an existing output")
-    _model(cer, from_file=True)
+    add_model(cer, from_file=True)
 
 
 def _criticality_command(sub: argparse._SubParsersAction) -> None:
@@ -442,7 +194,7 @@ def _criticality_command(sub: argparse._SubParsersAction) -> None:
     )
     cri.add_argument("--figure", default=None, help="PNG of the cumulative distributions and fits")
     cri.add_argument("--overwrite", action="store_true", help="replace an existing figure")
-    _model(cri, from_file=True)
+    add_model(cri, from_file=True)
 
 
 def _relax_command(sub: argparse._SubParsersAction) -> None:
@@ -457,7 +209,7 @@ def _relax_command(sub: argparse._SubParsersAction) -> None:
     rel.add_argument("input", help="GSD file")
     rel.add_argument("-o", "--output", required=True, help="GSD file to write")
     rel.add_argument("--overwrite", action="store_true", help="replace an existing output")
-    _minimizer(rel, "")
+    add_minimizer(rel, "")
     rel.add_argument(
         "--pressure",
         type=float,
@@ -479,7 +231,7 @@ def _relax_command(sub: argparse._SubParsersAction) -> None:
         type=float,
         help=f"tolerance relative to the mean contact force (default: {RTOL:g} unless --gtol)",
     )
-    _model(rel, from_file=True)
+    add_model(rel, from_file=True)
 
 
 def _jam_command(sub: argparse._SubParsersAction) -> None:
@@ -493,7 +245,7 @@ def _jam_command(sub: argparse._SubParsersAction) -> None:
         "a minimum). Writes the jammed packing (its log holds phi_c), the trajectory of every "
         "relaxed step, a per-step table and a picture.",
     )
-    _packing(jam)
+    add_packing(jam)
     jam.add_argument("--seed", type=int, default=0, help="random seed")
     jam.add_argument(
         "--phi-init",
@@ -501,7 +253,7 @@ def _jam_command(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="start packing fraction (default: 0.8 in 2D, 0.6 in 3D; between walls 0.7, 0.5)",
     )
-    _jamming(jam)
+    add_jamming(jam)
     jam.add_argument(
         "--pressure",
         type=float,
@@ -531,9 +283,9 @@ def _jam_command(sub: argparse._SubParsersAction) -> None:
         help="PNG of the jammed packing with its contact forces (2D; default: the output "
         "with .png; 'none' for no picture)",
     )
-    _minimizer(jam, "of every step", "exp")
-    _protocol_outputs(jam)
-    _model(jam, from_file=False)
+    add_minimizer(jam, "of every step", "exp")
+    add_protocol_outputs(jam)
+    add_model(jam, from_file=False)
 
 
 def _compress_command(sub: argparse._SubParsersAction) -> None:
@@ -563,8 +315,8 @@ def _compress_command(sub: argparse._SubParsersAction) -> None:
         help="compress a start that is not a relaxed packing at its jamming point all the same "
         "(a warning says what is wrong with it; refused without this flag)",
     )
-    _compression_range(com)
-    _quasi_static(com)
+    add_compression_range(com)
+    add_quasi_static(com)
 
 
 def _shear_command(sub: argparse._SubParsersAction) -> None:
@@ -580,8 +332,8 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
     )
     she.add_argument("input", help="GSD file with the start packing (or a compression trajectory)")
     she.add_argument("-o", "--output", required=True, help="GSD trajectory to write")
-    _frame(she, "shear")
-    _shear_options(she)
+    add_frame(she, "shear")
+    add_shear_options(she)
     she.add_argument(
         "--wall-layer",
         type=float,
@@ -589,7 +341,7 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
         help="plane shear: glue to each wall the particles whose centres lie within this "
         "distance of it (default: the largest diameter)",
     )
-    _quasi_static(she)
+    add_quasi_static(she)
 
 
 def _paper_command(sub: argparse._SubParsersAction) -> None:
@@ -611,7 +363,7 @@ def _paper_command(sub: argparse._SubParsersAction) -> None:
         "--overwrite", action="store_true", help="replace the report of an earlier run"
     )
     pap.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    _json(pap)
+    add_json(pap)
 
 
 def _bench_command(sub: argparse._SubParsersAction) -> None:
@@ -642,26 +394,26 @@ def _bench_command(sub: argparse._SubParsersAction) -> None:
         help="methods by label (default: all, " + ", ".join(bench.LABELS) + ")",
     )
     ben.add_argument("--repeats", type=int, default=3, help="timing repeats (their median)")
-    _backend(ben)
+    add_backend(ben)
     ben.add_argument(
         "--quick",
         action="store_true",
         help="case 3, alpha 2, " + " / ".join(bench.QUICK_LABELS) + ", one repeat",
     )
     ben.add_argument("--quiet", action="store_true", help="no progress on stderr")
-    _json(ben)
+    add_json(ben)
 
 
 def build() -> argparse.ArgumentParser:
     """The parser of every subcommand."""
     from . import _version
 
-    parser = _Parser(
+    parser = Parser(
         prog="athermal", description="Quasi-static simulation of athermal soft-particle packings."
     )
     parser.add_argument("--version", action="version", version=f"athermal {_version()}")
     sub = parser.add_subparsers(
-        dest="command", required=True, metavar="COMMAND", parser_class=_Parser
+        dest="command", required=True, metavar="COMMAND", parser_class=Parser
     )
     for command in COMMANDS:
         command(sub)
@@ -692,7 +444,7 @@ def _ensemble(sub: argparse._SubParsersAction) -> None:
         "protocol's options.",
     )
     protocols = ens.add_subparsers(
-        dest="protocol", required=True, metavar="PROTOCOL", parser_class=_Parser
+        dest="protocol", required=True, metavar="PROTOCOL", parser_class=Parser
     )
     for name, what in ENSEMBLE_PROTOCOLS.items():
         each = protocols.add_parser(
@@ -723,11 +475,11 @@ def _ensemble(sub: argparse._SubParsersAction) -> None:
         run.add_argument("--seed", type=int, default=0, help="root seed")
         run.add_argument("-o", "--output", required=True, help="directory of the ensemble")
         run.add_argument("--quiet", action="store_true", help="no progress on stderr")
-        _json(run)
+        add_json(run)
         jamming = each.add_argument_group("the packings and their jamming")
-        _packing(jamming)
+        add_packing(jamming)
         jamming.add_argument("--alpha", type=float, default=2.0, help="contact exponent")
-        _jamming(jamming)
+        add_jamming(jamming)
         jamming.add_argument(
             "--method", default="lbfgs", choices=METHODS, help="minimizer of every step"
         )
@@ -737,12 +489,12 @@ def _ensemble(sub: argparse._SubParsersAction) -> None:
             choices=PRECONDITIONERS,
             help="preconditioner (default: exp; none with --method newton)",
         )
-        _backend(jamming)
+        add_backend(jamming)
         if name in ("compress", "shear"):
-            _compression_range(each.add_argument_group("the compression"))
+            add_compression_range(each.add_argument_group("the compression"))
         if name == "shear":
             shearing = each.add_argument_group("the shear")
-            _shear_options(shearing)
+            add_shear_options(shearing)
             shearing.add_argument(
                 "--shear-delta-phi",
                 type=float,
