@@ -14,7 +14,7 @@ import athermal
 from athermal.analysis.fitting import fit_power_law
 from athermal.analysis.observables import rattlers
 from athermal.errors import InputError
-from athermal.studies import plot
+from athermal.studies import picture, plot
 
 MODEL = athermal.ContactModel()
 
@@ -65,13 +65,13 @@ def _png(fig: Figure, path: Path) -> None:
 
 
 def test_force_widths_capped_and_keyed(jammed: athermal.Packing, tmp_path: Path) -> None:
-    fig = plot.packing_figure(jammed, MODEL)
+    fig = picture.packing_figure(jammed, MODEL)
     widths = _widths(fig)
-    cap = plot.max_force_width(jammed.n)
-    assert cap == plot.MAX_FORCE_WIDTH
+    cap = picture.max_force_width(jammed.n)
+    assert cap == picture.MAX_FORCE_WIDTH
     assert widths.size and widths.max() <= cap + 1e-12
     assert widths.max() == pytest.approx(cap)  # the largest force sets the default scale
-    assert widths.min() >= plot.MIN_FORCE_WIDTH
+    assert widths.min() >= picture.MIN_FORCE_WIDTH
     fmax = athermal.find_contacts(jammed, MODEL).force_magnitude.max()
     assert any(f"$f$ = {fmax:.2e}" in t for t in _legend_texts(fig))
     _png(fig, tmp_path / "jammed.png")
@@ -79,21 +79,21 @@ def test_force_widths_capped_and_keyed(jammed: athermal.Packing, tmp_path: Path)
 
 def test_force_scale_clips_and_large_n_is_thinner(jammed: athermal.Packing) -> None:
     fmax = athermal.find_contacts(jammed, MODEL).force_magnitude.max()
-    widths = _widths(plot.packing_figure(jammed, MODEL, force_scale=fmax / 10))
-    assert widths.max() == pytest.approx(plot.MAX_FORCE_WIDTH)  # clipped, not 10x wider
-    assert plot.max_force_width(4096) == pytest.approx(plot.MAX_FORCE_WIDTH / 2)
+    widths = _widths(picture.packing_figure(jammed, MODEL, force_scale=fmax / 10))
+    assert widths.max() == pytest.approx(picture.MAX_FORCE_WIDTH)  # clipped, not 10x wider
+    assert picture.max_force_width(4096) == pytest.approx(picture.MAX_FORCE_WIDTH / 2)
     with pytest.raises(InputError, match="force_scale"):
-        plot.packing_figure(jammed, MODEL, force_scale=0.0)
+        picture.packing_figure(jammed, MODEL, force_scale=0.0)
 
 
 def test_shared_scale_hides_residual_forces(
     jammed: athermal.Packing, unjammed: athermal.Packing
 ) -> None:
     fmax = athermal.find_contacts(jammed, MODEL).force_magnitude.max()
-    assert np.all(_widths(plot.packing_figure(unjammed, MODEL, force_scale=fmax)) < 0.05)
+    assert np.all(_widths(picture.packing_figure(unjammed, MODEL, force_scale=fmax)) < 0.05)
     # on its own scale the same residual forces would be drawn at full width
-    assert _widths(plot.packing_figure(unjammed, MODEL)).max() == pytest.approx(
-        plot.MAX_FORCE_WIDTH
+    assert _widths(picture.packing_figure(unjammed, MODEL)).max() == pytest.approx(
+        picture.MAX_FORCE_WIDTH
     )
 
 
@@ -102,7 +102,7 @@ def test_rattlers_marked(which: str, request: pytest.FixtureRequest) -> None:
     packing: athermal.Packing = request.getfixturevalue(which)
     expected = int(rattlers(athermal.find_contacts(packing, MODEL), packing.n, 2).sum())
     expected = 0 if expected == packing.n else expected  # no network: nothing is marked
-    fig = plot.packing_figure(packing, MODEL)
+    fig = picture.packing_figure(packing, MODEL)
     marked = [c for c in fig.axes[0].collections if c.get_gid() == "rattlers"]
     texts = [t for t in _legend_texts(fig) if t.startswith("rattler")]
     if expected:
@@ -121,17 +121,17 @@ def test_rattlers_marked(which: str, request: pytest.FixtureRequest) -> None:
 def test_packing_into_given_axes(jammed: athermal.Packing) -> None:
     fig = Figure()
     ax = fig.add_subplot(1, 2, 2)
-    assert plot.packing_figure(jammed, MODEL, ax=ax, title="panel") is fig
+    assert picture.packing_figure(jammed, MODEL, ax=ax, title="panel") is fig
     assert ax.get_title() == "panel" and len(fig.axes) == 1
     with pytest.raises(InputError, match="2D"):
-        plot.packing_figure(athermal.random_packing(8, 0.3, dim=3, seed=0))
+        picture.packing_figure(athermal.random_packing(8, 0.3, dim=3, seed=0))
 
 
 def test_jamming_figure_panels_share_scale(
     jammed: athermal.Packing, unjammed: athermal.Packing, partial: athermal.Packing, tmp_path: Path
 ) -> None:
     snapshots = [("initial", partial), ("unjammed", unjammed), ("jammed", jammed)]
-    fig = plot.jamming_figure(snapshots, MODEL, title="N = 64")
+    fig = picture.jamming_figure(snapshots, MODEL, title="N = 64")
     assert [ax.get_title() for ax in fig.axes] == ["(a) initial", "(b) unjammed", "(c) jammed"]
     shared = max(athermal.find_contacts(p, MODEL).force_magnitude.max() for _, p in snapshots)
     keys = [t for t in _legend_texts(fig) if t.startswith("contact force")]
@@ -142,7 +142,7 @@ def test_jamming_figure_panels_share_scale(
     per_panel = [[c for c in ax.collections if c.get_gid() == "forces"] for ax in fig.axes]
     assert not per_panel[1]  # residual forces invisible on the shared scale
     cap = max(float(np.max(c.get_linewidths())) for panel in per_panel for c in panel)
-    assert cap <= plot.max_force_width(64, 4.0) + 1e-12
+    assert cap <= picture.max_force_width(64, 4.0) + 1e-12
     _png(fig, tmp_path / "jamming.png")
 
 

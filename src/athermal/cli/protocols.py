@@ -211,7 +211,8 @@ def jam(args: argparse.Namespace) -> None:
     phi_text = f"{phi_c:.{_digits(width)}f} (bracket {width:.1g})"
     picture = None
     if args.dim == 2 and args.picture != "none":
-        from ..studies.plot import packing_figure, save
+        from ..studies.picture import packing_figure
+        from ..studies.plot import save
 
         picture = args.picture or str(Path(args.output).with_suffix(".png"))
         state = "jammed" if args.pressure is None else f"at p = {obs.pressure:.4g}"

@@ -47,7 +47,7 @@ from ..protocols.compress import (
     pooled_fit,
 )
 from ..relaxation import RTOL
-from . import bench, plot
+from . import bench, picture, plot
 from .experiments import (
     CompressSpec,
     ConvergenceSpec,
@@ -170,7 +170,7 @@ def reproduce(
     snapshots.append(("jammed", history[-1]))
     save(
         "jamming",
-        plot.jamming_figure(
+        picture.jamming_figure(
             [(f"{label}, phi = {s.phi:.6f}", s.packing) for label, s in snapshots],
             harmonic,
             title=f"jamming, N = {settings.n}, alpha = 2",
