@@ -28,7 +28,7 @@ from __future__ import annotations
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +38,8 @@ from ..analysis.fitting import PowerLaw
 from ..atomic import write_text
 from ..errors import InputError
 from ..model.contact import ContactModel
-from ..protocols import EPSILON
+from ..model.packing import Packing
+from ..protocols import EPSILON, JammingResult
 from ..protocols.compress import (
     FINITE_SIZE,
     FIT_LAWS,
@@ -49,6 +50,7 @@ from ..protocols.compress import (
 from ..relaxation import RTOL
 from . import bench, picture, plot
 from .experiments import (
+    Compression,
     CompressSpec,
     ConvergenceSpec,
     IterationSpec,
@@ -65,6 +67,9 @@ from .experiments import (
 PAPER_EXPONENTS = {"p": {2.0: 1.0, 2.5: 1.5}, "G": {2.0: 0.5, 2.5: 1.0}, "z": {2.0: 0.5, 2.5: 0.5}}
 """The exponents the paper reports (approximately) for alpha = 2 and 2.5."""
 SHEAR_INCREMENTS = (4e-4, 2e-4, 1e-4)
+HARMONIC = ContactModel(2.0)
+"""The paper's contacts, harmonic with k = 1 (:class:`~athermal.studies.experiments.JamSpec`'s
+default model)."""
 STRESS_UNIT = r"$k\,\ell^{\alpha-2}$"
 """Unit of stresses and moduli in 2D: stiffness k times the length unit to the alpha - 2."""
 QUANTITIES = {
@@ -130,6 +135,23 @@ class PaperResult:
     seconds: float
 
 
+@dataclass
+class _Record:
+    """What :func:`reproduce` writes as it goes: the figures (path by name), their captions and
+    the warnings of the report, and where progress goes."""
+
+    out: Path
+    say: Callable[[str], None]
+    figures: dict[str, str] = field(default_factory=dict)
+    captions: dict[str, str] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+
+    def save(self, name: str, figure: object, caption: str) -> None:
+        """Write ``figure`` as ``name.png`` with its caption."""
+        self.figures[name] = str(plot.save(figure, self.out / f"{name}.png"))  # type: ignore[arg-type]
+        self.captions[name] = caption
+
+
 def reproduce(
     directory: str | Path,
     settings: Settings = QUICK,
@@ -147,32 +169,71 @@ def reproduce(
     if out.exists() and not out.is_dir():
         raise InputError(f"-o: {out} exists and is not a directory")
     out.mkdir(parents=True, exist_ok=True)
-    say = progress or (lambda text: None)
-    figures: dict[str, str] = {}
-    captions: dict[str, str] = {}
-    warnings_: list[str] = []
-
-    def save(name: str, figure: object, caption: str) -> None:
-        figures[name] = str(plot.save(figure, out / f"{name}.png"))  # type: ignore[arg-type]
-        captions[name] = caption
-
+    record = _Record(out, progress or (lambda text: None))
     seeds = child_seeds(seed, settings.realizations + settings.scaling_packings)
+    jammed = _jamming(record, settings, seeds[0])
+    _convergence(record, settings, jammed)
+    starts = [(jammed.packing, jammed.phi_c)]
     spec = JamSpec(n=settings.n)
-    harmonic = spec.model
-    say(f"jamming N = {settings.n}")
+    for k, extra in enumerate(seeds[1 + settings.realizations :]):
+        record.say(f"jamming packing {k + 2} of {settings.scaling_packings} for the scaling laws")
+        more = jam_packing(spec, extra)
+        if not more.check.passed:
+            record.warnings.append(
+                f"scaling packing {k + 2} fails a check: " + "; ".join(more.check.problems())
+            )
+        starts.append((more.packing, more.phi_c))
+    exponents, compressed = _scaling(record, settings, starts)
+    _iterations(record, settings, seeds[1 : 1 + settings.realizations])
+    _pure_shear(record, settings, compressed)
+    record.say("Table")
+    table = bench.markdown(
+        bench.table1(
+            cases=settings.table_cases,
+            alphas=settings.table_alphas,
+            labels=settings.table_methods,
+            repeats=settings.table_repeats,
+        )
+    )
+    report = _report(
+        out,
+        settings,
+        jammed.phi_c,
+        exponents,
+        record.figures,
+        record.captions,
+        record.warnings,
+        table,
+        time.perf_counter() - t0,
+    )
+    return PaperResult(
+        figures=record.figures,
+        report=str(report),
+        exponents=exponents,
+        phi_c=jammed.phi_c,
+        seconds=time.perf_counter() - t0,
+    )
+
+
+def _jamming(record: _Record, settings: Settings, seed: int) -> JammingResult:
+    """The main packing jammed, and the figure of its protocol."""
+    spec = JamSpec(n=settings.n)
+    record.say(f"jamming N = {settings.n}")
     jammed = jam_packing(
-        spec, seeds[0], on_step=lambda s: say(f"jamming step {s.index} phi {s.phi:.7f}")
+        spec, seed, on_step=lambda s: record.say(f"jamming step {s.index} phi {s.phi:.7f}")
     )
     if not jammed.check.passed:
-        warnings_.append("the jammed packing fails a check: " + "; ".join(jammed.check.problems()))
+        record.warnings.append(
+            "the jammed packing fails a check: " + "; ".join(jammed.check.problems())
+        )
     phi_c, history = jammed.phi_c, jammed.history
     snapshots = [("initial", history[0]), ("intermediate", history[len(history) // 3])]
     snapshots.append(("jammed", history[-1]))
-    save(
+    record.save(
         "jamming",
         picture.jamming_figure(
             [(f"{label}, phi = {s.phi:.6f}", s.packing) for label, s in snapshots],
-            harmonic,
+            spec.model,
             title=f"jamming, N = {settings.n}, alpha = 2",
         ),
         f"The jamming protocol (growth by {spec.dphi:g}, bisection to epsilon = {spec.epsilon:g}): "
@@ -182,11 +243,15 @@ def reproduce(
         "forces as lines whose width is proportional to the force on one absolute scale for "
         "the three panels, so an unjammed state shows no force chains.",
     )
+    return jammed
 
-    say("convergence of one relaxation")
+
+def _convergence(record: _Record, settings: Settings, jammed: JammingResult) -> None:
+    """One relaxation of the grown jammed packing by each method, and its figure."""
+    record.say("convergence of one relaxation")
     conv_spec = ConvergenceSpec()
-    conv = convergence(jammed.packing, harmonic, conv_spec)
-    save(
+    conv = convergence(jammed.packing, HARMONIC, conv_spec)
+    record.save(
         "convergence",
         plot.convergence_figure(
             {f"{k} ({len(v) - 1})": v for k, v in conv.histories.items()},
@@ -199,6 +264,15 @@ def reproduce(
         "line); the legend gives each method's iterations.",
     )
 
+
+def _scaling(
+    record: _Record, settings: Settings, starts: list[tuple[Packing, float]]
+) -> tuple[dict[str, dict[str, dict[str, Any]]], Compression]:
+    """The scaling laws: each start compressed from its own jamming point at alpha = 2 and 2.5,
+    p, G and z - z_iso fitted over the packings pooled (as the paper's figures average
+    realizations: one packing of N = 1024 resolves z - z_iso over three decades, where single
+    packings' exponents scatter by 0.02-0.03, docs/jamming.md), and their figures. Returns the
+    exponents by alpha and the first packing's harmonic compression."""
     exponents: dict[str, dict[str, dict[str, Any]]] = {}
     series: dict[str, dict[str, list[float]]] = {key: {} for key in QUANTITIES}
     dphis: dict[str, list[float]] = {}
@@ -206,24 +280,12 @@ def reproduce(
     used: dict[str, dict[str, list[bool]]] = {key: {} for key in QUANTITIES}
     references: dict[str, dict[str, float]] = {key: {} for key in QUANTITIES}
     compress_spec = CompressSpec(per_decade=settings.per_decade)
-    # the scaling laws pooled over packings, as the paper's figures average realizations: one
-    # packing of N = 1024 resolves z - z_iso over three decades, where single packings'
-    # exponents scatter by 0.02-0.03 (docs/jamming.md)
-    starts = [(jammed.packing, phi_c)]
-    for k, extra in enumerate(seeds[1 + settings.realizations :]):
-        say(f"jamming packing {k + 2} of {settings.scaling_packings} for the scaling laws")
-        more = jam_packing(spec, extra)
-        if not more.check.passed:
-            warnings_.append(
-                f"scaling packing {k + 2} fails a check: " + "; ".join(more.check.problems())
-            )
-        starts.append((more.packing, more.phi_c))
     compressions = {}
     for alpha in (2.0, 2.5):
         model = ContactModel(alpha)
         pooled = []
         for k, (start, start_phi_c) in enumerate(starts):
-            say(f"compression alpha = {alpha:g}, packing {k + 1} of {len(starts)}")
+            record.say(f"compression alpha = {alpha:g}, packing {k + 1} of {len(starts)}")
             pooled.append(compress(start, model, start_phi_c, compress_spec))
         compressions[alpha] = pooled[0]
         label = f"alpha = {alpha:g}"
@@ -247,7 +309,7 @@ def reproduce(
             fits[key][label] = fit
             left_out = dict(sum((Counter(one.fits.left_out[column]) for one in pooled), Counter()))
             if fit is None:
-                warnings_.append(
+                record.warnings.append(
                     f"alpha = {alpha:g}: no fit of {QUANTITIES[key][1]} (fewer than 3 points "
                     f"left; left out: {left_out})"
                 )
@@ -266,12 +328,12 @@ def reproduce(
             }
         events = dict(sum((Counter(one.fits.events) for one in pooled), Counter()))
         if events:
-            warnings_.append(
+            record.warnings.append(
                 f"alpha = {alpha:g}: compression events "
                 + ", ".join(f"{k} ({v} step{'s' if v > 1 else ''})" for k, v in events.items())
             )
     for key, (ylabel, what) in QUANTITIES.items():
-        save(
+        record.save(
             f"scaling_{key}",
             plot.scaling_figure(
                 dphis,
@@ -293,20 +355,25 @@ def reproduce(
             "paper's slopes.",
         )
 
-    say("iteration experiment")
+    return exponents, compressions[2.0]
+
+
+def _iterations(record: _Record, settings: Settings, seeds: list[int]) -> None:
+    """The paper's iteration experiment over the realizations of ``seeds``, and its figure."""
+    record.say("iteration experiment")
     iter_spec = IterationSpec()
     counts: dict[str, list[list[float]]] = {
         m.name: [[] for _ in iter_spec.delta_phis] for m in iter_spec.methods
     }
     small = JamSpec(n=settings.realization_n)
-    for realization in range(settings.realizations):
-        packing = jam_packing(small, seeds[1 + realization])
-        result = iteration_counts(packing.packing, harmonic, packing.phi_c, iter_spec)
+    for realization, seed in enumerate(seeds):
+        packing = jam_packing(small, seed)
+        result = iteration_counts(packing.packing, HARMONIC, packing.phi_c, iter_spec)
         for name, per_point in result.iterations.items():
             for k, value in enumerate(per_point):
                 counts[name][k].append(value)
-        say(f"iterations: realization {realization} done")
-    save(
+        record.say(f"iterations: realization {realization} done")
+    record.save(
         "iterations",
         plot.iterations_figure(
             list(iter_spec.delta_phis),
@@ -319,13 +386,17 @@ def reproduce(
         "phi - phi_c; error bars are the standard deviation over realizations.",
     )
 
-    say("pure shear")
+
+def _pure_shear(record: _Record, settings: Settings, compressed: Compression) -> None:
+    """The paper's pure shear from the compressed state nearest ``settings.shear_delta_phi``
+    at its three increments, and the figure."""
+    record.say("pure shear")
     curves = {}
     start_dphi = float("nan")
     for increment in SHEAR_INCREMENTS:
         run = shear(
-            compressions[2.0],
-            harmonic,
+            compressed,
+            HARMONIC,
             ShearSpec(mode="pure", strain=0.02, step=increment, delta_phi=settings.shear_delta_phi),
         )
         start_dphi = run.delta_phi
@@ -334,8 +405,8 @@ def reproduce(
             key: [float(r[key]) for r in rows]
             for key in ("strain", "stress_iso", "stress_dev", "fabric_iso", "fabric_dev")
         }
-        say(f"pure shear, increment {increment:g}")
-    save(
+        record.say(f"pure shear, increment {increment:g}")
+    record.save(
         "pure_shear",
         plot.shear_figure(
             curves, title=f"pure shear, N = {settings.n}, alpha = 2, phi - phi_c = {start_dphi:.0e}"
@@ -344,34 +415,6 @@ def reproduce(
         f"from the compressed state at phi - phi_c = {start_dphi:.1e}; isotropic (mean "
         "eigenvalue) and deviatoric ((lambda_max - lambda_min) / 2) parts of the stress and the "
         "fabric, each on its own axis. The curves agree when the increments are quasi-static.",
-    )
-
-    say("Table")
-    table = bench.markdown(
-        bench.table1(
-            cases=settings.table_cases,
-            alphas=settings.table_alphas,
-            labels=settings.table_methods,
-            repeats=settings.table_repeats,
-        )
-    )
-    report = _report(
-        out,
-        settings,
-        phi_c,
-        exponents,
-        figures,
-        captions,
-        warnings_,
-        table,
-        time.perf_counter() - t0,
-    )
-    return PaperResult(
-        figures=figures,
-        report=str(report),
-        exponents=exponents,
-        phi_c=phi_c,
-        seconds=time.perf_counter() - t0,
     )
 
 
