@@ -22,6 +22,7 @@ from ..enthalpy import check_enthalpy_method
 from ..errors import InputError
 from ..io import SEED_BOUND
 from ..model.cell import wall_axes
+from ..model.contact import ContactModel
 from ..model.law import PowerContact
 from ..model.packing import check_width
 from ..protocols import RESOLUTION, check_growth, start_fraction
@@ -64,7 +65,6 @@ def _number(
 def _options(args: argparse.Namespace) -> None:
     """The numeric options every command may carry, each with its range (a list-valued
     option's, such as ``--alphas``, for each of its values)."""
-    alpha = (lambda v: v >= 2, ">= 2")
     rules: dict[str, tuple[Callable[[float], bool], str]] = {
         "n": (lambda v: v >= 2, "an integer >= 2"),
         "seed": (lambda v: 0 <= v < SEED_BOUND, "an integer in [0, 2**64)"),
@@ -73,9 +73,6 @@ def _options(args: argparse.Namespace) -> None:
         "phi_c": (lambda v: 0 < v < 1, "in (0, 1)"),
         "size_ratio": (lambda v: v >= 1, ">= 1"),
         "polydispersity": (lambda v: v > 0, "> 0"),
-        "alpha": alpha,
-        "alphas": alpha,
-        "stiffness": (lambda v: v > 0, "> 0"),
         "dphi": (lambda v: v > 0, "> 0"),
         "epsilon": (lambda v: v >= 1e-15, ">= 1e-15"),
         "rtol": (lambda v: v > 0, "> 0"),
@@ -102,6 +99,12 @@ def _options(args: argparse.Namespace) -> None:
     }
     for name, (ok, rule) in rules.items():
         _number(name, getattr(args, name, None), ok, rule)
+    for name in ("alpha", "alphas"):  # the contact law's own check, naming the option given
+        value = getattr(args, name, None)
+        for each in value if isinstance(value, list) else [] if value is None else [value]:
+            _library(PowerContact, each, flag=f"--{name}")
+    if getattr(args, "stiffness", None) is not None:
+        _library(ContactModel, stiffness=args.stiffness)
     if getattr(args, "walls", ""):
         try:
             wall_axes(args.walls, args.dim)
@@ -202,13 +205,17 @@ def _work(args: argparse.Namespace) -> None:
             )
 
 
-def _library(check: Callable[..., T], *args: object, **kwargs: object) -> T:
+def _library(
+    check: Callable[..., T], *args: object, flag: str | None = None, **kwargs: object
+) -> T:
     """Run one of the library's own checks and return what it returns; its refusal names the
-    command-line option."""
+    command-line option (``flag``, else the option of the name the library gives)."""
     try:
         return check(*args, **kwargs)
     except InputError as exc:
-        raise InputError(flagged(str(exc), None)) from None
+        if flag is None:
+            raise InputError(flagged(str(exc), None)) from None
+        raise InputError(f"{flag}: {str(exc).partition(': ')[2]}") from None
 
 
 def flagged(message: str, args: argparse.Namespace | None) -> str:
