@@ -264,9 +264,9 @@ def relax_at_pressure(
     (:class:`EnthalpyPreconditioner`).
 
     The tolerance is ``gtol`` on the largest block of the gradient (:attr:`Enthalpy.hooks`), or
-    ``rtol`` x ``P <2r>^(d-1)``, the contact force a pressure ``P`` implies (measured: the mean
-    contact force at the minimum is 0.92 x that, N = 128, 2D, P = 1e-3). An unjammed start shrinks
-    until it jams at pressure ``P``.
+    ``rtol`` x ``P <2r>^(d-1)``, the contact force a pressure ``P`` implies (near the mean contact
+    force at the minimum: ``docs/decisions.md``, "Measured behind the code"). An unjammed start
+    shrinks until it jams at pressure ``P``.
 
     Examples
     --------

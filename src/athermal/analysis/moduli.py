@@ -56,8 +56,8 @@ STABILITY_TOL = 1e-10
 ``s = STABILITY_TOL`` x its mean diagonal entry. Hessian entries carry round-off of ~1e-16 of the
 contact stiffness; the negative curvature of a saddle is set by the contact forces over their
 lengths (``f / l`` ~ ``delta / l``, ~1e-7 of the stiffness 1e-6 above jamming); a marginal
-minimum relaxed to force balance can show a slightly negative one (measured: -1.2e-12 relative,
-N = 1024 at 1.8e-4 above jamming, positive definite once relaxed from max|grad| 2e-15 to 2e-16)."""
+minimum relaxed to force balance can show a slightly negative one (``docs/decisions.md``,
+"Measured behind the code")."""
 DENSE_EIGEN_DOFS = 3000
 """Largest pinned Hessian whose lowest eigenpair is found by a dense solve (ARPACK above it)."""
 

@@ -395,7 +395,8 @@ class ContactPreconditioner(_PairPreconditioner):
     ``M`` differs from its value ``M_b`` at the last build by more than ``contact_change * M_b``
     (any contact appearing when ``M_b = 0``). The AMG solver works on the ``(N d)`` system with
     the ``d`` rigid translations as near-null space. ``P`` is no M-matrix, so ``solver="auto"``
-    never takes ic0 here (measured on the Table: 40-55 % more iterations than direct).
+    never takes ic0 here (it takes more iterations than direct: ``docs/decisions.md``, "Measured
+    behind the code").
     """
 
     name = "contact"

@@ -43,9 +43,8 @@ def parallel_slabs(nlist: NeighborList) -> tuple[NDArray[np.int64], bool]:
     return nlist.slabs, threads_usable()
 
 
-# Measured on this kind of machine: a plain scatter loop beat per-row register accumulation, a
-# branch-free overlap test (``max(delta, 0)``) is no slower and avoids mispredictions at large N,
-# and skipping the species lookup for a uniform stiffness saves ~3 ns per pair.
+# A plain scatter loop, a branch-free overlap test (``max(delta, 0)``) and no species lookup for a
+# uniform stiffness: the fastest written (docs/decisions.md, "Measured behind the code").
 @_jit
 def energy_gradient_2d(x, radii, first, second, code, shift, typeid, kmat, alpha, grad):  # type: ignore[no-untyped-def]
     """Energy ``sum E(delta)`` over pairs (the law's ``pair`` and ``total``, :class:`~athermal.

@@ -91,8 +91,8 @@ class Objective:
         # the round-off of the energy near E: each overlap carries an absolute error
         # ~eps_mach |x| from the coordinates, so E carries ~eps_mach L |f|_2 with
         # |f|_2^2 = sum_c f_c^2 <= k^(2/alpha) (alpha E)^(2 - 2/alpha); with L the largest cell
-        # width this bound overestimates the measured scatter (E under global translations of a
-        # packing jammed at Delta phi ~ 1e-4, N = 1024) about 20x: a quarter of it
+        # width this bound overestimates the scatter of E (docs/decisions.md, "Measured behind
+        # the code"): a quarter of it
         noise_scale = (
             0.25
             * float(np.finfo(np.float64).eps)

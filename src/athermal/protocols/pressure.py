@@ -40,8 +40,8 @@ STEP = 10.0**0.25
 """Largest factor by which a trial may be further from ``phi_low`` than the state it compresses
 (4 per decade, as the compression protocol's steps)."""
 MAX_PHI = 0.9999
-"""The search does not go beyond this packing fraction (in 2D, harmonic disks with ``k = 1`` in
-the unit cell reach only ``p = 0.097`` at ``phi = 0.999``, measured at N = 256)."""
+"""The search does not go beyond this packing fraction (the pressures it bounds:
+``docs/decisions.md``, "Measured behind the code")."""
 REACH_RTOL = 1e-6
 """Force tolerance of :func:`check_reachable`'s relaxation, x the mean contact force."""
 NEAR_JAMMING = 10.0
@@ -92,8 +92,7 @@ class PressureResult:
     @property
     def pressure_drops(self) -> int:
         """Trials whose pressure fell below the last one's although ``phi`` rose: plastic
-        rearrangements on the way (measured: one seed of five at N = 1024 between p = 1e-4 and
-        1e-3, in 4 and 16 steps per decade alike, its jamming point moved up by ~2.4e-3)."""
+        rearrangements on the way (how often: ``docs/decisions.md``, "Measured behind the code")."""
         pairs = zip(self.trials, self.trials[1:], strict=False)
         return sum(1 for a, b in pairs if b.phi > a.phi and b.pressure < a.pressure)
 

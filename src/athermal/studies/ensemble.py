@@ -440,8 +440,8 @@ def _compute(
         count = workers or available
         import dask
 
-        # the workers' statistical profiler samples every thread's stack each 10 ms: measured
-        # 29.6 s against 26.4 s without it for one N = 1024 jamming realization
+        # the workers' statistical profiler samples every thread's stack each 10 ms, which
+        # slows a realization (docs/decisions.md, "Measured behind the code")
         with dask.config.set({"distributed.worker.profile.enabled": False}):
             cluster = LocalCluster(
                 n_workers=count,
