@@ -549,8 +549,8 @@ def collect_pairs(  # type: ignore[no-untyped-def]
     when all are done, else the first bin that did not fit (the buffers are then to be grown
     and the call resumed from it). The buffers are never reallocated here: numba would then
     reference-count them in the inner loop (slower: ``docs/decisions.md``, "Measured behind the
-    code"). ``row_start[r]`` gets the
-    first pair of row ``r`` of bins along the last binned axis (z, or y in 2D).
+    code"). ``row_start[r]`` gets the first pair of row ``r`` of bins along the last binned axis
+    (z, or y in 2D).
     """
     nb0, nb1, nb2 = nbins[0], nbins[1], nbins[2]
     row_size = nb0 * nb1 if nb2 > 1 else nb0
