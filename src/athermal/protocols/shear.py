@@ -255,15 +255,12 @@ def shear_steps(
             raise InputError("resume: steps must be this run's steps 0, 1, ... in order")
         last = resume[-1]
         packing, tau_prev, gamma_prev, first = last.packing, last.tau, last.strain, len(resume)
+    layers = None if frozen is None else (lower, upper)
     for index in range(first, strains.size):
         gamma = float(strains[index])
         t0 = time.perf_counter()
-        if index and frozen is not None:
-            packing = plane_shift(packing, upper, frozen, gamma - gamma_prev)
-        elif index:
-            total_new = deformation(mode, gamma, start.dim)
-            total_old = deformation(mode, gamma_prev, start.dim)
-            packing = packing.deform(total_new @ np.linalg.inv(total_old))
+        if index:
+            packing = strained(packing, mode, gamma_prev, gamma, layers)
         objective = Objective(packing, model, frozen=frozen)
         result, saddles = Relaxer(objective, config).relax_to_minimum(
             objective.x0,
@@ -271,12 +268,7 @@ def shear_steps(
             what=f"shear step {index} (strain {gamma:g})",
         )
         packing = result.packing
-        obs = measure(packing, model, frozen)
-        if frozen is not None:
-            traction = plane_tractions(packing, model, lower, upper)
-            tau = 0.5 * float(traction[0, 0] - traction[1, 0])
-        else:
-            tau = driven_stress(mode, obs.stress)
+        obs, tau = step_stress(packing, model, mode, layers)
         drop = tau_prev - tau if index else 0.0
         yield ShearStep(
             index=index,
@@ -292,6 +284,40 @@ def shear_steps(
             packing=packing,
         )
         tau_prev, gamma_prev = tau, gamma
+
+
+Layers = tuple[NDArray[np.bool_], NDArray[np.bool_]]
+"""Plane shear's rough walls: the masks ``(N,)`` of the particles glued to the lower and to the
+upper wall (:func:`rough_walls`)."""
+
+
+def strained(
+    packing: Packing, mode: ShearMode, old: float, new: float, layers: Layers | None = None
+) -> Packing:
+    """``packing``, at strain ``old`` of ``mode``, taken to strain ``new``: its positions and
+    cell deformed by ``D(new) D(old)^-1``, or in plane shear (``layers``) its upper wall moved
+    (:func:`plane_shift`)."""
+    if layers is not None:
+        lower, upper = layers
+        return plane_shift(packing, upper, lower | upper, new - old)
+    total_new = deformation(mode, new, packing.dim)
+    total_old = deformation(mode, old, packing.dim)
+    return packing.deform(total_new @ np.linalg.inv(total_old))
+
+
+def step_stress(
+    packing: Packing, model: ContactModel, mode: ShearMode, layers: Layers | None = None
+) -> tuple[Observables, float]:
+    """The observables of a relaxed shear state (the glued particles of ``layers`` never
+    rattlers) and its driven stress ``tau`` (:func:`driven_stress`, or in plane shear the walls'
+    shear traction, :func:`plane_tractions`)."""
+    if layers is None:
+        obs = measure(packing, model)
+        return obs, driven_stress(mode, obs.stress)
+    lower, upper = layers
+    obs = measure(packing, model, lower | upper)
+    traction = plane_tractions(packing, model, lower, upper)
+    return obs, 0.5 * float(traction[0, 0] - traction[1, 0])
 
 
 def rough_walls(

@@ -1,0 +1,397 @@
+"""Athermal quasi-static (AQS) shear with its plastic events located exactly.
+
+A relaxed packing under a slowly increasing strain follows a branch of local minima until the
+branch ends in a saddle-node bifurcation: the lowest nonzero eigenvalue of the Hessian vanishes
+as ``lambda_min ~ (gamma_c - gamma)^(1/2)`` (Maloney & Lemaitre, PRE 74, 016118, 2006), the
+minimum merges with a saddle, and the packing falls into another minimum: a plastic event, with
+its drop of stress and energy. :func:`plastic_events` follows the branches and locates each end
+in strain to a tolerance ``tol`` (default :data:`EVENT_TOL`), whatever the step:
+
+* a state is on the branch of the previous one when the packing, taken back to the previous
+  strain and relaxed, returns to the previous minimum (:data:`SAME_STATE`): a state past an
+  event returns elsewhere (another basin), one before it to the same minimum;
+* between events the strain step grows (x :data:`GROWTH`, up to ``max_step``) and is held below
+  the end of the branch extrapolated from ``lambda_min^2``, linear in ``gamma_c - gamma`` near
+  it; an event is bracketed by a state on the branch and one off it;
+* the bracket shrinks by trials on either side of the extrapolated ``gamma_c``, or by
+  bisection when the extrapolation does not halve it, until it is narrower than ``tol``.
+
+Each event reports its strains (the last on the branch, the first off it, the extrapolated
+critical strain), the driven stress and energy just before and just after, the lowest
+eigenvalue and its mode (the critical mode) before, how many particles moved (participation
+number of the displacement), the largest displacement, and the contacts made and broken.
+Relaxations are the protocols' (:class:`~athermal.relaxation.Relaxer`, each checked to be a
+minimum); modes as :func:`~athermal.protocols.shear.shear_steps`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+from numpy.typing import NDArray
+
+from .._records import Value, as_row
+from .._validate import positive_scalar
+from ..analysis.modes import lowest_eigenpairs
+from ..analysis.moduli import DENSE_EIGEN_DOFS, nonrattler_contacts, nonrattler_hessian
+from ..errors import ConvergenceError, InputError
+from ..model.contact import ContactModel
+from ..model.objective import Objective
+from ..model.packing import Packing
+from ..relaxation import Minimizer, Relaxer, force_tolerance
+from .shear import Layers, ShearMode, check_mode, rough_walls, step_stress, strained
+
+EVENT_TOL = 1e-9
+"""Default width in strain of the bracket that locates an event."""
+SAME_STATE = 1e-6
+"""Two relaxed states are one minimum when no non-rattler lies farther from its place in the
+other than this x the mean diameter (relaxations of one basin agree to round-off, ~1e-12; an
+event moves particles by much more: ``docs/decisions.md``, "Plastic events")."""
+GROWTH = 2.0
+"""Factor by which the strain step grows after a step that stayed on the branch."""
+APPROACH = 0.5
+"""Between events a step goes at most this fraction of the way to the extrapolated end of the
+branch."""
+MAX_TRIALS = 100
+"""Trials at most to locate one event."""
+
+
+@dataclass(frozen=True, eq=False)
+class BranchState:
+    """A relaxed minimum at ``strain``: its packing, driven stress ``tau``, energy, pressure,
+    the lowest nonzero eigenvalue of its Hessian (rattlers out, translations skipped) and that
+    mode ``(N, d)`` (unit, zero on rattlers), and the relaxations' iterations."""
+
+    strain: float
+    packing: Packing = field(repr=False)
+    tau: float
+    energy: float
+    pressure: float
+    lowest_eigenvalue: float
+    mode: NDArray[np.float64] = field(repr=False)
+    rattler: NDArray[np.bool_] = field(repr=False)
+    iterations: int = 0
+
+    def row(self) -> dict[str, Value]:
+        """The state's numbers (no packing, mode or rattlers)."""
+        return as_row(self)
+
+
+@dataclass(frozen=True, eq=False)
+class PlasticEvent:
+    """One plastic event: the end of a branch of minima and where the packing fell.
+
+    ``strain`` is the last strain on the branch and ``strain_after`` the first off it
+    (``strain_after - strain <= tol``); ``critical_strain`` the end extrapolated from
+    ``lambda_min^2``, linear in ``gamma_c - gamma`` (NaN when the eigenvalue did not fall);
+    ``before`` and ``after`` the relaxed states there; ``moved`` the participation number
+    ``(sum |u_i|^2)^2 / sum |u_i|^4`` of the displacement ``u`` from ``before`` (taken to
+    ``strain_after``) to ``after`` over the particles that are no rattler in either, and
+    ``max_displacement`` its largest ``|u_i|`` in mean diameters; ``contacts_made`` and
+    ``contacts_broken`` between those particles; ``trials`` the relaxations that located it.
+    """
+
+    index: int
+    strain: float
+    strain_after: float
+    critical_strain: float
+    moved: float
+    max_displacement: float
+    contacts_made: int
+    contacts_broken: int
+    trials: int
+    before: BranchState = field(repr=False)
+    after: BranchState = field(repr=False)
+
+    @property
+    def stress_drop(self) -> float:
+        """``tau`` before minus ``tau`` after."""
+        return self.before.tau - self.after.tau
+
+    @property
+    def energy_drop(self) -> float:
+        """The energy before minus the energy after."""
+        return self.before.energy - self.after.energy
+
+    def row(self) -> dict[str, Value]:
+        """The event's numbers, for tables and JSON."""
+        return {
+            **as_row(self),
+            "tau_before": self.before.tau,
+            "tau_after": self.after.tau,
+            "stress_drop": self.stress_drop,
+            "energy_before": self.before.energy,
+            "energy_after": self.after.energy,
+            "energy_drop": self.energy_drop,
+            "lowest_eigenvalue_before": self.before.lowest_eigenvalue,
+        }
+
+
+def soft_mode(
+    packing: Packing, model: ContactModel, frozen: NDArray[np.bool_] | None = None
+) -> tuple[float, NDArray[np.float64], NDArray[np.bool_]]:
+    """The lowest nonzero eigenvalue of the Hessian of ``packing``'s non-rattlers (the
+    translations along its periodic axes skipped; with ``frozen``, those particles held), its
+    unit mode ``(N, d)`` (zero on rattlers, the sign fixed by its largest component) and the
+    rattler mask ``(N,)``."""
+    dim = packing.dim
+    contacts, rattler = nonrattler_contacts(packing, model, frozen)
+    h, dofs = nonrattler_hessian(contacts, rattler, dim)
+    translations = 0
+    if frozen is not None:  # the held particles pin the rest
+        free = np.flatnonzero(~frozen[dofs // dim])
+        h, dofs = h[free][:, free].tocsr(), dofs[free]
+    else:
+        translations = packing.cell.periodic_axes
+    if dofs.size <= translations:
+        raise InputError("packing: no particle left to move (all rattlers)")
+    values, vectors = _lowest(h, translations + 1)
+    if translations:
+        axes = [a for a in range(dim) if a not in packing.cell.walls]
+        along = np.zeros((dofs.size, len(axes)))
+        for k, a in enumerate(axes):
+            along[dofs % dim == a, k] = 1.0
+        along /= np.linalg.norm(along, axis=0)
+        overlap = np.linalg.norm(along.T @ vectors, axis=0)
+        keep = np.flatnonzero(overlap < 0.5)
+        values, vectors = values[keep], vectors[:, keep]
+    mode = np.zeros((packing.n, dim))
+    mode.reshape(-1)[dofs] = vectors[:, 0]
+    mode /= np.linalg.norm(mode)
+    flat = mode.reshape(-1)
+    if flat[np.argmax(np.abs(flat))] < 0.0:
+        mode = -mode
+    return float(values[0]), mode, rattler
+
+
+def _lowest(h: sp.csr_matrix, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The ``k`` lowest eigenpairs of ``h``: dense up to a few hundred rows, else ARPACK in
+    shift-invert mode (:func:`~athermal.analysis.modes.lowest_eigenpairs`)."""
+    if h.shape[0] <= min(DENSE_EIGEN_DOFS, 400) or k >= h.shape[0] - 1:
+        values, vectors = np.linalg.eigh(h.toarray())
+        return values[:k], vectors[:, :k]
+    return lowest_eigenpairs(h, k)
+
+
+class _Shear:
+    """One AQS run's fixed parts: the model, mode, rough walls, minimizer and tolerance."""
+
+    def __init__(
+        self,
+        model: ContactModel,
+        mode: ShearMode,
+        layers: Layers | None,
+        minimizer: Minimizer,
+    ) -> None:
+        self.model, self.mode, self.layers = model, mode, layers
+        self.minimizer = minimizer
+        self.frozen = None if layers is None else layers[0] | layers[1]
+        self.relaxations = 0
+
+    def relax(self, packing: Packing, strain: float) -> tuple[Packing, int]:
+        """``packing`` relaxed to a minimum (the protocols' relaxation) at the round-off floor,
+        and its iterations: near the end of a branch the minimum is ill-conditioned, and a state
+        relaxed to a force ``f`` lies ``f / lambda_min`` from it along the soft mode."""
+        objective = Objective(packing, self.model, frozen=self.frozen)
+        result, _ = Relaxer(objective, self.minimizer).relax_to_minimum(
+            objective.x0,
+            gtol=force_tolerance(packing, self.model, 0.0),
+            what=f"AQS state at strain {strain:.12g}",
+        )
+        self.relaxations += 1
+        return result.packing, result.iterations
+
+    def state(self, packing: Packing, strain: float, iterations: int = 0) -> BranchState:
+        """The :class:`BranchState` of the relaxed ``packing`` at ``strain``."""
+        obs, tau = step_stress(packing, self.model, self.mode, self.layers)
+        value, mode, rattler = soft_mode(packing, self.model, self.frozen)
+        return BranchState(
+            strain, packing, tau, obs.energy, obs.pressure, value, mode, rattler, iterations
+        )
+
+    def advance(self, base: BranchState, strain: float) -> tuple[BranchState, bool]:
+        """The minimum reached from ``base`` strained to ``strain``, and whether it lies on
+        ``base``'s branch: strained back and relaxed, it returns to ``base``."""
+        forward, iterations = self.relax(
+            strained(base.packing, self.mode, base.strain, strain, self.layers), strain
+        )
+        back, more = self.relax(
+            strained(forward, self.mode, strain, base.strain, self.layers), base.strain
+        )
+        return self.state(forward, strain, iterations + more), self.same(back, base)
+
+    def same(self, packing: Packing, base: BranchState) -> bool:
+        """Whether ``packing`` is ``base``'s minimum (:data:`SAME_STATE`)."""
+        delta = self.displacement(base.packing, packing, ~base.rattler)
+        diameter = 2.0 * float(np.mean(base.packing.radii))
+        return bool(np.max(np.linalg.norm(delta, axis=1), initial=0.0) <= SAME_STATE * diameter)
+
+    def displacement(
+        self, old: Packing, new: Packing, live: NDArray[np.bool_]
+    ) -> NDArray[np.float64]:
+        """The displacement ``(N', d)`` of the particles of ``live`` from ``old`` to ``new``
+        (one cell, minimum image), without its mean along the periodic axes when nothing is held:
+        a translation of the particles that are no rattlers costs no energy (a rattler that
+        touches them takes up the difference), so it is no change of minimum."""
+        delta = old.cell.minimum_image(new.positions[live] - old.positions[live])
+        if self.frozen is None and delta.size:
+            axes = [a for a in range(old.dim) if a not in old.cell.walls]
+            delta[:, axes] -= delta[:, axes].mean(axis=0)
+        return delta
+
+
+def _end_of_branch(states: list[BranchState]) -> float:
+    """``gamma_c`` where ``lambda_min^2`` reaches zero: the root past the last state of the
+    parabola through the last three states of one branch (of the line through the last two when
+    the parabola has none); NaN unless the eigenvalue fell toward it."""
+    if len(states) < 2:
+        return float("nan")
+    a, b = states[-2], states[-1]
+    fall = a.lowest_eigenvalue**2 - b.lowest_eigenvalue**2
+    if not (fall > 0.0 and b.strain > a.strain and b.lowest_eigenvalue > 0.0):
+        return float("nan")
+    line = b.strain + b.lowest_eigenvalue**2 * (b.strain - a.strain) / fall
+    if len(states) < 3:
+        return line
+    g = np.array([s.strain for s in states[-3:]])
+    y = np.array([s.lowest_eigenvalue**2 for s in states[-3:]])
+    roots = np.roots(np.polyfit(g - g[-1], y, 2))
+    ahead = [r.real for r in roots if abs(r.imag) <= 1e-12 * abs(r.real) and r.real > 0.0]
+    return g[-1] + min(ahead) if ahead else line
+
+
+def plastic_events(
+    start: Packing,
+    model: ContactModel,
+    *,
+    mode: ShearMode = "simple",
+    strain: float = 0.01,
+    step: float = 1e-4,
+    max_step: float | None = None,
+    tol: float = EVENT_TOL,
+    minimizer: Minimizer | None = None,
+    wall_layer: float | None = None,
+) -> Iterator[BranchState | PlasticEvent]:
+    """Shear ``start`` quasi-statically to ``strain`` and yield every branch state and every
+    plastic event, each event located to ``tol`` in strain (module docstring).
+
+    Parameters
+    ----------
+    start : a packing above jamming, relaxed first (the first state yielded, at strain 0).
+    model : contact law.
+    mode : ``"simple"`` (default), ``"pure"``, ``"uniaxial"`` or ``"plane"``
+        (:func:`~athermal.protocols.shear.check_mode`).
+    strain : the final strain.
+    step : the first strain step, and the step after each event; it grows by :data:`GROWTH`
+        up to ``max_step`` (default ``10 step``) while the packing stays on its branch.
+    tol : the largest bracket of an event, in strain.
+    minimizer : how each state is relaxed (default L-BFGS), to the round-off floor
+        (:func:`~athermal.relaxation.round_off_floor`).
+    wall_layer : plane shear's rough walls (:func:`~athermal.protocols.shear.rough_walls`).
+    """
+    strain = positive_scalar(strain, "strain")
+    step = positive_scalar(step, "step")
+    tol = positive_scalar(tol, "tol")
+    largest = 10.0 * step if max_step is None else positive_scalar(max_step, "max_step")
+    if not tol < step <= largest <= strain:
+        raise InputError(
+            f"step: need tol < step <= max_step <= strain, got {tol:g}, {step:g}, {largest:g}, "
+            f"{strain:g}"
+        )
+    check_mode(mode, strain, start.cell, wall_layer)
+    layers = rough_walls(start, wall_layer) if mode == "plane" else None
+    run = _Shear(model, mode, layers, minimizer or Minimizer())
+    relaxed, iterations = run.relax(start, 0.0)
+    branch = [run.state(relaxed, 0.0, iterations)]
+    yield branch[-1]
+    events, size = 0, step
+    while branch[-1].strain < strain:
+        base = branch[-1]
+        target = min(base.strain + size, strain)
+        end = _end_of_branch(branch)
+        if end > base.strain:
+            target = min(
+                target, max(base.strain + APPROACH * (end - base.strain), base.strain + tol)
+            )
+        state, on = run.advance(base, target)
+        if on:
+            branch.append(state)
+            yield state
+            size = min(GROWTH * size, largest)
+            continue
+        event = _locate(run, branch, state, tol, events)
+        yield event
+        events += 1
+        branch, size = [event.after], step
+        yield event.after
+
+
+def _locate(
+    run: _Shear, branch: list[BranchState], off: BranchState, tol: float, index: int
+) -> PlasticEvent:
+    """The event between the branch's last state and ``off``, a state past its end: the bracket
+    shrunk below ``tol`` (module docstring)."""
+    branch, start = list(branch), run.relaxations
+    for _ in range(MAX_TRIALS):
+        lo = branch[-1]
+        width = off.strain - lo.strain
+        if width <= tol:
+            return _event(run, branch, off, index, run.relaxations - start)
+        end = _end_of_branch(branch)
+        trial = lo.strain + 0.5 * width  # bisection, unless the end is predicted in the bracket
+        if lo.strain < end < off.strain:
+            gap = end - lo.strain  # from below while the end is far, then just past it
+            trial = end - max(0.1 * gap, 0.3 * tol) if gap > tol else end + 0.4 * tol
+            trial = min(max(trial, lo.strain + 0.1 * tol), off.strain - 0.1 * tol)
+        state, on = run.advance(lo, trial)
+        if on:
+            branch.append(state)
+        else:
+            off = state
+    raise ConvergenceError(
+        f"plastic event after strain {branch[-1].strain:.12g}: not located to {tol:g} in "
+        f"{MAX_TRIALS} trials"
+    )
+
+
+def _event(
+    run: _Shear, branch: list[BranchState], off: BranchState, index: int, trials: int
+) -> PlasticEvent:
+    """The :class:`PlasticEvent` from the branch's last state to ``off``."""
+    before = branch[-1]
+    moved_to = strained(before.packing, run.mode, before.strain, off.strain, run.layers)
+    live = ~(before.rattler | off.rattler)
+    u = run.displacement(moved_to, off.packing, live)
+    squares = np.einsum("ij,ij->i", u, u)
+    moved = float(squares.sum() ** 2 / np.sum(squares**2)) if squares.any() else 0.0
+    diameter = 2.0 * float(np.mean(before.packing.radii))
+    made, broken = _contact_changes(run, before.packing, off.packing, live)
+    return PlasticEvent(
+        index=index,
+        strain=before.strain,
+        strain_after=off.strain,
+        critical_strain=_end_of_branch(branch),
+        moved=moved,
+        max_displacement=float(np.sqrt(squares.max(initial=0.0))) / diameter,
+        contacts_made=made,
+        contacts_broken=broken,
+        trials=trials,
+        before=before,
+        after=off,
+    )
+
+
+def _contact_changes(
+    run: _Shear, before: Packing, after: Packing, live: NDArray[np.bool_]
+) -> tuple[int, int]:
+    """Contacts between the particles of ``live`` made and broken from ``before`` to
+    ``after``."""
+    pairs = []
+    for packing in (before, after):
+        contacts, _ = nonrattler_contacts(packing, run.model, run.frozen)
+        keep = live[contacts.i] & live[contacts.j]
+        pairs.append(set(zip(contacts.i[keep].tolist(), contacts.j[keep].tolist(), strict=True)))
+    return len(pairs[1] - pairs[0]), len(pairs[0] - pairs[1])

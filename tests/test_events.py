@@ -1,0 +1,113 @@
+"""Plastic events of athermal quasi-static shear, located by the end of their branch of minima:
+the saddle-node's square root, events independent of the step, the bracket's two sides, the
+records, and the refusals."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from athermal import ContactModel, random_packing
+from athermal.analysis.moduli import stability
+from athermal.errors import InputError
+from athermal.protocols.events import (
+    BranchState,
+    PlasticEvent,
+    _Shear,
+    plastic_events,
+    soft_mode,
+)
+from athermal.protocols.shear import strained
+from athermal.relaxation import Minimizer
+
+HERTZ = ContactModel(2.5)
+START = random_packing(32, 0.88, seed=3)
+
+
+def events(model=HERTZ, start=START, **options) -> list[PlasticEvent]:
+    return [e for e in plastic_events(start, model, **options) if isinstance(e, PlasticEvent)]
+
+
+@pytest.fixture(scope="module")
+def first() -> PlasticEvent:
+    return events(strain=0.03, step=1e-3, tol=1e-10)[0]
+
+
+def test_the_lowest_eigenvalue_vanishes_as_a_square_root(first):
+    """A saddle-node: on the branch at ``gamma_c - delta`` the lowest nonzero eigenvalue goes as
+    ``delta^(1/2)`` (measured slope 0.48 over delta = 1e-8 ... 1e-6, N = 32, Hertz), and the
+    located strain lies within the bracket of the extrapolated ``gamma_c``."""
+    gc = first.critical_strain
+    assert first.strain <= gc <= first.strain_after + 1e-10
+    run = _Shear(HERTZ, "simple", None, Minimizer())
+    deltas = np.array([1e-6, 3e-7, 1e-7, 3e-8, 1e-8])
+    lams = []
+    for delta in deltas:
+        packing, _ = run.relax(
+            strained(first.before.packing, "simple", first.strain, gc - delta), 0
+        )
+        lams.append(soft_mode(packing, HERTZ)[0])
+    slope = np.polyfit(np.log(deltas), np.log(lams), 1)[0]
+    assert slope == pytest.approx(0.5, abs=0.04)
+    assert np.all(np.diff(lams) < 0)  # it falls toward the end
+    # lambda^2 / delta tends to a constant (the saddle-node's normal form)
+    ratio = np.array(lams) ** 2 / deltas
+    assert ratio.max() / ratio.min() < 1.4
+
+
+def test_the_bracket_holds_a_minimum_below_and_another_above(first):
+    """At ``strain`` a stable minimum, its eigenvalue small; at ``strain_after`` the packing has
+    fallen into another: the energy dropped, particles moved, contacts changed."""
+    assert first.strain_after - first.strain <= 1e-10
+    assert stability(first.before.packing, HERTZ).stable
+    assert 0.0 < first.before.lowest_eigenvalue < 1e-2 * first.after.lowest_eigenvalue
+    assert first.energy_drop > 0.0
+    assert first.max_displacement > 1e-3  # in mean diameters, far above SAME_STATE
+    assert 2.0 <= first.moved <= START.n
+    assert first.contacts_made + first.contacts_broken > 0
+    row = first.row()
+    assert row["stress_drop"] == first.before.tau - first.after.tau
+    assert set(row) >= {"strain", "strain_after", "critical_strain", "energy_drop", "moved"}
+
+
+def test_the_events_do_not_depend_on_the_step():
+    """The same events at the same strains (to the tolerance) whatever the strain step."""
+    a = events(strain=0.03, step=1e-3, tol=1e-10)
+    b = events(strain=0.03, step=4e-4, max_step=2e-3, tol=1e-10)
+    assert len(a) == len(b) >= 1
+    for x, y in zip(a, b, strict=True):
+        assert abs(x.strain - y.strain) <= 2e-10
+        assert x.energy_drop == pytest.approx(y.energy_drop, rel=1e-4)
+
+
+def test_states_between_events_stay_on_their_branch():
+    """The states yielded between events: strains increasing, each a stable minimum, the step
+    growing; every event followed by its ``after`` state."""
+    items = list(plastic_events(START, HERTZ, strain=0.03, step=1e-3, tol=1e-9))
+    states = [s for s in items if isinstance(s, BranchState)]
+    strains = [s.strain for s in states]
+    assert strains[0] == 0.0 and strains[-1] == pytest.approx(0.03)
+    assert np.all(np.diff(strains) > 0)
+    for k, item in enumerate(items):
+        if isinstance(item, PlasticEvent):
+            assert items[k + 1] is item.after
+
+
+def test_harmonic_packings_and_pure_shear_have_events():
+    """Harmonic contacts (whose branch can also end where a contact opens, the Hessian losing
+    its stiffness at once) and pure shear: events located, each releasing energy."""
+    for model, mode in ((ContactModel(2.0), "simple"), (HERTZ, "pure")):
+        found = events(model, strain=0.05, step=1e-3, tol=1e-9, mode=mode)
+        assert found, mode
+        for e in found:
+            assert e.strain_after - e.strain <= 1e-9
+            assert e.energy_drop > 0.0
+
+
+def test_bad_settings_are_refused_before_any_work():
+    with pytest.raises(InputError, match="step: need tol < step"):
+        next(plastic_events(START, HERTZ, step=1e-9, tol=1e-9))
+    with pytest.raises(InputError, match="strain"):
+        next(plastic_events(START, HERTZ, strain=-1.0))
+    with pytest.raises(InputError, match="mode"):
+        next(plastic_events(START, HERTZ, mode="twist"))
