@@ -184,12 +184,18 @@ class _Shear:
         model: ContactModel,
         mode: ShearMode,
         layers: Layers | None,
-        minimizer: Minimizer,
+        minimizer: Minimizer | None = None,
     ) -> None:
         self.model, self.mode, self.layers = model, mode, layers
-        self.minimizer = minimizer
+        self.minimizer = minimizer or Minimizer()
         self.frozen = None if layers is None else layers[0] | layers[1]
         self.relaxations = 0
+        self.events = 0
+
+    def first(self, start: Packing) -> BranchState:
+        """``start`` relaxed: the first state, at strain 0."""
+        relaxed, iterations = self.relax(start, 0.0)
+        return self.state(relaxed, 0.0, iterations)
 
     def relax(self, packing: Packing, strain: float) -> tuple[Packing, int]:
         """``packing`` relaxed to a minimum (the protocols' relaxation) at the round-off floor,
@@ -243,24 +249,42 @@ class _Shear:
         return delta
 
 
-def _end_of_branch(states: list[BranchState]) -> float:
-    """``gamma_c`` where ``lambda_min^2`` reaches zero: the root past the last state of the
-    parabola through the last three states of one branch (of the line through the last two when
-    the parabola has none); NaN unless the eigenvalue fell toward it."""
+def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
+    """The strain where ``lambda_min^2`` reaches zero ahead of the last of ``states`` (one branch,
+    strained in ``direction``, +1 or -1): the root of the parabola through the last three
+    states, or of the line through the last two when the parabola has none; NaN unless the
+    eigenvalue fell toward it."""
     if len(states) < 2:
         return float("nan")
     a, b = states[-2], states[-1]
     fall = a.lowest_eigenvalue**2 - b.lowest_eigenvalue**2
-    if not (fall > 0.0 and b.strain > a.strain and b.lowest_eigenvalue > 0.0):
+    ahead = direction * (b.strain - a.strain)
+    if not (fall > 0.0 and ahead > 0.0 and b.lowest_eigenvalue > 0.0):
         return float("nan")
-    line = b.strain + b.lowest_eigenvalue**2 * (b.strain - a.strain) / fall
-    if len(states) < 3:
-        return line
-    g = np.array([s.strain for s in states[-3:]])
-    y = np.array([s.lowest_eigenvalue**2 for s in states[-3:]])
-    roots = np.roots(np.polyfit(g - g[-1], y, 2))
-    ahead = [r.real for r in roots if abs(r.imag) <= 1e-12 * abs(r.real) and r.real > 0.0]
-    return g[-1] + min(ahead) if ahead else line
+    line = b.lowest_eigenvalue**2 * ahead / fall
+    if len(states) >= 3:
+        u = np.array([direction * (s.strain - b.strain) for s in states[-3:]])
+        y = np.array([s.lowest_eigenvalue**2 for s in states[-3:]])
+        roots = np.roots(np.polyfit(u, y, 2))
+        real = [r.real for r in roots if abs(r.imag) <= 1e-12 * abs(r.real) and r.real > 0.0]
+        line = min(real) if real else line
+    return b.strain + direction * line
+
+
+def _check_steps(step: float, max_step: float | None, tol: float, strain: float) -> float:
+    """``max_step`` (default ``10 step``, at most ``strain``) after the settings' checks:
+    ``tol < step <= max_step <= strain``, each > 0."""
+    step = positive_scalar(step, "step")
+    tol = positive_scalar(tol, "tol")
+    largest = (
+        min(10.0 * step, strain) if max_step is None else positive_scalar(max_step, "max_step")
+    )
+    if not tol < step <= largest <= strain:
+        raise InputError(
+            f"step: need tol < step <= max_step <= strain, got {tol:g}, {step:g}, {largest:g}, "
+            f"{strain:g}"
+        )
+    return largest
 
 
 def plastic_events(
@@ -293,60 +317,68 @@ def plastic_events(
     wall_layer : plane shear's rough walls (:func:`~athermal.protocols.shear.rough_walls`).
     """
     strain = positive_scalar(strain, "strain")
-    step = positive_scalar(step, "step")
-    tol = positive_scalar(tol, "tol")
-    largest = 10.0 * step if max_step is None else positive_scalar(max_step, "max_step")
-    if not tol < step <= largest <= strain:
-        raise InputError(
-            f"step: need tol < step <= max_step <= strain, got {tol:g}, {step:g}, {largest:g}, "
-            f"{strain:g}"
-        )
+    largest = _check_steps(step, max_step, tol, strain)
     check_mode(mode, strain, start.cell, wall_layer)
-    layers = rough_walls(start, wall_layer) if mode == "plane" else None
-    run = _Shear(model, mode, layers, minimizer or Minimizer())
-    relaxed, iterations = run.relax(start, 0.0)
-    branch = [run.state(relaxed, 0.0, iterations)]
-    yield branch[-1]
-    events, size = 0, step
-    while branch[-1].strain < strain:
+    run = _Shear(
+        model, mode, rough_walls(start, wall_layer) if mode == "plane" else None, minimizer
+    )
+    first = run.first(start)
+    yield first
+    yield from _follow(run, [first], strain, step, largest, tol)
+
+
+def _follow(
+    run: _Shear,
+    branch: list[BranchState],
+    target: float,
+    step: float,
+    largest: float,
+    tol: float,
+) -> Iterator[BranchState | PlasticEvent]:
+    """Follow the branches from the last of ``branch`` to the strain ``target``, yielding each
+    state and event (the events numbered on from ``run.events``); the branch the path ends on
+    is left in ``branch``."""
+    direction = 1.0 if target > branch[-1].strain else -1.0
+    del branch[:-1]  # the eigenvalue's trend is the leg's
+    size = step
+    while direction * (target - branch[-1].strain) > 0.0:
         base = branch[-1]
-        target = min(base.strain + size, strain)
-        end = _end_of_branch(branch)
-        if end > base.strain:
-            target = min(
-                target, max(base.strain + APPROACH * (end - base.strain), base.strain + tol)
-            )
-        state, on = run.advance(base, target)
+        ahead = min(size, direction * (target - base.strain))
+        end = _end_of_branch(branch, direction)
+        if direction * (end - base.strain) > 0.0:
+            ahead = min(ahead, max(APPROACH * direction * (end - base.strain), tol))
+        state, on = run.advance(base, base.strain + direction * ahead)
         if on:
             branch.append(state)
             yield state
             size = min(GROWTH * size, largest)
             continue
-        event = _locate(run, branch, state, tol, events)
+        event = _locate(run, branch, state, tol, direction)
         yield event
-        events += 1
-        branch, size = [event.after], step
+        branch[:] = [event.after]
+        size = step
         yield event.after
 
 
 def _locate(
-    run: _Shear, branch: list[BranchState], off: BranchState, tol: float, index: int
+    run: _Shear, branch: list[BranchState], off: BranchState, tol: float, direction: float
 ) -> PlasticEvent:
-    """The event between the branch's last state and ``off``, a state past its end: the bracket
-    shrunk below ``tol`` (module docstring)."""
+    """The event between the branch's last state and ``off``, a state past its end in
+    ``direction``: the bracket shrunk below ``tol`` (module docstring)."""
     branch, start = list(branch), run.relaxations
     for _ in range(MAX_TRIALS):
         lo = branch[-1]
-        width = off.strain - lo.strain
+        width = direction * (off.strain - lo.strain)
         if width <= tol:
-            return _event(run, branch, off, index, run.relaxations - start)
-        end = _end_of_branch(branch)
-        trial = lo.strain + 0.5 * width  # bisection, unless the end is predicted in the bracket
-        if lo.strain < end < off.strain:
-            gap = end - lo.strain  # from below while the end is far, then just past it
-            trial = end - max(0.1 * gap, 0.3 * tol) if gap > tol else end + 0.4 * tol
-            trial = min(max(trial, lo.strain + 0.1 * tol), off.strain - 0.1 * tol)
-        state, on = run.advance(lo, trial)
+            event = _event(run, branch, off, run.events, run.relaxations - start, direction)
+            run.events += 1
+            return event
+        end = direction * (_end_of_branch(branch, direction) - lo.strain)  # ahead of lo
+        ahead = 0.5 * width  # bisection, unless the end is predicted in the bracket
+        if 0.0 < end < width:
+            ahead = end - max(0.1 * end, 0.3 * tol) if end > tol else end + 0.4 * tol
+            ahead = min(max(ahead, 0.1 * tol), width - 0.1 * tol)
+        state, on = run.advance(lo, lo.strain + direction * ahead)
         if on:
             branch.append(state)
         else:
@@ -358,7 +390,12 @@ def _locate(
 
 
 def _event(
-    run: _Shear, branch: list[BranchState], off: BranchState, index: int, trials: int
+    run: _Shear,
+    branch: list[BranchState],
+    off: BranchState,
+    index: int,
+    trials: int,
+    direction: float,
 ) -> PlasticEvent:
     """The :class:`PlasticEvent` from the branch's last state to ``off``."""
     before = branch[-1]
@@ -373,7 +410,7 @@ def _event(
         index=index,
         strain=before.strain,
         strain_after=off.strain,
-        critical_strain=_end_of_branch(branch),
+        critical_strain=_end_of_branch(branch, direction),
         moved=moved,
         max_displacement=float(np.sqrt(squares.max(initial=0.0))) / diameter,
         contacts_made=made,
@@ -395,3 +432,94 @@ def _contact_changes(
         keep = live[contacts.i] & live[contacts.j]
         pairs.append(set(zip(contacts.i[keep].tolist(), contacts.j[keep].tolist(), strict=True)))
     return len(pairs[1] - pairs[0]), len(pairs[0] - pairs[1])
+
+
+@dataclass(frozen=True, eq=False)
+class CycleEnd:
+    """The state at the end of cycle ``cycle`` (1, 2, ...; back at strain 0), the events of
+    that cycle, and ``repeats``: the smallest ``p`` such that this state is the end of cycle
+    ``cycle - p`` (cycle 0: the start), the same minimum to :data:`SAME_STATE`, or None."""
+
+    cycle: int
+    state: BranchState = field(repr=False)
+    events: int
+    repeats: int | None
+
+    def row(self) -> dict[str, Value]:
+        """The cycle's numbers: its end's energy, stress and pressure, events and repeat."""
+        return {
+            "cycle": self.cycle,
+            "energy": self.state.energy,
+            "tau": self.state.tau,
+            "pressure": self.state.pressure,
+            "events": self.events,
+            "repeats": -1 if self.repeats is None else self.repeats,
+        }
+
+
+@dataclass(frozen=True)
+class LimitCycle:
+    """What cyclic shear reached: a limit cycle (``reached``) entered at the end of cycle
+    ``cycle`` (0: the start), of ``period`` cycles with ``events`` plastic events in one
+    period; ``cycles`` the cycles run."""
+
+    reached: bool
+    cycle: int | None
+    period: int | None
+    events: int | None
+    cycles: int
+
+
+def cyclic_shear(
+    start: Packing,
+    model: ContactModel,
+    *,
+    amplitude: float,
+    cycles: int,
+    mode: ShearMode = "simple",
+    step: float = 1e-4,
+    max_step: float | None = None,
+    tol: float = EVENT_TOL,
+    minimizer: Minimizer | None = None,
+    wall_layer: float | None = None,
+    stop: bool = True,
+) -> Iterator[BranchState | PlasticEvent | CycleEnd]:
+    """Shear ``start`` quasi-statically back and forth between strains ``+amplitude`` and
+    ``-amplitude`` (each cycle 0 -> A -> -A -> 0), yielding every branch state and plastic
+    event (located as :func:`plastic_events` does) and, after each cycle, its
+    :class:`CycleEnd`. A cycle whose end is the end of an earlier cycle closes a limit cycle
+    (:func:`limit_cycle`); with ``stop`` the run ends there, else after ``cycles`` cycles."""
+    amplitude = positive_scalar(amplitude, "amplitude")
+    if int(cycles) != cycles or cycles < 1:
+        raise InputError(f"cycles: must be an integer >= 1, got {cycles!r}")
+    largest = _check_steps(step, max_step, tol, amplitude)
+    check_mode(mode, amplitude, start.cell, wall_layer)
+    run = _Shear(
+        model, mode, rough_walls(start, wall_layer) if mode == "plane" else None, minimizer
+    )
+    branch = [run.first(start)]
+    yield branch[0]
+    ends = [branch[0]]
+    for cycle in range(1, int(cycles) + 1):
+        before = run.events
+        for target in (amplitude, -amplitude, 0.0):
+            yield from _follow(run, branch, target, step, largest, tol)
+        end = branch[-1]
+        repeats = next(
+            (p for p in range(1, cycle + 1) if run.same(end.packing, ends[cycle - p])), None
+        )
+        ends.append(end)
+        yield CycleEnd(cycle, end, run.events - before, repeats)
+        if stop and repeats is not None:
+            return
+
+
+def limit_cycle(ends: list[CycleEnd]) -> LimitCycle:
+    """The limit cycle of the first of ``ends`` (a cyclic shear's, in order) that repeats an
+    earlier cycle's end: entered at the end of cycle ``cycle - repeats``, ``repeats`` cycles
+    long, with the events of its last ``repeats`` cycles; not reached when none repeats."""
+    for k, end in enumerate(ends):
+        if end.repeats is not None:
+            events = sum(e.events for e in ends[k - end.repeats + 1 : k + 1])
+            return LimitCycle(True, end.cycle - end.repeats, end.repeats, events, len(ends))
+    return LimitCycle(False, None, None, None, len(ends))
