@@ -155,3 +155,33 @@ def test_cyclic_settings_are_refused():
         next(cyclic_shear(START, HERTZ, amplitude=0.01, cycles=0))
     with pytest.raises(InputError, match="amplitude"):
         next(cyclic_shear(START, HERTZ, amplitude=-0.01, cycles=2))
+
+
+def test_the_command_writes_events_frames_and_tables(tmp_path, capsys):
+    """``athermal shear --events``: the frames before and after each event, marked; the
+    states' and the events' tables; the summary. ``--cycles``: the cycles' table and the limit
+    cycle."""
+    import json
+
+    from athermal import read_gsd, write_gsd
+    from athermal.cli import main
+    from athermal.io import count_frames
+    from athermal.studies.tables import read_table
+
+    write_gsd(tmp_path / "start.gsd", START, model=HERTZ)
+    out = tmp_path / "s.gsd"
+    argv = ["shear", str(tmp_path / "start.gsd"), "-o", str(out), "--mode", "simple"]
+    assert main([*argv, "--events", "--strain", "0.03", "--step", "1e-3", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    events = read_table(tmp_path / "s.events.csv")
+    assert summary["events"] == len(events) >= 1
+    assert count_frames(out) == 1 + 2 * len(events)
+    before, after = read_gsd(out, frame=1), read_gsd(out, frame=2)
+    assert float(before.log["event_before"]) == 0 and float(after.log["event_after"]) == 0
+    assert float(before.log["strain"]) == events[0]["strain"]
+    assert len(read_table(tmp_path / "s.csv")) == summary["states"]
+    cyclic = [*argv, "--cycles", "5", "--amplitude", "0.06", "--step", "1e-3", "--json"]
+    assert main([*cyclic[:3], str(tmp_path / "c.gsd"), *cyclic[4:]]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["limit_cycle"]["reached"] and summary["limit_cycle"]["period"] == 1
+    assert len(read_table(tmp_path / "c.cycles.csv")) == summary["limit_cycle"]["cycles_run"]

@@ -27,6 +27,7 @@ from ..model.law import PowerContact
 from ..model.packing import check_width
 from ..protocols import RESOLUTION, check_growth, start_fraction
 from ..protocols.compress import log_count
+from ..protocols.events import check_cycles, check_steps
 from ..protocols.jamming import JAMMED_PHI
 from ..protocols.shear import strain_steps
 from ..relaxation import Minimizer
@@ -162,6 +163,11 @@ def _work(args: argparse.Namespace) -> None:
             raise InputError(f"--{exc}") from None
     if args.command == "relax" and args.pressure is not None:
         _library(check_enthalpy_method, args.method, args.precon or "none")
+    if args.command == "shear" and _plastic(args):
+        extent = args.strain
+        if args.cycles is not None and args.amplitude is not None:
+            extent = _library(check_cycles, args.amplitude, args.cycles)
+        _library(check_steps, args.step, args.max_step, args.tol, extent)
     if args.command == "criticality":
         for option in ("force_window", "gap_window"):
             low, high = getattr(args, option)
@@ -239,6 +245,12 @@ def _idle(args: argparse.Namespace) -> None:
         "polydispersity": ("continuous", "the width of --sizes uniform or lognormal; add one"),
         "size_ratio": ("bidisperse", "the bidisperse mixture's; drop --sizes"),
         "picture": ("2D", "pictures are drawn in 2D only; drop --picture"),
+        "tol": ("events", "the bracket of an exact event; add --events"),
+        "max_step": ("events", "the largest step between exact events; add --events"),
+        "amplitude": ("cycles", "cyclic shear's amplitude; add --cycles"),
+        "cycles": ("amplitude", "cyclic shear needs its amplitude; add --amplitude"),
+        "strain": ("straight", "cyclic shear goes to +-amplitude; drop --strain"),
+        "rtol": ("steps", "exact events relax every state to round-off; drop --rtol"),
     }
     have = {
         "pressure": getattr(args, "pressure", None) is not None,
@@ -246,10 +258,19 @@ def _idle(args: argparse.Namespace) -> None:
         "continuous": getattr(args, "sizes", "bidisperse") != "bidisperse",
         "bidisperse": getattr(args, "sizes", "bidisperse") == "bidisperse",
         "2D": getattr(args, "dim", 2) == 2 or getattr(args, "picture", None) == "none",
+        "events": _plastic(args),
+        "cycles": getattr(args, "cycles", None) is not None,
+        "amplitude": getattr(args, "amplitude", None) is not None,
+        "straight": getattr(args, "cycles", None) is None,
+        "steps": not _plastic(args),
     }
     for option, (need, what) in needs.items():
         if option in given and not have[need]:
             raise InputError(f"{FLAGS.get(option, '--' + option.replace('_', '-'))}: {what}")
+    if "resume" in given and _plastic(args):
+        raise InputError("--resume: a run with exact events starts again; drop --resume")
+    if "table" in given and _plastic(args):
+        raise InputError("--table: a run with exact events writes its tables beside --output")
     if "resume" in given:
         path = Path(_trajectory_of(args))
         if not path.exists():
@@ -258,6 +279,11 @@ def _idle(args: argparse.Namespace) -> None:
             )
     if given & {"workers", "scheduler"} and importlib.util.find_spec("distributed") is None:
         raise InputError(f"--{min(given & {'workers', 'scheduler'})}: {INSTALL_HINT}")
+
+
+def _plastic(args: argparse.Namespace) -> bool:
+    """Whether the command is a shear with exact events (``--events`` or ``--cycles``)."""
+    return bool(getattr(args, "events", False)) or getattr(args, "cycles", None) is not None
 
 
 def _trajectory_of(args: argparse.Namespace) -> str:
@@ -335,6 +361,10 @@ def output_files(args: argparse.Namespace) -> dict[str, Path]:
             out["--picture"] = Path(args.picture or Path(args.output).with_suffix(".png"))
     if command in ("jam", "compress", "shear"):
         out["--table"] = Path(args.table or Path(args.output).with_suffix(".csv"))
+    if command == "shear" and _plastic(args):
+        out["--events"] = Path(args.output).with_suffix(".events.csv")
+        if args.cycles is not None:
+            out["--cycles"] = Path(args.output).with_suffix(".cycles.csv")
     if command == "criticality" and args.figure is not None:
         out["--figure"] = Path(args.figure)
     if command == "measure" and args.forces_figure is not None:

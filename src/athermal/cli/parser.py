@@ -11,6 +11,7 @@ from ..certify import TARGET
 from ..certify.criticality import FORCE_WINDOW, GAP_WINDOW
 from ..engines.precon import PRECONDITIONERS
 from ..enthalpy import CELL_FREEDOMS
+from ..protocols.events import EVENT_TOL
 from ..relaxation import METHODS, RTOL
 from ..studies import bench
 from ..studies.experiments import ShearSpec
@@ -340,6 +341,35 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
         default=None,
         help="plane shear: glue to each wall the particles whose centres lie within this "
         "distance of it (default: the largest diameter)",
+    )
+    plastic = she.add_argument_group(
+        "exact plastic events (docs/howto/plasticity.md): every event located by the end of "
+        "its branch of minima, the step growing between events"
+    )
+    plastic.add_argument(
+        "--events",
+        action="store_true",
+        help="locate every plastic event to --tol in strain; writes the states (.csv), the "
+        "events (.events.csv) and the frames before and after each event",
+    )
+    plastic.add_argument(
+        "--tol", type=float, default=EVENT_TOL, help="an event's bracket in strain (with --events)"
+    )
+    plastic.add_argument(
+        "--max-step",
+        type=float,
+        default=None,
+        help="largest strain step between events (with --events; default: 10 --step)",
+    )
+    plastic.add_argument(
+        "--cycles",
+        type=int,
+        default=None,
+        help="cyclic shear: this many cycles 0 -> A -> -A -> 0 with exact events, stopping at "
+        "a limit cycle (needs --amplitude)",
+    )
+    plastic.add_argument(
+        "--amplitude", type=float, default=None, help="cyclic shear's amplitude A (with --cycles)"
     )
     add_quasi_static(she)
 

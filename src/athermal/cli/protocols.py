@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import hashlib
+import sys
 import time
 import warnings
 from collections.abc import Callable, Iterable
@@ -35,6 +36,7 @@ from ..protocols import (
     start_fraction,
 )
 from ..protocols.compress import FIT_LAWS
+from ..protocols.events import BranchState, CycleEnd, PlasticEvent
 from ..protocols.pressure import check_reachable
 from ..protocols.shear import check_mode, rough_walls
 from ..studies.checkpoint import (
@@ -47,6 +49,7 @@ from ..studies.checkpoint import (
 )
 from ..studies.experiments import JamSpec, jam_packing
 from ..studies.jammed import finish_jamming
+from ..studies.plasticity import PlasticitySpec, run_plasticity
 from ..studies.tables import Row, write_table
 from .common import (
     NotConverged,
@@ -371,6 +374,9 @@ def shear(args: argparse.Namespace) -> None:
     shear."""
     t0 = time.perf_counter()
     packing, model, frame, index = _start(args)
+    if args.events or args.cycles is not None:
+        _plastic(args, packing, model, frame, index, t0)
+        return
     check_mode(args.mode, args.strain, packing.cell, args.wall_layer)
     logged_g = frame.log.get("shear_modulus")
     if logged_g is not None and float(logged_g.reshape(-1)[0]) < 0.0:
@@ -434,6 +440,67 @@ def shear(args: argparse.Namespace) -> None:
             "seconds": round(time.perf_counter() - t0, 3),
             "bits": bits(minimizer_from(args), frame.packing.n, frame.packing.dim),
             "output": args.output,
+        },
+        args.json,
+    )
+
+
+def _plastic(
+    args: argparse.Namespace,
+    packing: Packing,
+    model: ContactModel,
+    frame: Frame,
+    index: int,
+    t0: float,
+) -> None:
+    """``athermal shear --events`` or ``--cycles``: AQS with exact plastic events
+    (:func:`athermal.studies.plasticity.run_plasticity`)."""
+    cyclic = args.cycles is not None
+    check_mode(args.mode, args.amplitude if cyclic else args.strain, packing.cell, args.wall_layer)
+    spec = PlasticitySpec(
+        mode=args.mode,
+        strain=args.strain,
+        step=args.step,
+        max_step=args.max_step,
+        tol=args.tol,
+        amplitude=args.amplitude,
+        cycles=args.cycles,
+        minimizer=minimizer_from(args),
+        wall_layer=args.wall_layer,
+    )
+
+    def show(item: BranchState | PlasticEvent | CycleEnd) -> None:
+        if args.quiet or args.json:
+            return
+        if isinstance(item, PlasticEvent):
+            print(
+                f"event {item.index} at strain {item.strain:.10f}: stress drop "
+                f"{item.stress_drop:.3e}, energy drop {item.energy_drop:.3e}, "
+                f"{item.moved:.1f} particles moved",
+                file=sys.stderr,
+                flush=True,
+            )
+        elif isinstance(item, CycleEnd):
+            again = "" if item.repeats is None else f", repeats cycle {item.cycle - item.repeats}"
+            print(
+                f"cycle {item.cycle}: {item.events} events, energy {item.state.energy:.6e}{again}",
+                file=sys.stderr,
+                flush=True,
+            )
+
+    run = run_plasticity(
+        packing, model, spec, args.output, seed=frame.seed, overwrite=args.overwrite, on_item=show
+    )
+    start_log = {k: float(v) for k, v in frame.log.items() if k in ("phi", "phi_c", "delta_phi")}
+    emit(
+        {
+            "mode": args.mode,
+            "frame": index,
+            "start": start_log,
+            **run.summary(),
+            "seconds": round(time.perf_counter() - t0, 3),
+            "output": args.output,
+            **{f"table_{k}": v for k, v in run.files.items() if k != "trajectory"},
         },
         args.json,
     )

@@ -271,7 +271,7 @@ def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
     return b.strain + direction * line
 
 
-def _check_steps(step: float, max_step: float | None, tol: float, strain: float) -> float:
+def check_steps(step: float, max_step: float | None, tol: float, strain: float) -> float:
     """``max_step`` (default ``10 step``, at most ``strain``) after the settings' checks:
     ``tol < step <= max_step <= strain``, each > 0."""
     step = positive_scalar(step, "step")
@@ -317,7 +317,7 @@ def plastic_events(
     wall_layer : plane shear's rough walls (:func:`~athermal.protocols.shear.rough_walls`).
     """
     strain = positive_scalar(strain, "strain")
-    largest = _check_steps(step, max_step, tol, strain)
+    largest = check_steps(step, max_step, tol, strain)
     check_mode(mode, strain, start.cell, wall_layer)
     run = _Shear(
         model, mode, rough_walls(start, wall_layer) if mode == "plane" else None, minimizer
@@ -470,6 +470,14 @@ class LimitCycle:
     cycles: int
 
 
+def check_cycles(amplitude: float, cycles: int) -> float:
+    """``amplitude`` after the checks of a cyclic shear's settings (> 0, and ``cycles`` an
+    integer >= 1)."""
+    if int(cycles) != cycles or cycles < 1:
+        raise InputError(f"cycles: must be an integer >= 1, got {cycles!r}")
+    return positive_scalar(amplitude, "amplitude")
+
+
 def cyclic_shear(
     start: Packing,
     model: ContactModel,
@@ -489,10 +497,8 @@ def cyclic_shear(
     event (located as :func:`plastic_events` does) and, after each cycle, its
     :class:`CycleEnd`. A cycle whose end is the end of an earlier cycle closes a limit cycle
     (:func:`limit_cycle`); with ``stop`` the run ends there, else after ``cycles`` cycles."""
-    amplitude = positive_scalar(amplitude, "amplitude")
-    if int(cycles) != cycles or cycles < 1:
-        raise InputError(f"cycles: must be an integer >= 1, got {cycles!r}")
-    largest = _check_steps(step, max_step, tol, amplitude)
+    amplitude = check_cycles(amplitude, cycles)
+    largest = check_steps(step, max_step, tol, amplitude)
     check_mode(mode, amplitude, start.cell, wall_layer)
     run = _Shear(
         model, mode, rough_walls(start, wall_layer) if mode == "plane" else None, minimizer

@@ -28,7 +28,7 @@ def write_table(path: str | os.PathLike[str], rows: Sequence[Row]) -> None:
     writer = csv.writer(buffer)
     writer.writerow(columns)
     for row in rows:
-        writer.writerow([repr(v) if isinstance(v, float) else v for v in row.values()])
+        writer.writerow([repr(float(v)) if isinstance(v, float) else v for v in row.values()])
     write_text(path, buffer.getvalue())
 
 
