@@ -73,14 +73,21 @@ def test_the_bracket_holds_a_minimum_below_and_another_above(first):
     assert set(row) >= {"strain", "strain_after", "critical_strain", "energy_drop", "moved"}
 
 
-def test_the_events_do_not_depend_on_the_step():
-    """The same events at the same strains (to the tolerance) whatever the strain step."""
+def test_the_events_do_not_depend_on_the_step_or_the_sameness_threshold():
+    """The same events at the same strains (to the tolerance) whatever the strain step and
+    whatever the distance below which two states count as one minimum (1e-8 ... 1e-4 mean
+    diameters about the default 1e-6)."""
     a = events(strain=0.03, step=1e-3, tol=1e-10)
-    b = events(strain=0.03, step=4e-4, max_step=2e-3, tol=1e-10)
-    assert len(a) == len(b) >= 1
-    for x, y in zip(a, b, strict=True):
-        assert abs(x.strain - y.strain) <= 2e-10
-        assert x.energy_drop == pytest.approx(y.energy_drop, rel=1e-4)
+    for other in (
+        events(strain=0.03, step=4e-4, max_step=2e-3, tol=1e-10),
+        events(strain=0.03, step=1e-3, tol=1e-10, same=1e-8),
+        events(strain=0.03, step=1e-3, tol=1e-10, same=1e-4),
+    ):
+        assert len(a) == len(other) >= 1
+        for x, y in zip(a, other, strict=True):
+            assert abs(x.strain - y.strain) <= 2e-10
+            assert x.energy_drop == pytest.approx(y.energy_drop, rel=1e-4)
+    assert all(e.saddle_node for e in a)  # Hertzian contacts: every branch ends in a saddle-node
 
 
 def test_states_between_events_stay_on_their_branch():

@@ -107,6 +107,15 @@ class PlasticEvent:
     after: BranchState = field(repr=False)
 
     @property
+    def saddle_node(self) -> bool:
+        """Whether the branch ended in a saddle-node: ``lambda_min^2`` fell to zero within the
+        bracket (within a bracket's width past it). Else the Hessian lost its stability at once,
+        as where a harmonic contact opens and its stiffness vanishes (``docs/decisions.md``,
+        "Plastic events")."""
+        width = abs(self.strain_after - self.strain)
+        return bool(abs(self.critical_strain - self.strain) <= 2.0 * width)
+
+    @property
     def stress_drop(self) -> float:
         """``tau`` before minus ``tau`` after."""
         return self.before.tau - self.after.tau
@@ -127,6 +136,7 @@ class PlasticEvent:
             "energy_after": self.after.energy,
             "energy_drop": self.energy_drop,
             "lowest_eigenvalue_before": self.before.lowest_eigenvalue,
+            "saddle_node": int(self.saddle_node),
         }
 
 
@@ -185,9 +195,11 @@ class _Shear:
         mode: ShearMode,
         layers: Layers | None,
         minimizer: Minimizer | None = None,
+        same: float = SAME_STATE,
     ) -> None:
         self.model, self.mode, self.layers = model, mode, layers
         self.minimizer = minimizer or Minimizer()
+        self.same_state = positive_scalar(same, "same")
         self.frozen = None if layers is None else layers[0] | layers[1]
         self.relaxations = 0
         self.events = 0
@@ -233,7 +245,8 @@ class _Shear:
         """Whether ``packing`` is ``base``'s minimum (:data:`SAME_STATE`)."""
         delta = self.displacement(base.packing, packing, ~base.rattler)
         diameter = 2.0 * float(np.mean(base.packing.radii))
-        return bool(np.max(np.linalg.norm(delta, axis=1), initial=0.0) <= SAME_STATE * diameter)
+        limit = self.same_state * diameter
+        return bool(np.max(np.linalg.norm(delta, axis=1), initial=0.0) <= limit)
 
     def displacement(
         self, old: Packing, new: Packing, live: NDArray[np.bool_]
@@ -298,6 +311,7 @@ def plastic_events(
     tol: float = EVENT_TOL,
     minimizer: Minimizer | None = None,
     wall_layer: float | None = None,
+    same: float = SAME_STATE,
 ) -> Iterator[BranchState | PlasticEvent]:
     """Shear ``start`` quasi-statically to ``strain`` and yield every branch state and every
     plastic event, each event located to ``tol`` in strain (module docstring).
@@ -315,13 +329,14 @@ def plastic_events(
     minimizer : how each state is relaxed (default L-BFGS), to the round-off floor
         (:func:`~athermal.relaxation.round_off_floor`).
     wall_layer : plane shear's rough walls (:func:`~athermal.protocols.shear.rough_walls`).
+    same : two relaxed states are one minimum when no particle that is no rattler lies farther
+        than this x the mean diameter from its place in the other (:data:`SAME_STATE`).
     """
     strain = positive_scalar(strain, "strain")
     largest = check_steps(step, max_step, tol, strain)
     check_mode(mode, strain, start.cell, wall_layer)
-    run = _Shear(
-        model, mode, rough_walls(start, wall_layer) if mode == "plane" else None, minimizer
-    )
+    layers = rough_walls(start, wall_layer) if mode == "plane" else None
+    run = _Shear(model, mode, layers, minimizer, same)
     first = run.first(start)
     yield first
     yield from _follow(run, [first], strain, step, largest, tol)
@@ -353,36 +368,48 @@ def _follow(
             yield state
             size = min(GROWTH * size, largest)
             continue
+        seen = len(branch)
         event = _locate(run, branch, state, tol, direction)
+        yield from branch[seen:]  # the states the search found on the branch
+        size = step
+        if event is None:  # the long step had left the branch's basin, not the branch
+            continue
         yield event
         branch[:] = [event.after]
-        size = step
         yield event.after
 
 
 def _locate(
     run: _Shear, branch: list[BranchState], off: BranchState, tol: float, direction: float
-) -> PlasticEvent:
+) -> PlasticEvent | None:
     """The event between the branch's last state and ``off``, a state past its end in
-    ``direction``: the bracket shrunk below ``tol`` (module docstring)."""
-    branch, start = list(branch), run.relaxations
+    ``direction``: the bracket shrunk below ``tol`` (module docstring), the states on the
+    branch appended to ``branch``. The state past the end must be reached from within the
+    bracket: one reached from farther (a long step's relaxation may leave the branch's basin
+    while the branch goes on) is reached again from the bracket's lower end; None when the
+    branch then goes on."""
+    start, off_from = run.relaxations, branch[-1].strain
     for _ in range(MAX_TRIALS):
         lo = branch[-1]
         width = direction * (off.strain - lo.strain)
-        if width <= tol:
+        if width <= tol and direction * (off.strain - off_from) <= tol:
             event = _event(run, branch, off, run.events, run.relaxations - start, direction)
             run.events += 1
             return event
         end = direction * (_end_of_branch(branch, direction) - lo.strain)  # ahead of lo
         ahead = 0.5 * width  # bisection, unless the end is predicted in the bracket
-        if 0.0 < end < width:
+        if width <= tol:  # reach the state past the end again, from the bracket
+            ahead = width
+        elif 0.0 < end < width:
             ahead = end - max(0.1 * end, 0.3 * tol) if end > tol else end + 0.4 * tol
             ahead = min(max(ahead, 0.1 * tol), width - 0.1 * tol)
         state, on = run.advance(lo, lo.strain + direction * ahead)
         if on:
             branch.append(state)
+            if ahead == width:
+                return None
         else:
-            off = state
+            off, off_from = state, lo.strain
     raise ConvergenceError(
         f"plastic event after strain {branch[-1].strain:.12g}: not located to {tol:g} in "
         f"{MAX_TRIALS} trials"
@@ -491,18 +518,19 @@ def cyclic_shear(
     minimizer: Minimizer | None = None,
     wall_layer: float | None = None,
     stop: bool = True,
+    same: float = SAME_STATE,
 ) -> Iterator[BranchState | PlasticEvent | CycleEnd]:
     """Shear ``start`` quasi-statically back and forth between strains ``+amplitude`` and
     ``-amplitude`` (each cycle 0 -> A -> -A -> 0), yielding every branch state and plastic
     event (located as :func:`plastic_events` does) and, after each cycle, its
-    :class:`CycleEnd`. A cycle whose end is the end of an earlier cycle closes a limit cycle
+    :class:`CycleEnd`. A cycle whose end is the end of an earlier cycle (the same minimum to
+    ``same``, as :func:`plastic_events` compares states) closes a limit cycle
     (:func:`limit_cycle`); with ``stop`` the run ends there, else after ``cycles`` cycles."""
     amplitude = check_cycles(amplitude, cycles)
     largest = check_steps(step, max_step, tol, amplitude)
     check_mode(mode, amplitude, start.cell, wall_layer)
-    run = _Shear(
-        model, mode, rough_walls(start, wall_layer) if mode == "plane" else None, minimizer
-    )
+    layers = rough_walls(start, wall_layer) if mode == "plane" else None
+    run = _Shear(model, mode, layers, minimizer, same)
     branch = [run.first(start)]
     yield branch[0]
     ends = [branch[0]]
