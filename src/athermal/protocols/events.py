@@ -146,7 +146,7 @@ def soft_mode(
     """The lowest nonzero eigenvalue of the Hessian of ``packing``'s non-rattlers (the
     translations along its periodic axes skipped; with ``frozen``, those particles held), its
     unit mode ``(N, d)`` (zero on rattlers, the sign fixed by its largest component) and the
-    rattler mask ``(N,)``."""
+    rattler mask ``(N,)``; infinity and a zero mode when every particle is a rattler."""
     dim = packing.dim
     contacts, rattler = nonrattler_contacts(packing, model, frozen)
     h, dofs = nonrattler_hessian(contacts, rattler, dim)
@@ -156,8 +156,8 @@ def soft_mode(
         h, dofs = h[free][:, free].tocsr(), dofs[free]
     else:
         translations = packing.cell.periodic_axes
-    if dofs.size <= translations:
-        raise InputError("packing: no particle left to move (all rattlers)")
+    if dofs.size <= translations:  # no contact network (unjammed): nothing is stiff
+        return float("inf"), np.zeros((packing.n, dim)), rattler
     values, vectors = _lowest(h, translations + 1)
     if translations:
         axes = [a for a in range(dim) if a not in packing.cell.walls]
@@ -270,6 +270,8 @@ def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
     if len(states) < 2:
         return float("nan")
     a, b = states[-2], states[-1]
+    if not all(np.isfinite(s.lowest_eigenvalue) for s in states[-3:]):
+        return float("nan")
     fall = a.lowest_eigenvalue**2 - b.lowest_eigenvalue**2
     ahead = direction * (b.strain - a.strain)
     if not (fall > 0.0 and ahead > 0.0 and b.lowest_eigenvalue > 0.0):
