@@ -90,3 +90,16 @@ def test_the_engine_page_registers_an_engine_that_jams(tmp_path):
 def test_the_law_page_relaxes_a_law_of_its_own(tmp_path):
     (block,) = blocks(HOWTO / "law.md")
     assert paste(block, tmp_path).strip() == block.printed.strip()
+
+
+def test_the_plasticity_page_locates_events_and_a_limit_cycle(tmp_path):
+    """The page's commands and script as pasted: events located and written, the script's
+    claims printed, and the cyclic run reaching the limit cycle it describes."""
+    shear, script, cyclic = blocks(HOWTO / "plasticity.md")
+    paste(shear, tmp_path)
+    for name in ("events.gsd", "events.csv", "events.events.csv"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert paste(script, tmp_path).strip() == "True True True"
+    paste(cyclic, tmp_path)
+    table = (tmp_path / "cycles.cycles.csv").read_text().splitlines()
+    assert table[0].startswith("cycle,") and len(table) >= 2

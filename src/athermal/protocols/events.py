@@ -242,8 +242,11 @@ class _Shear:
         return self.state(forward, strain, iterations + more), self.same(back, base)
 
     def same(self, packing: Packing, base: BranchState) -> bool:
-        """Whether ``packing`` is ``base``'s minimum (:data:`SAME_STATE`)."""
-        delta = self.displacement(base.packing, packing, ~base.rattler)
+        """Whether ``packing`` is ``base``'s minimum (:data:`SAME_STATE`): its particles that are
+        no rattlers in ``base`` in their places, or all of them where ``base`` has no contact
+        network (unjammed)."""
+        live = ~base.rattler if (~base.rattler).any() else np.ones(base.packing.n, dtype=bool)
+        delta = self.displacement(base.packing, packing, live)
         diameter = 2.0 * float(np.mean(base.packing.radii))
         limit = self.same_state * diameter
         return bool(np.max(np.linalg.norm(delta, axis=1), initial=0.0) <= limit)

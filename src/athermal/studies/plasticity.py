@@ -5,7 +5,8 @@ goes, and its summary.
 
 Files: the trajectory (GSD) holds the start and, marked in each frame's log, the state just
 before and just after every event (``event_before`` / ``event_after`` = the event's index, -1
-otherwise) and every cycle's end (``cycle``); ``<output>.csv`` the branch states (the
+otherwise) and every cycle's end (``cycle``), with the state's numbers (``lowest_eigenvalue``
+-1 where the packing has no contact network); ``<output>.csv`` the branch states (the
 stress-strain curve); ``<output>.events.csv`` the events; ``<output>.cycles.csv`` the cycles'
 ends. Tables are rewritten atomically after each event and cycle and at the end, frames
 appended.
@@ -162,7 +163,7 @@ def _run(
             state.packing,
             model=model,
             seed=seed,
-            observables={**{k: float(v) for k, v in state.row().items()}, **log},
+            observables={**_finite(state.row()), **log},
         )
 
     for item in items:
@@ -186,3 +187,9 @@ def _run(
     if not run.events:
         files.pop("events")
     return run
+
+
+def _finite(row: dict[str, Value]) -> dict[str, float]:
+    """``row`` as frame observables: floats, an infinite eigenvalue (no contact network: the
+    packing unjammed) written as -1, which no minimum's Hessian has."""
+    return {k: float(v) if math.isfinite(float(v)) else -1.0 for k, v in row.items()}
