@@ -187,7 +187,8 @@ def _lowest(h: sp.csr_matrix, k: int) -> tuple[NDArray[np.float64], NDArray[np.f
 
 
 class _Shear:
-    """One AQS run's fixed parts: the model, mode, rough walls, minimizer and tolerance."""
+    """One AQS run: its model, mode, rough walls, minimizer and sameness threshold, and the
+    relaxations and events counted so far."""
 
     def __init__(
         self,
