@@ -42,7 +42,7 @@ def one(
     spec = JamSpec(n=n, alpha=alpha)
     jammed = jam_packing(spec, 1)
     start = jammed.packing.at_phi(jammed.phi_c + dphi)
-    states: list[dict[str, float]] = []
+    states: dict[str, list[float]] = {"strain": [], "tau": []}
     events: list[dict[str, Any]] = []
     iterations = 0
     t0 = time.perf_counter()
@@ -50,7 +50,8 @@ def one(
         start, spec.model, mode="simple", strain=strain, step=1e-4, minimizer=Minimizer(method)
     ):
         if isinstance(item, BranchState):
-            states.append({"strain": item.strain, "tau": item.tau})
+            states["strain"].append(item.strain)
+            states["tau"].append(item.tau)
             iterations += item.iterations
         elif isinstance(item, PlasticEvent):
             events.append({k: float(v) for k, v in item.row().items()})
@@ -65,11 +66,11 @@ def one(
         "alpha": alpha,
         "method": method,
         "phi_c": jammed.phi_c,
-        "strain_reached": states[-1]["strain"] if states else 0.0,
+        "strain_reached": states["strain"][-1],
         "events": len(events),
         "seconds": seconds,
         "events_per_minute": 60.0 * len(events) / seconds,
-        "iterations_per_state": iterations / max(len(states), 1),
+        "iterations_per_state": iterations / len(states["strain"]),
         "stress_drop_mean": statistics.fmean(drops) if drops else float("nan"),
         "energy_drop_mean": statistics.fmean(energy) if energy else float("nan"),
         "energy_drop_max": max(energy, default=float("nan")),
@@ -95,9 +96,7 @@ def figure(runs: list[dict[str, Any]], path: Path) -> None:
         if run["method"] != "lbfgs":
             continue
         label = f"N = {run['n']}, alpha = {run['alpha']:g}"
-        gamma = [s["strain"] for s in run["states"]]
-        tau = [s["tau"] for s in run["states"]]
-        (line,) = curve.plot(gamma, tau, lw=0.8, label=label)
+        (line,) = curve.plot(run["states"]["strain"], run["states"]["tau"], lw=0.8, label=label)
         at = [e["strain"] for e in run["event_rows"]]
         before = [e["tau_before"] for e in run["event_rows"]]
         curve.plot(at, before, "v", ms=3, color=line.get_color())
@@ -116,7 +115,8 @@ def figure(runs: list[dict[str, Any]], path: Path) -> None:
     curve.legend(fontsize=7)
     hist.set_xlabel(r"energy drop $\Delta E$")
     hist.set_ylabel(r"$P(\Delta E)$ (log bins)")
-    hist.legend(fontsize=7)
+    if hist.get_lines():
+        hist.legend(fontsize=7)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=150)
 
