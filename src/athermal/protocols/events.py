@@ -1,27 +1,31 @@
 """Athermal quasi-static (AQS) shear with its plastic events located exactly.
 
 A relaxed packing under a slowly increasing strain follows a branch of local minima until the
-branch ends in a saddle-node bifurcation: the lowest nonzero eigenvalue of the Hessian vanishes
-as ``lambda_min ~ (gamma_c - gamma)^(1/2)`` (Maloney & Lemaitre, PRE 74, 016118, 2006), the
-minimum merges with a saddle, and the packing falls into another minimum: a plastic event, with
-its drop of stress and energy. :func:`plastic_events` follows the branches and locates each end
-in strain to a tolerance ``tol`` (default :data:`EVENT_TOL`), whatever the step:
+branch ends and the packing falls into another minimum: a plastic event, with its drop of
+energy and (usually) of stress. Generically the branch ends in a saddle-node bifurcation: the
+lowest nonzero eigenvalue of the Hessian vanishes as ``lambda_min ~ (gamma_c - gamma)^(1/2)``
+(Maloney & Lemaitre, PRE 74, 016118, 2006) and the minimum merges with a saddle; with harmonic
+contacts it mostly ends where a contact opens and the Hessian loses that contact's stiffness at
+once. :func:`plastic_events` follows the branches and locates each end in strain to a tolerance
+``tol`` (default :data:`EVENT_TOL`), whatever the step:
 
 * a state is on the branch of the previous one when the packing, taken back to the previous
-  strain and relaxed, returns to the previous minimum (:data:`SAME_STATE`): a state past an
-  event returns elsewhere (another basin), one before it to the same minimum;
+  strain and relaxed, returns to the previous minimum (:data:`SAME_STATE`): a state past the end
+  returns elsewhere (another basin), one before it to the same minimum;
 * between events the strain step grows (x :data:`GROWTH`, up to ``max_step``) and is held below
   the end of the branch extrapolated from ``lambda_min^2``, linear in ``gamma_c - gamma`` near
   it; an event is bracketed by a state on the branch and one off it;
-* the bracket shrinks by trials on either side of the extrapolated ``gamma_c``, or by
-  bisection when the extrapolation does not halve it, until it is narrower than ``tol``.
+* the bracket shrinks by trials short of the extrapolated end and then just past it, or by
+  bisection where no end is predicted inside it, until it is narrower than ``tol``; the state
+  past the end is then one reached from within the bracket.
 
 Each event reports its strains (the last on the branch, the first off it, the extrapolated
 critical strain), the driven stress and energy just before and just after, the lowest
 eigenvalue and its mode (the critical mode) before, how many particles moved (participation
 number of the displacement), the largest displacement, and the contacts made and broken.
 Relaxations are the protocols' (:class:`~athermal.relaxation.Relaxer`, each checked to be a
-minimum); modes as :func:`~athermal.protocols.shear.shear_steps`.
+minimum), to the round-off floor; modes as :func:`~athermal.protocols.shear.shear_steps`.
+:func:`cyclic_shear` shears back and forth to a limit cycle.
 """
 
 from __future__ import annotations
