@@ -186,6 +186,8 @@ def test_the_command_writes_events_frames_and_tables(tmp_path, capsys):
     before, after = read_gsd(out, frame=1), read_gsd(out, frame=2)
     assert float(before.log["event_before"]) == 0 and float(after.log["event_after"]) == 0
     assert float(before.log["strain"]) == events[0]["strain"]
+    mode = before.log["soft_mode"]  # the critical mode: unit, one row per particle
+    assert mode.shape == (START.n, 2) and np.linalg.norm(mode) == pytest.approx(1.0)
     assert len(read_table(tmp_path / "s.csv")) == summary["states"]
     cyclic = [*argv, "--cycles", "5", "--amplitude", "0.06", "--step", "1e-3", "--json"]
     assert main([*cyclic[:3], str(tmp_path / "c.gsd"), *cyclic[4:]]) == 0

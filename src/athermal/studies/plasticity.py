@@ -6,7 +6,8 @@ goes, and its summary.
 Files: the trajectory (GSD) holds the start and, marked in each frame's log, the state just
 before and just after every event (``event_before`` / ``event_after`` = the event's index, -1
 otherwise) and every cycle's end (``cycle``), with the state's numbers (``lowest_eigenvalue``
--1 where the packing has no contact network); ``<output>.csv`` the branch states (the
+-1 where the packing has no contact network) and its soft mode ``soft_mode`` ``(N, d)`` (before
+an event: the critical mode); ``<output>.csv`` the branch states (the
 stress-strain curve); ``<output>.events.csv`` the events; ``<output>.cycles.csv`` the cycles'
 ends. Tables are rewritten atomically after each event and cycle and at the end, frames
 appended.
@@ -163,7 +164,7 @@ def _run(
             state.packing,
             model=model,
             seed=seed,
-            observables={**_finite(state.row()), **log},
+            observables={**_finite(state.row()), **log, "soft_mode": state.mode},
         )
 
     for item in items:
