@@ -17,7 +17,7 @@ from numpy.typing import NDArray
 from .._portable import outer_sum, row_norms
 from ..errors import InputError
 from .cell import Cell
-from .law import ContactLaw, PowerContact
+from .law import ContactLaw, LawContacts, PowerContact
 from .loops import (
     NO_WALLS,
     block_csr,
@@ -161,13 +161,14 @@ def energy_gradient_contacts(
 
 
 @dataclass(frozen=True, eq=False)
-class Contacts:
+class Contacts(LawContacts):
     """The overlapping pairs (``delta > 0``) of a configuration, M of them.
 
     ``i, j`` ``(M,)``; ``branch`` ``(M, d)`` = ``x_i - x_j`` (periodic image); ``distance`` and
     ``overlap`` ``(M,)``; ``stiffness`` ``(M,)`` = ``k_ij``; the contact ``law``; ``walls`` the
-    particles' contacts with the cell's walls (None: no walls). The functions below (energy,
-    gradient, Hessian, stress) count both.
+    particles' contacts with the cell's walls (None: no walls). Forces and energies by the law
+    (:class:`~athermal.model.law.LawContacts`; the force is on ``i`` from ``j``). The functions
+    below (energy, gradient, Hessian, stress) count both.
     """
 
     i: NDArray[np.int64]
@@ -206,26 +207,6 @@ class Contacts:
     def normal(self) -> NDArray[np.float64]:
         """Unit normals ``n = branch / distance`` ``(M, d)``, pointing from j to i."""
         return self.branch / self.distance[:, None]
-
-    @property
-    def force_magnitude(self) -> NDArray[np.float64]:
-        """The law's ``f(delta)`` ``(M,)``, > 0 (repulsive)."""
-        return self.law.force(self.overlap, self.stiffness)
-
-    @property
-    def normal_stiffness(self) -> NDArray[np.float64]:
-        """``d^2 E_c / d delta^2`` ``(M,)`` (force / length)."""
-        return self.law.stiffness(self.overlap, self.stiffness)
-
-    @property
-    def force(self) -> NDArray[np.float64]:
-        """Force on ``i`` from ``j`` ``(M, d)``: ``f n``."""
-        return self.force_magnitude[:, None] * self.normal
-
-    @property
-    def energy(self) -> NDArray[np.float64]:
-        """Energy of each contact ``E(delta)`` ``(M,)``."""
-        return self.law.energy(self.overlap, self.stiffness)
 
 
 def find_contacts(

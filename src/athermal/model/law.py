@@ -105,6 +105,42 @@ class ContactLaw(ABC):
         )
 
 
+class LawContacts:
+    """What a set of contacts gives through its ``law`` from its ``overlap`` and ``stiffness``
+    (each ``(M,)``) and unit ``normal`` ``(M, d)``: forces, stiffnesses, energies (the pairs'
+    :class:`~athermal.model.contact.Contacts` and the walls'
+    :class:`~athermal.model.walls.WallContacts`)."""
+
+    law: ContactLaw
+    overlap: FloatArray
+    stiffness: FloatArray
+
+    @property
+    def normal(self) -> FloatArray:
+        """Unit normals ``(M, d)``, along the force on the particle (``i``)."""
+        raise NotImplementedError
+
+    @property
+    def force_magnitude(self) -> FloatArray:
+        """The law's ``f(delta)`` ``(M,)``, > 0 (repulsive)."""
+        return self.law.force(self.overlap, self.stiffness)
+
+    @property
+    def normal_stiffness(self) -> FloatArray:
+        """The law's ``E''(delta)`` ``(M,)`` (force / length)."""
+        return self.law.stiffness(self.overlap, self.stiffness)
+
+    @property
+    def force(self) -> FloatArray:
+        """The force on each contact's particle ``(M, d)``: ``f n``."""
+        return self.force_magnitude[:, None] * self.normal
+
+    @property
+    def energy(self) -> FloatArray:
+        """The law's ``E(delta)`` of each contact ``(M,)``."""
+        return self.law.energy(self.overlap, self.stiffness)
+
+
 @_jit
 def power_pair(delta, k, alpha):  # type: ignore[no-untyped-def]
     """:class:`PowerContact`'s ``pair``: ``(f delta, f)`` with ``f = k delta^(alpha-1)``, fast paths

@@ -23,11 +23,11 @@ from numpy.typing import NDArray
 
 from .._portable import outer_sum
 from .cell import AXES, Cell
-from .law import ContactLaw
+from .law import ContactLaw, LawContacts
 
 
 @dataclass(frozen=True, eq=False)
-class WallContacts:
+class WallContacts(LawContacts):
     """The overlaps of particles with walls, W of them.
 
     ``particle``, ``axis`` ``(W,)`` int64; ``side`` ``(W,)`` +1 for the lower wall of its axis
@@ -66,29 +66,9 @@ class WallContacts:
         return n
 
     @property
-    def force_magnitude(self) -> NDArray[np.float64]:
-        """The law's ``f(delta)`` ``(W,)``, > 0 (repulsive)."""
-        return self.law.force(self.overlap, self.stiffness)
-
-    @property
-    def normal_stiffness(self) -> NDArray[np.float64]:
-        """The law's ``E''(delta)`` ``(W,)`` (force / length)."""
-        return self.law.stiffness(self.overlap, self.stiffness)
-
-    @property
-    def force(self) -> NDArray[np.float64]:
-        """Force on each particle from its wall ``(W, d)``."""
-        return self.force_magnitude[:, None] * self.normal
-
-    @property
     def branch(self) -> NDArray[np.float64]:
         """From the contact point on the wall to the centre, ``distance x normal`` ``(W, d)``."""
         return self.distance[:, None] * self.normal
-
-    @property
-    def energy(self) -> NDArray[np.float64]:
-        """The law's ``E(delta)`` ``(W,)``."""
-        return self.law.energy(self.overlap, self.stiffness)
 
     def hessian_terms(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
         """Each contact's one Hessian entry: particle, axis and ``E''(delta)`` at

@@ -52,8 +52,8 @@ EVENT_TOL = 1e-9
 """Default width in strain of the bracket that locates an event."""
 SAME_STATE = 1e-6
 """Two relaxed states are one minimum when no non-rattler lies farther from its place in the
-other than this x the mean diameter (relaxations of one basin agree to round-off, ~1e-12; an
-event moves particles by much more: ``docs/decisions.md``, "Plastic events")."""
+other than this x the mean diameter (far above what relaxations of one basin differ by, far
+below what an event moves: ``docs/decisions.md``, "Plastic events")."""
 GROWTH = 2.0
 """Factor by which the strain step grows after a step that stayed on the branch."""
 APPROACH = 0.5
@@ -209,6 +209,23 @@ class _Shear:
         self.relaxations = 0
         self.events = 0
 
+    @classmethod
+    def of(
+        cls,
+        start: Packing,
+        model: ContactModel,
+        mode: ShearMode,
+        strain: float,
+        minimizer: Minimizer | None,
+        wall_layer: float | None,
+        same: float,
+    ) -> _Shear:
+        """The run of ``mode`` from ``start`` up to ``strain`` after the mode's checks
+        (:func:`~athermal.protocols.shear.check_mode`), with its rough walls in plane shear."""
+        check_mode(mode, strain, start.cell, wall_layer)
+        layers = rough_walls(start, wall_layer) if mode == "plane" else None
+        return cls(model, mode, layers, minimizer, same)
+
     def first(self, start: Packing) -> BranchState:
         """``start`` relaxed: the first state, at strain 0."""
         relaxed, iterations = self.relax(start, 0.0)
@@ -344,9 +361,7 @@ def plastic_events(
     """
     strain = positive_scalar(strain, "strain")
     largest = check_steps(step, max_step, tol, strain)
-    check_mode(mode, strain, start.cell, wall_layer)
-    layers = rough_walls(start, wall_layer) if mode == "plane" else None
-    run = _Shear(model, mode, layers, minimizer, same)
+    run = _Shear.of(start, model, mode, strain, minimizer, wall_layer, same)
     first = run.first(start)
     yield first
     yield from _follow(run, [first], strain, step, largest, tol)
@@ -538,9 +553,7 @@ def cyclic_shear(
     (:func:`limit_cycle`); with ``stop`` the run ends there, else after ``cycles`` cycles."""
     amplitude = check_cycles(amplitude, cycles)
     largest = check_steps(step, max_step, tol, amplitude)
-    check_mode(mode, amplitude, start.cell, wall_layer)
-    layers = rough_walls(start, wall_layer) if mode == "plane" else None
-    run = _Shear(model, mode, layers, minimizer, same)
+    run = _Shear.of(start, model, mode, amplitude, minimizer, wall_layer, same)
     branch = [run.first(start)]
     yield branch[0]
     ends = [branch[0]]
