@@ -1,6 +1,6 @@
 """Plastic events of athermal quasi-static shear, located by the end of their branch of minima:
 the saddle-node's square root, events independent of the step, the bracket's two sides, the
-records, and the refusals."""
+records, unjammed packings, and the refusals."""
 
 from __future__ import annotations
 
@@ -80,6 +80,7 @@ def test_the_events_do_not_depend_on_the_step_or_the_sameness_threshold():
     a = events(strain=0.03, step=1e-3, tol=1e-10)
     for other in (
         events(strain=0.03, step=4e-4, max_step=2e-3, tol=1e-10),
+        events(strain=0.03, step=1e-3, max_step=1e-2, tol=1e-10),  # steps past the event
         events(strain=0.03, step=1e-3, tol=1e-10, same=1e-8),
         events(strain=0.03, step=1e-3, tol=1e-10, same=1e-4),
     ):
@@ -101,6 +102,16 @@ def test_states_between_events_stay_on_their_branch():
     for k, item in enumerate(items):
         if isinstance(item, PlasticEvent):
             assert items[k + 1] is item.after
+
+
+def test_an_unjammed_packing_has_no_branch_and_no_events():
+    """Without a contact network the minimum is floppy (no branch to end): the strain is
+    stepped through, growing steps, without a search for events."""
+    loose = random_packing(32, 0.6, seed=3)
+    items = list(plastic_events(loose, HERTZ, strain=0.05, step=1e-3))
+    assert not any(isinstance(i, PlasticEvent) for i in items)
+    assert items[-1].strain == pytest.approx(0.05) and len(items) < 12
+    assert all(s.lowest_eigenvalue == np.inf for s in items)
 
 
 def test_harmonic_packings_and_pure_shear_have_events():

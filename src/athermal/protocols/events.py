@@ -61,6 +61,11 @@ APPROACH = 0.5
 branch."""
 MAX_TRIALS = 100
 """Trials at most to locate one event."""
+STALE = 4.0
+"""The state past the end of a branch is reached again from the bracket's lower end once the
+bracket is this many times narrower than the step that reached it: a long step's relaxation may
+leave the branch's basin while the branch goes on, and a bisection toward such a state would
+narrow the bracket to ``tol`` around no event."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -254,10 +259,14 @@ class _Shear:
 
     def advance(self, base: BranchState, strain: float) -> tuple[BranchState, bool]:
         """The minimum reached from ``base`` strained to ``strain``, and whether it lies on
-        ``base``'s branch: strained back and relaxed, it returns to ``base``."""
+        ``base``'s branch: strained back and relaxed, it returns to ``base``. A ``base``
+        without a contact network (unjammed: every particle a rattler) has no branch: any
+        state reached from it counts as on it (floppy AQS depends on the step)."""
         forward, iterations = self.relax(
             strained(base.packing, self.mode, base.strain, strain, self.layers), strain
         )
+        if base.rattler.all():
+            return self.state(forward, strain, iterations), True
         back, more = self.relax(
             strained(forward, self.mode, strain, base.strain, self.layers), base.strain
         )
@@ -411,8 +420,9 @@ def _locate(
     ``direction``: the bracket shrunk below ``tol`` (module docstring), the states on the
     branch appended to ``branch``. The state past the end must be reached from within the
     bracket: one reached from farther (a long step's relaxation may leave the branch's basin
-    while the branch goes on) is reached again from the bracket's lower end; None when the
-    branch then goes on."""
+    while the branch goes on) is reached again from the bracket's lower end, once the bracket
+    is :data:`STALE` times narrower than that step and when it is narrower than ``tol``; None
+    when the branch then goes on."""
     start, off_from = run.relaxations, branch[-1].strain
     for _ in range(MAX_TRIALS):
         lo = branch[-1]
@@ -423,8 +433,8 @@ def _locate(
             return event
         end = direction * (_end_of_branch(branch, direction) - lo.strain)  # ahead of lo
         ahead = 0.5 * width  # bisection, unless the end is predicted in the bracket
-        if width <= tol:  # reach the state past the end again, from the bracket
-            ahead = width
+        if width <= tol or direction * (off.strain - off_from) > STALE * width:
+            ahead = width  # reach the state past the end again, from the bracket
         elif 0.0 < end < width:
             ahead = end - max(0.1 * end, 0.3 * tol) if end > tol else end + 0.4 * tol
             ahead = min(max(ahead, 0.1 * tol), width - 0.1 * tol)
