@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import statistics
 from dataclasses import dataclass
 
 import numpy as np
@@ -111,3 +112,12 @@ def fit_jamming_point(phi: ArrayLike, pressure: ArrayLike) -> tuple[float, Power
         x_max=float(x.max()) - phi_0,
     )
     return phi_0, law
+
+
+def sample_stats(values: list[float]) -> dict[str, float]:
+    """Mean, standard deviation (``sd``, n - 1; 0 for one value), standard error of the mean
+    and count ``n`` of ``values`` (NaN mean and error when there are none)."""
+    n = len(values)
+    mean = statistics.fmean(values) if n else float("nan")
+    sd = statistics.stdev(values) if n > 1 else 0.0
+    return {"mean": mean, "sd": sd, "stderr": sd / np.sqrt(n) if n else float("nan"), "n": n}

@@ -13,6 +13,7 @@ from ..linalg import SOLVERS
 from ..model.packing import POLYDISPERSITY, SIZE_DISTRIBUTIONS
 from ..protocols import DPHI, EPSILON, JAM_PROTOCOL, JAM_PROTOCOLS, RESOLUTION, SHEAR_MODES
 from ..relaxation import MAXITER, METHODS, RTOL
+from ..studies.avalanches import EventsSpec
 from ..studies.experiments import CompressSpec, ShearSpec
 
 
@@ -251,6 +252,44 @@ def add_shear_options(parser: Options) -> None:
     )
     parser.add_argument("--strain", type=float, default=ShearSpec.strain, help="final strain")
     parser.add_argument("--step", type=float, default=ShearSpec.step, help="strain increment")
+
+
+def add_events_options(parser: Options, protocol: str) -> None:
+    """The AQS shear of ``ensemble events`` (to a strain) or ``ensemble cycles`` (amplitudes)."""
+    parser.add_argument(
+        "--shear-delta-phi",
+        type=float,
+        default=EventsSpec.delta_phi,
+        help="shear each packing at phi_c + this (radii scaled from its jamming point)",
+    )
+    parser.add_argument(
+        "--mode", default=EventsSpec.mode, choices=SHEAR_MODES, help="how the packings are sheared"
+    )
+    parser.add_argument(
+        "--step", type=float, default=EventsSpec.step, help="first strain step (it grows)"
+    )
+    parser.add_argument(
+        "--tol", type=float, default=EventsSpec.tol, help="an event's bracket in strain"
+    )
+    if protocol == "events":
+        parser.add_argument("--strain", type=float, default=EventsSpec.strain, help="final strain")
+        parser.add_argument(
+            "--transient",
+            type=float,
+            default=EventsSpec.transient,
+            help="events below this strain are left out of the statistics",
+        )
+    else:
+        parser.add_argument(
+            "--amplitudes",
+            type=float,
+            nargs="+",
+            default=list(EventsSpec.amplitudes),
+            help="cyclic shear at each of these amplitudes, from the same start",
+        )
+        parser.add_argument(
+            "--cycles", type=int, default=EventsSpec.cycles, help="cycles at most per amplitude"
+        )
 
 
 def add_frame(parser: argparse.ArgumentParser, what: str) -> None:

@@ -19,6 +19,7 @@ from .options import (
     Parser,
     add_backend,
     add_compression_range,
+    add_events_options,
     add_frame,
     add_jamming,
     add_json,
@@ -455,6 +456,8 @@ ENSEMBLE_PROTOCOLS = {
     "compress": "jam a packing and compress it",
     "shear": "jam, compress and shear a packing",
     "iterations": "jam a packing and run the paper's iteration experiment on it",
+    "events": "jam a packing and shear it with every plastic event located (avalanches)",
+    "cycles": "jam a packing and shear it in cycles at each amplitude (yielding)",
 }
 """What each realization of ``athermal ensemble PROTOCOL`` runs."""
 
@@ -531,6 +534,8 @@ def _ensemble(sub: argparse._SubParsersAction) -> None:
                 default=ShearSpec.delta_phi,
                 help="start from the compressed state nearest this phi - phi_c",
             )
+        if name in ("events", "cycles"):
+            add_events_options(each.add_argument_group("the shear"), name)
 
 
 COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (

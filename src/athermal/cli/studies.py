@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from ..relaxation import Minimizer
+from ..studies.avalanches import EventsSpec
 from ..studies.experiments import CompressSpec, JamSpec, ShearSpec
 from .common import Progress, precon_from, sizes_from
 from .printer import emit
@@ -35,12 +36,30 @@ COMPRESS = {"delta_min": "dphi_min", "delta_max": "dphi_max", "per_decade": "per
 """The compression spec's fields by the options of ``ensemble compress`` and ``shear``."""
 SHEAR = {"mode": "mode", "strain": "strain", "step": "step", "delta_phi": "shear_delta_phi"}
 """The shear spec's fields by the options of ``ensemble shear``."""
+EVENTS = {
+    **SHEAR,
+    "tol": "tol",
+    "transient": "transient",
+    "amplitudes": "amplitudes",
+    "cycles": "cycles",
+}
+"""The events spec's fields by the options of ``ensemble events`` and ``ensemble cycles``."""
 
 
 def _spec_options(args: argparse.Namespace, fields: dict[str, str]) -> dict[str, Any]:
     """The spec fields of ``fields`` that the protocol's parser has options for (the others keep
     the spec's defaults)."""
     return {name: getattr(args, dest) for name, dest in fields.items() if hasattr(args, dest)}
+
+
+def _events_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The events spec's fields given (``ensemble events``, ``cycles``); amplitudes a tuple."""
+    if args.protocol not in ("events", "cycles"):
+        return {}
+    given = _spec_options(args, EVENTS)
+    if "amplitudes" in given:
+        given["amplitudes"] = tuple(given["amplitudes"])
+    return given
 
 
 def ensemble(args: argparse.Namespace) -> None:
@@ -63,6 +82,7 @@ def ensemble(args: argparse.Namespace) -> None:
         ),
         compress=CompressSpec(minimizer=engine, **_spec_options(args, COMPRESS)),
         shear=ShearSpec(minimizer=engine, **_spec_options(args, SHEAR)),
+        events=EventsSpec(minimizer=engine, **_events_options(args)),
     )
     progress = Progress(args.quiet)
     result = run_ensemble(

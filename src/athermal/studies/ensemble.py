@@ -19,7 +19,6 @@ import importlib.util
 import json
 import logging
 import os
-import statistics
 import time
 import warnings
 from collections.abc import Callable
@@ -31,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import engines
+from ..analysis.fitting import sample_stats
 from ..analysis.forces import (
     EDGES,
     exponential_tail,
@@ -39,6 +39,7 @@ from ..analysis.forces import (
 from ..errors import InputError, one_line
 from ..io import claim
 from ..protocols.compress import pooled_fit
+from .avalanches import avalanche_statistics, yielding
 from .experiments import child_seeds
 from .realization import (
     CompressionRecord,
@@ -69,14 +70,6 @@ class EnsembleResult:
     files: dict[str, str] = field(default_factory=dict)
 
 
-def _stats(values: list[float]) -> dict[str, float]:
-    """Mean, standard deviation (``sd``, n - 1), standard error of the mean and count."""
-    n = len(values)
-    mean = statistics.fmean(values) if n else float("nan")
-    sd = statistics.stdev(values) if n > 1 else 0.0
-    return {"mean": mean, "sd": sd, "stderr": sd / np.sqrt(n) if n else float("nan"), "n": n}
-
-
 def pooled_exponent(records: list[CompressionRecord], column: str) -> dict[str, Any] | None:
     """The power law of ``column`` (``"pressure"``, ``"shear_modulus"``, ``"z_excess"``) against
     ``Delta phi`` fitted to all ``records``' rows pooled
@@ -99,18 +92,18 @@ def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, 
     all realizations' compression steps pooled (``Delta phi`` against each one's own phi_c)."""
     summary: dict[str, Any] = {
         "realizations": len(realizations),
-        "phi_c": _stats([r.phi_c for r in realizations]),
-        "z_minus_z_iso": _stats([r.z - r.z_iso for r in realizations]),
-        "pressure": _stats([r.pressure for r in realizations]),
-        "n_rattlers": _stats([float(r.n_rattlers) for r in realizations]),
+        "phi_c": sample_stats([r.phi_c for r in realizations]),
+        "z_minus_z_iso": sample_stats([r.z - r.z_iso for r in realizations]),
+        "pressure": sample_stats([r.pressure for r in realizations]),
+        "n_rattlers": sample_stats([float(r.n_rattlers) for r in realizations]),
         "checks_passed": sum(int(r.checks_passed) for r in realizations),
-        "iterations": _stats([float(r.iterations) for r in realizations]),
+        "iterations": sample_stats([float(r.iterations) for r in realizations]),
     }
     compressed = [r.compression for r in realizations if r.compression is not None]
     if compressed:
         for key, column in (("p", "pressure"), ("G", "shear_modulus"), ("z", "z_excess")):
             values = [c.exponents[key] for c in compressed]
-            summary[f"exponent_{key}"] = _stats([v for v in values if v is not None])
+            summary[f"exponent_{key}"] = sample_stats([v for v in values if v is not None])
             pooled = pooled_exponent(compressed, column)
             if pooled is not None:
                 summary[f"pooled_exponent_{key}"] = pooled
@@ -121,21 +114,29 @@ def summarize(spec: EnsembleSpec, realizations: list[Realization]) -> dict[str, 
         summary["forces"] = {
             "realizations": len(networks),
             "pooled_tail": None if tail is None else asdict(tail),
-            "tail_decay": _stats([f.tail_decay for f in networks if f.tail_decay is not None]),
-            "contact_anisotropy": _stats([f.contact_anisotropy for f in networks]),
-            "force_anisotropy": _stats([f.force_anisotropy for f in networks]),
+            "tail_decay": sample_stats(
+                [f.tail_decay for f in networks if f.tail_decay is not None]
+            ),
+            "contact_anisotropy": sample_stats([f.contact_anisotropy for f in networks]),
+            "force_anisotropy": sample_stats([f.force_anisotropy for f in networks]),
             "edges": EDGES.tolist(),
             "pooled_density": histogram_density(counts, overflow).tolist(),
         }
+    runs = [r.events for r in realizations if r.events is not None]
+    if runs:
+        summary["avalanches"] = avalanche_statistics(runs, spec.events.transient)
+    cycled = [r.cycles for r in realizations if r.cycles is not None]
+    if cycled:
+        summary["yielding"] = yielding(cycled)
     sheared = [r.shear for r in realizations if r.shear is not None]
     if sheared:
-        summary["plastic_events"] = _stats([float(h.plastic_events) for h in sheared])
+        summary["plastic_events"] = sample_stats([float(h.plastic_events) for h in sheared])
     counted = [r.iteration_counts for r in realizations if r.iteration_counts is not None]
     if counted:
         summary["delta_phi"] = list(counted[0].delta_phi)
         summary["iterations_per_step"] = {
             name: [  # a realization unjammed there (NaN) is left out
-                _stats([v for c in counted if np.isfinite(v := c.iterations[name][k])])
+                sample_stats([v for c in counted if np.isfinite(v := c.iterations[name][k])])
                 for k in range(len(counted[0].delta_phi))
             ]
             for name in counted[0].iterations

@@ -24,6 +24,14 @@ from ..errors import InputError
 from ..model.packing import POLYDISPERSITY
 from ..protocols.compress import excess_z
 from ..protocols.shear import check_mode
+from .avalanches import (
+    CyclesRecord,
+    EventsRecord,
+    EventsSpec,
+    shear_cycles,
+    shear_events,
+    start_of,
+)
 from .checkpoint import Trajectory, jamming_step, run_id
 from .experiments import (
     Compression,
@@ -39,8 +47,8 @@ from .experiments import (
 )
 from .tables import Row
 
-Protocol = Literal["jam", "compress", "shear", "iterations"]
-PROTOCOLS: tuple[str, ...] = ("jam", "compress", "shear", "iterations")
+Protocol = Literal["jam", "compress", "shear", "iterations", "events", "cycles"]
+PROTOCOLS: tuple[str, ...] = ("jam", "compress", "shear", "iterations", "events", "cycles")
 
 
 @dataclass(frozen=True)
@@ -49,8 +57,10 @@ class EnsembleSpec:
 
     ``protocol``: ``jam`` (jamming by growth and bisection, ``jam``), ``compress`` (jam, then
     compress as ``compress`` says and fit the scaling laws), ``shear`` (jam, compress, then
-    shear from the state nearest ``shear.delta_phi``) or ``iterations`` (jam, then the paper's
-    iteration experiment, ``iterations``).
+    shear from the state nearest ``shear.delta_phi``), ``iterations`` (jam, then the paper's
+    iteration experiment, ``iterations``), ``events`` (jam, then AQS shear with every plastic
+    event located, ``events``) or ``cycles`` (jam, then cyclic AQS shear at each amplitude of
+    ``events``).
     """
 
     protocol: Protocol
@@ -58,12 +68,15 @@ class EnsembleSpec:
     compress: CompressSpec = field(default_factory=CompressSpec)
     shear: ShearSpec = field(default_factory=ShearSpec)
     iterations: IterationSpec = field(default_factory=IterationSpec)
+    events: EventsSpec = field(default_factory=EventsSpec)
 
     def __post_init__(self) -> None:
         choice(self.protocol, "protocol", PROTOCOLS)
         cell = self.jam.cell
         if self.protocol == "shear":
             check_mode(self.shear.mode, self.shear.strain, cell)
+        if self.protocol in ("events", "cycles"):
+            check_mode(self.events.mode, self.events.strain, cell)
         if self.protocol == "iterations" and {0, 1} & set(cell.walls):
             raise InputError(
                 "protocol: the iteration experiment shears x along y, which walls normal to x "
@@ -94,6 +107,7 @@ LATER_FIELDS: dict[tuple[str, ...], Any] = {
     ("jam", "minimizer", "backend"): engines.DEFAULT,
     ("compress", "minimizer", "backend"): engines.DEFAULT,
     ("shear", "minimizer", "backend"): engines.DEFAULT,
+    ("events",): asdict(EventsSpec()),
 }
 """Spec fields (their path: section, ..., name) that joined after the first ensembles, with
 their defaults."""
@@ -182,6 +196,8 @@ class Realization:
     shear: ShearRecord | None = None
     iteration_counts: IterationCounts | None = None
     forces: ForceRecord | None = None
+    events: EventsRecord | None = None
+    cycles: CyclesRecord | None = None
 
     def to_json(self) -> dict[str, Any]:
         """A JSON object (``realization-KKKK.json``, the ``--json`` output)."""
@@ -209,11 +225,17 @@ class Realization:
         if data.get("forces") is not None:  # absent from realizations run before it existed
             f = data["forces"]
             sections["forces"] = ForceRecord(**{**f, "counts": tuple(f["counts"])})
+        if data.get("events") is not None:
+            e = data["events"]
+            sections["events"] = EventsRecord(**{**e, "events": tuple(e["events"])})
+        if data.get("cycles") is not None:
+            c = data["cycles"]
+            sections["cycles"] = CyclesRecord(c["delta_phi"], tuple(c["rows"]))
         plain = {k: v for k, v in data.items() if k not in sections and k in _FIELDS}
         return cls(**plain, **sections)
 
 
-_SECTIONS = {"compression", "shear", "iteration_counts", "forces"}
+_SECTIONS = {"compression", "shear", "iteration_counts", "forces", "events", "cycles"}
 _FIELDS = set(Realization.__dataclass_fields__) - _SECTIONS
 
 
@@ -255,6 +277,12 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         sections["iteration_counts"] = iteration_counts(
             jammed.packing, model, jammed.phi_c, spec.iterations
         )
+    elif spec.protocol in ("events", "cycles"):
+        start = start_of(jammed.packing, jammed.phi_c, spec.events)
+        if spec.protocol == "events":
+            sections["events"] = shear_events(start, model, spec.events)
+        else:
+            sections["cycles"] = shear_cycles(start, model, spec.events)
     sections["forces"] = ForceRecord.of(force_statistics(jammed.packing, model))
     result = Realization(
         index=index,

@@ -1,0 +1,215 @@
+"""Plasticity over realizations: what an ensemble's realization shears (:class:`EventsSpec`),
+what it records (:class:`EventsRecord` of an AQS run's events, :class:`CyclesRecord` of cyclic
+shear at several amplitudes), and the ensemble's statistics: avalanche sizes (the stress and
+energy drops after the transient, log-binned, with their exponents) and the yielding amplitude
+(the amplitudes at which the realizations reach a limit cycle).
+
+Each realization shears its jammed packing at ``phi_c + delta_phi`` (radii scaled from the
+packing at its own jamming point), located as :func:`~athermal.protocols.events.plastic_events`
+and :func:`~athermal.protocols.events.cyclic_shear` do.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from itertools import pairwise
+from typing import Any
+
+from .._validate import choice, positive_scalar
+from ..analysis.avalanches import log_binned, power_law_tail
+from ..analysis.fitting import sample_stats
+from ..errors import InputError
+from ..model.contact import ContactModel
+from ..model.packing import Packing
+from ..protocols.events import (
+    EVENT_TOL,
+    CycleEnd,
+    PlasticEvent,
+    check_cycles,
+    check_steps,
+    cyclic_shear,
+    limit_cycle,
+    plastic_events,
+)
+from ..protocols.shear import SHEAR_MODES, ShearMode
+from ..relaxation import Minimizer
+
+EVENT_COLUMNS = ("strain", "tau_before", "stress_drop", "energy_drop", "moved", "saddle_node")
+"""What a realization keeps of each event."""
+
+
+@dataclass(frozen=True)
+class EventsSpec:
+    """The AQS shear of every realization (protocols ``events`` and ``cycles``): the jammed
+    packing at ``phi_c + delta_phi``, sheared in ``mode`` to ``strain`` (``events``; the events
+    below ``transient`` are recorded but left out of the statistics) or ``cycles`` cycles at
+    each of ``amplitudes`` (``cycles``, each from the same start), with ``step`` and ``tol``
+    as :func:`~athermal.protocols.events.plastic_events` takes them."""
+
+    delta_phi: float = 0.01
+    mode: ShearMode = "simple"
+    strain: float = 0.2
+    transient: float = 0.05
+    step: float = 1e-4
+    tol: float = EVENT_TOL
+    amplitudes: tuple[float, ...] = (0.02, 0.05, 0.1)
+    cycles: int = 20
+    minimizer: Minimizer = field(default_factory=Minimizer)
+
+    def __post_init__(self) -> None:
+        positive_scalar(self.delta_phi, "delta_phi")
+        choice(self.mode, "mode", SHEAR_MODES)
+        check_steps(self.step, None, self.tol, self.strain)
+        if not 0.0 <= self.transient < self.strain:
+            raise InputError(
+                f"transient: need 0 <= transient < strain, got {self.transient:g}, {self.strain:g}"
+            )
+        if not self.amplitudes:
+            raise InputError("amplitudes: need at least one")
+        for amplitude in self.amplitudes:
+            check_cycles(amplitude, self.cycles)
+            check_steps(min(self.step, amplitude / 2.0), None, self.tol, amplitude)
+
+
+@dataclass(frozen=True)
+class EventsRecord:
+    """A realization's AQS run: the strain reached, its states and events (each with
+    :data:`EVENT_COLUMNS`), and its seconds."""
+
+    delta_phi: float
+    strain: float
+    states: int
+    events: tuple[dict[str, float], ...]
+    seconds: float
+
+
+@dataclass(frozen=True)
+class CyclesRecord:
+    """A realization's cyclic shear at each amplitude: per amplitude whether a limit cycle
+    came, after which cycle, its period and events, the cycles run, all events and seconds."""
+
+    delta_phi: float
+    rows: tuple[dict[str, Any], ...]
+
+
+def start_of(packing: Packing, phi_c: float, spec: EventsSpec) -> Packing:
+    """The sheared start: ``packing`` (jammed at ``phi_c``) at ``phi_c + spec.delta_phi``."""
+    return packing.at_phi(phi_c + spec.delta_phi)
+
+
+def shear_events(start: Packing, model: ContactModel, spec: EventsSpec) -> EventsRecord:
+    """The :class:`EventsRecord` of ``start`` sheared as ``spec`` says."""
+    t0 = time.perf_counter()
+    states, events, reached = 0, [], 0.0
+    for item in plastic_events(
+        start,
+        model,
+        mode=spec.mode,
+        strain=spec.strain,
+        step=spec.step,
+        tol=spec.tol,
+        minimizer=spec.minimizer,
+    ):
+        if isinstance(item, PlasticEvent):
+            row = item.row()
+            events.append({k: float(row[k]) for k in EVENT_COLUMNS})
+        else:
+            states, reached = states + 1, item.strain
+    return EventsRecord(spec.delta_phi, reached, states, tuple(events), time.perf_counter() - t0)
+
+
+def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> CyclesRecord:
+    """The :class:`CyclesRecord` of ``start`` sheared in cycles at each amplitude of ``spec``
+    (the step at most half the amplitude)."""
+    rows = []
+    for amplitude in spec.amplitudes:
+        t0 = time.perf_counter()
+        ends = [
+            item
+            for item in cyclic_shear(
+                start,
+                model,
+                amplitude=amplitude,
+                cycles=spec.cycles,
+                mode=spec.mode,
+                step=min(spec.step, amplitude / 2.0),
+                tol=spec.tol,
+                minimizer=spec.minimizer,
+            )
+            if isinstance(item, CycleEnd)
+        ]
+        found = limit_cycle(ends)
+        rows.append(
+            {
+                "amplitude": amplitude,
+                "reached": found.reached,
+                "cycle": found.cycle,
+                "period": found.period,
+                "events_per_period": found.events,
+                "cycles_run": found.cycles,
+                "events": sum(e.events for e in ends),
+                "seconds": time.perf_counter() - t0,
+            }
+        )
+    return CyclesRecord(spec.delta_phi, tuple(rows))
+
+
+def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[str, Any]:
+    """The events after ``transient`` pooled over ``records``: how many, the mean stress and
+    energy drops and strain between events (with standard errors), the saddle-node fraction,
+    the fitted exponents of both drops' distributions
+    (:func:`~athermal.analysis.avalanches.power_law_tail`) and their log-binned densities."""
+    kept = [[e for e in r.events if e["strain"] >= transient] for r in records]
+    pooled = [e for events in kept for e in events]
+    gaps = [b["strain"] - a["strain"] for ev in kept for a, b in pairwise(ev)]
+    out: dict[str, Any] = {
+        "realizations": len(records),
+        "events": len(pooled),
+        "strain_sheared": sum(max(r.strain - transient, 0.0) for r in records),
+        "strain_between_events": sample_stats(gaps),
+        "saddle_node_fraction": sample_stats([e["saddle_node"] for e in pooled])["mean"],
+        "moved": sample_stats([e["moved"] for e in pooled]),
+    }
+    for name in ("stress_drop", "energy_drop"):
+        sizes = [e[name] for e in pooled]
+        out[name] = sample_stats(sizes)
+        fit = power_law_tail(sizes)
+        out[f"{name}_exponent"] = None if fit is None else fit.__dict__
+        centres, density, counts = log_binned(sizes)
+        out[f"{name}_density"] = {
+            "centres": centres.tolist(),
+            "density": density.tolist(),
+            "counts": counts.tolist(),
+        }
+    return out
+
+
+def yielding(records: list[CyclesRecord]) -> dict[str, Any]:
+    """Per amplitude over ``records``: the fraction of realizations that reached a limit cycle,
+    the cycles to reach it and the events per period (means over those that did); and the
+    yielding amplitude's bracket: the largest amplitude at which most (more than half) reached
+    one, below the smallest at which most did not (None where there is no such pair)."""
+    amplitudes = sorted({row["amplitude"] for r in records for row in r.rows})
+    table = []
+    for amplitude in amplitudes:
+        rows = [row for r in records for row in r.rows if row["amplitude"] == amplitude]
+        reached = [row for row in rows if row["reached"]]
+        table.append(
+            {
+                "amplitude": amplitude,
+                "realizations": len(rows),
+                "fraction_reached": len(reached) / len(rows),
+                "cycles_to_reach": sample_stats([float(row["cycle"]) for row in reached]),
+                "period": sample_stats([float(row["period"]) for row in reached]),
+                "events_per_period": sample_stats(
+                    [float(row["events_per_period"]) for row in reached]
+                ),
+            }
+        )
+    below = [t["amplitude"] for t in table if t["fraction_reached"] > 0.5]
+    above = [t["amplitude"] for t in table if t["fraction_reached"] <= 0.5]
+    bracket = None
+    if below and above and max(below) < min(above):
+        bracket = [max(below), min(above)]
+    return {"amplitudes": table, "yielding_bracket": bracket}
