@@ -36,7 +36,8 @@ import numpy as np
 
 from athermal.analysis.fitting import fit_power_law
 from athermal.errors import InputError
-from athermal.studies.avalanches import EventsSpec
+from athermal.studies import plot
+from athermal.studies.avalanches import EventsSpec, pooled_drops
 from athermal.studies.ensemble import run_ensemble
 from athermal.studies.experiments import JamSpec
 from athermal.studies.realization import EnsembleSpec
@@ -62,7 +63,7 @@ def ensemble(spec: EnsembleSpec, directory: Path, realizations: int, workers: in
 
 def avalanches(args: argparse.Namespace) -> None:
     """The ``--run`` ensembles, their table, scaling fits and figure."""
-    rows = []
+    rows, drops = [], {}
     for dim, n, m, strain in args.run:
         dim, n, m = int(dim), int(n), int(m)
         spec = EnsembleSpec(
@@ -76,6 +77,8 @@ def avalanches(args: argparse.Namespace) -> None:
         name = f"events_d{dim}_n{n}_a{args.alpha:g}_dphi{args.dphi:g}_s{strain:g}"
         result = ensemble(spec, args.ensembles / name, m, args.workers)
         stats = result.summary["avalanches"]
+        records = [r.events for r in result.realizations if r.events is not None]
+        drops[f"{dim}D N = {n}"] = pooled_drops(records, args.transient)
         rows.append(
             {
                 "dim": dim,
@@ -133,7 +136,8 @@ def avalanches(args: argparse.Namespace) -> None:
                     if key in fits
                 )
             )
-    figure_avalanches(rows, args.figure_dir / "avalanches.png")
+    figure = plot.avalanche_figure(drops, title=f"alpha = {args.alpha:g}, phi_c + {args.dphi:g}")
+    plot.save(figure, args.figure_dir / "avalanches.png")
     lines += ["", "Figure: `docs/figures/avalanches.png`.", ""]
     save(args.output_dir, "avalanches", {"rows": rows, "scaling": scaling}, "\n".join(lines))
     print("\n".join(lines))
@@ -195,80 +199,12 @@ def yielding(args: argparse.Namespace) -> None:
             f"- Delta phi = {r['delta_phi']:g}: yielding amplitude "
             + ("not bracketed" if bracket is None else f"in ({bracket[0]:g}, {bracket[1]:g}]")
         )
-    figure_yielding(rows, args.figure_dir / "yielding.png")
+    sweeps = {rf"$\Delta\phi$ = {r['delta_phi']:g}": r["amplitudes"] for r in rows}
+    figure = plot.yielding_figure(sweeps, title=f"N = {args.n}, alpha = {args.alpha:g}")
+    plot.save(figure, args.figure_dir / "yielding.png")
     lines += ["", "Figure: `docs/figures/yielding.png`.", ""]
     save(args.output_dir, "yielding", {"rows": rows}, "\n".join(lines))
     print("\n".join(lines))
-
-
-def figure_avalanches(rows: list[dict[str, Any]], path: Path) -> None:
-    """The drops' densities by size (log bins) and the means against N."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(12.0, 3.8), layout="constrained")
-    stress, energy, means = fig.subplots(1, 3)
-    for r in rows:
-        label = f"{r['dim']}D N = {r['n']}"
-        marker = "o-" if r["dim"] == 2 else "s--"
-        for ax, key in ((stress, "stress_drop"), (energy, "energy_drop")):
-            d = r[f"{key}_density"]
-            c, p = np.array(d["centres"]), np.array(d["density"])
-            keep = p > 0
-            ax.loglog(c[keep], p[keep], marker, ms=3, lw=0.8, label=label)
-    for ax, what in ((stress, r"stress drop $\Delta\tau$"), (energy, r"energy drop $\Delta E$")):
-        ax.set_xlabel(what)
-        ax.set_ylabel("probability density (log bins)")
-        ax.legend(fontsize=6)
-    for dim, marker in ((2, "o-"), (3, "s--")):
-        at = [r for r in rows if r["dim"] == dim]
-        if not at:
-            continue
-        n = [r["n"] for r in at]
-        for key, label in MEANS:
-            means.errorbar(
-                n,
-                [r[key]["mean"] for r in at],
-                yerr=[r[key]["stderr"] for r in at],
-                fmt=marker,
-                ms=3,
-                capsize=2,
-                label=f"{dim}D {label}",
-            )
-    means.set_xscale("log")
-    means.set_yscale("log")
-    means.set_xlabel("N")
-    means.set_title("means against system size")
-    means.legend(fontsize=6)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150)
-
-
-def figure_yielding(rows: list[dict[str, Any]], path: Path) -> None:
-    """Fraction reaching a limit cycle, and cycles to reach it, against the amplitude."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(9.0, 3.6), layout="constrained")
-    fraction, cycles = fig.subplots(1, 2)
-    for r in rows:
-        a = [t["amplitude"] for t in r["amplitudes"]]
-        label = rf"$\Delta\phi$ = {r['delta_phi']:g}"
-        fraction.plot(a, [t["fraction_reached"] for t in r["amplitudes"]], "o-", label=label)
-        reached = [t for t in r["amplitudes"] if t["cycles_to_reach"]["n"]]
-        cycles.errorbar(
-            [t["amplitude"] for t in reached],
-            [t["cycles_to_reach"]["mean"] for t in reached],
-            yerr=[t["cycles_to_reach"]["stderr"] for t in reached],
-            fmt="o-",
-            capsize=2,
-            label=label,
-        )
-    fraction.set_xlabel("amplitude A")
-    fraction.set_ylabel("fraction reaching a limit cycle")
-    cycles.set_xlabel("amplitude A")
-    cycles.set_ylabel("cycles to reach it")
-    fraction.legend(fontsize=7)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150)
 
 
 def main() -> None:

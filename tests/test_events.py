@@ -200,11 +200,15 @@ def test_the_command_writes_events_frames_and_tables(tmp_path, capsys):
     mode = before.log["soft_mode"]  # the critical mode: unit, one row per particle
     assert mode.shape == (START.n, 2) and np.linalg.norm(mode) == pytest.approx(1.0)
     assert len(read_table(tmp_path / "s.csv")) == summary["states"]
+    assert summary["figure"] == str(tmp_path / "s.png") and (tmp_path / "s.png").stat().st_size
     cyclic = [*argv, "--cycles", "5", "--amplitude", "0.06", "--step", "1e-3", "--json"]
     assert main([*cyclic[:3], str(tmp_path / "c.gsd"), *cyclic[4:]]) == 0
     summary = json.loads(capsys.readouterr().out)
     assert summary["limit_cycle"]["reached"] and summary["limit_cycle"]["period"] == 1
     assert len(read_table(tmp_path / "c.cycles.csv")) == summary["limit_cycle"]["cycles_run"]
+    quiet = ["--figure", "none", "--events", "--strain", "0.01", "--step", "1e-3", "--json"]
+    assert main([*argv[:3], str(tmp_path / "f.gsd"), *quiet]) == 0
+    assert not (tmp_path / "f.png").exists()
 
 
 def test_plane_shear_between_rough_walls_has_events():
@@ -217,3 +221,30 @@ def test_plane_shear_between_rough_walls_has_events():
     assert found
     for e in found:
         assert e.strain_after - e.strain <= 1e-9 and e.energy_drop > 0.0
+
+
+@pytest.mark.parametrize(
+    ("extra", "flag"),
+    [
+        (["--tol", "1e-8"], "--tol"),
+        (["--max-step", "1e-3"], "--max-step"),
+        (["--figure", "f.png"], "--figure"),
+        (["--amplitude", "0.01"], "--amplitude"),
+        (["--cycles", "2"], "--cycles"),
+        (["--events", "--resume"], "--resume"),
+        (["--events", "--rtol", "1e-6"], "--rtol"),
+        (["--cycles", "2", "--amplitude", "0.01", "--strain", "0.1"], "--strain"),
+    ],
+)
+def test_options_that_would_do_nothing_are_refused_in_one_line(tmp_path, capsys, extra, flag):
+    """Each option of exact events without ``--events`` (or the other way round) is refused
+    before any file is written, in one line naming it."""
+    from athermal import write_gsd
+    from athermal.cli import main
+
+    write_gsd(tmp_path / "start.gsd", START, model=HERTZ)
+    out = tmp_path / "s.gsd"
+    assert main(["shear", str(tmp_path / "start.gsd"), "-o", str(out), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and flag in err[0]
+    assert not out.exists()

@@ -44,6 +44,15 @@ class PowerTail:
     ks: float
     by_start: dict[str, float]
 
+    def density(self, sizes: ArrayLike) -> NDArray[np.float64]:
+        """The fitted probability density at ``sizes`` (>= ``s_min``), normalized over all
+        ``count`` sizes (the fitted ``tail`` carry their fraction of it)."""
+        s = np.asarray(sizes, dtype=np.float64)
+        ratio = self.s_min / self.cutoff
+        mass = _integral(self.exponent, ratio, 0.0, np.inf) * self.s_min ** (1.0 - self.exponent)
+        shape = s ** (-self.exponent) * np.exp(-(s - self.s_min) / self.cutoff)
+        return self.tail / self.count * shape / mass
+
 
 def _integral(tau: float, ratio: float, a: float, b: float) -> float:
     """``int_a^b exp((1 - tau) u - ratio (e^u - 1)) du``: the law's mass between ``S = s_min

@@ -235,6 +235,11 @@ def flagged(message: str, args: argparse.Namespace | None) -> str:
     return f"{FLAGS.get(name, '--' + name.replace('_', '-'))}: {rest}"
 
 
+SHEAR_OPTIONS = frozenset({"tol", "max_step", "figure", "amplitude", "cycles", "strain"})
+"""Options whose needs :func:`_idle` checks in ``shear`` only (other commands have their own
+options of these names)."""
+
+
 def _idle(args: argparse.Namespace) -> None:
     """Options given that would do nothing here: refused, naming what they need."""
     given: frozenset[str] = getattr(args, "given", frozenset())
@@ -247,6 +252,7 @@ def _idle(args: argparse.Namespace) -> None:
         "picture": ("2D", "pictures are drawn in 2D only; drop --picture"),
         "tol": ("events", "the bracket of an exact event; add --events"),
         "max_step": ("events", "the largest step between exact events; add --events"),
+        "figure": ("events", "the figure of a run with exact events; add --events"),
         "amplitude": ("cycles", "cyclic shear's amplitude; add --cycles"),
         "cycles": ("amplitude", "cyclic shear needs its amplitude; add --amplitude"),
         "strain": ("straight", "cyclic shear goes to +-amplitude; drop --strain"),
@@ -265,6 +271,8 @@ def _idle(args: argparse.Namespace) -> None:
         "steps": not _plastic(args),
     }
     for option, (need, what) in needs.items():
+        if option in SHEAR_OPTIONS and args.command != "shear":
+            continue  # ensemble events and cycles, modes' and criticality's --figure
         if option in given and not have[need]:
             raise InputError(f"{FLAGS.get(option, '--' + option.replace('_', '-'))}: {what}")
     if "resume" in given and _plastic(args):
@@ -365,6 +373,8 @@ def output_files(args: argparse.Namespace) -> dict[str, Path]:
         out["--events"] = Path(args.output).with_suffix(".events.csv")
         if args.cycles is not None:
             out["--cycles"] = Path(args.output).with_suffix(".cycles.csv")
+        if args.figure != "none":
+            out["--figure"] = Path(args.figure or Path(args.output).with_suffix(".png"))
     if command == "criticality" and args.figure is not None:
         out["--figure"] = Path(args.figure)
     if command == "measure" and args.forces_figure is not None:

@@ -372,6 +372,12 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
     plastic.add_argument(
         "--amplitude", type=float, default=None, help="cyclic shear's amplitude A (with --cycles)"
     )
+    plastic.add_argument(
+        "--figure",
+        default=None,
+        help="PNG of the stress-strain curve with its events marked and of the drops' "
+        "distributions (default: OUTPUT with .png; 'none' for none)",
+    )
     add_quasi_static(she)
 
 

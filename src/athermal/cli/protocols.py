@@ -491,6 +491,12 @@ def _plastic(
     run = run_plasticity(
         packing, model, spec, args.output, seed=frame.seed, overwrite=args.overwrite, on_item=show
     )
+    figure = None
+    if args.figure != "none":
+        from ..studies.plot import save
+
+        title = f"N = {packing.n}, {args.mode} shear, {len(run.events)} events"
+        figure = save(run.figure(title), args.figure or Path(args.output).with_suffix(".png"))
     start_log = {k: float(v) for k, v in frame.log.items() if k in ("phi", "phi_c", "delta_phi")}
     emit(
         {
@@ -501,6 +507,7 @@ def _plastic(
             "seconds": round(time.perf_counter() - t0, 3),
             "output": args.output,
             **{f"table_{k}": v for k, v in run.files.items() if k != "trajectory"},
+            **({} if figure is None else {"figure": str(figure)}),
         },
         args.json,
     )

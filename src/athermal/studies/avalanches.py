@@ -155,6 +155,13 @@ def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> Cycle
     return CyclesRecord(spec.delta_phi, tuple(rows))
 
 
+def pooled_drops(records: list[EventsRecord], transient: float) -> dict[str, list[float]]:
+    """The stress and energy drops (``stress_drop``, ``energy_drop``) of the events after
+    ``transient`` of all ``records``."""
+    pooled = [e for r in records for e in r.events if e["strain"] >= transient]
+    return {name: [e[name] for e in pooled] for name in ("stress_drop", "energy_drop")}
+
+
 def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[str, Any]:
     """The events after ``transient`` pooled over ``records``: how many, the mean stress and
     energy drops and strain between events (with standard errors), the saddle-node fraction,
@@ -162,6 +169,7 @@ def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[
     (:func:`~athermal.analysis.avalanches.power_law_tail`) and their log-binned densities."""
     kept = [[e for e in r.events if e["strain"] >= transient] for r in records]
     pooled = [e for events in kept for e in events]
+    drops = pooled_drops(records, transient)
     gaps = [b["strain"] - a["strain"] for ev in kept for a, b in pairwise(ev)]
     out: dict[str, Any] = {
         "realizations": len(records),
@@ -171,8 +179,7 @@ def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[
         "saddle_node_fraction": sample_stats([e["saddle_node"] for e in pooled])["mean"],
         "moved": sample_stats([e["moved"] for e in pooled]),
     }
-    for name in ("stress_drop", "energy_drop"):
-        sizes = [e[name] for e in pooled]
+    for name, sizes in drops.items():
         out[name] = sample_stats(sizes)
         fit = power_law_tail(sizes)
         out[f"{name}_exponent"] = None if fit is None else fit.__dict__

@@ -39,7 +39,7 @@ from ..analysis.forces import (
 from ..errors import InputError, one_line
 from ..io import claim
 from ..protocols.compress import pooled_fit
-from .avalanches import avalanche_statistics, yielding
+from .avalanches import avalanche_statistics, pooled_drops, yielding
 from .experiments import child_seeds
 from .realization import (
     CompressionRecord,
@@ -311,6 +311,15 @@ def _summary_files(
         figure = plot.summary_figure(panels, title=title)
     picture = plot.save(figure, out / "summary.png")
     files = {"table": str(table), "figure": str(picture)}
+    runs = [r.events for r in realizations if r.events is not None]
+    if runs:
+        drops = {f"{len(runs)} packings": pooled_drops(runs, spec.events.transient)}
+        figure = plot.avalanche_figure(drops, title=title)
+        files["avalanches_figure"] = str(plot.save(figure, out / "avalanches.png"))
+    if "yielding" in summary:
+        sweep = {rf"$\Delta\phi$ = {spec.events.delta_phi:g}": summary["yielding"]["amplitudes"]}
+        figure = plot.yielding_figure(sweep, title=title)
+        files["yielding_figure"] = str(plot.save(figure, out / "yielding.png"))
     networks = [r.forces for r in realizations if r.forces is not None]
     if networks:
         pooled = {f"pooled over {len(networks)} jammed packings": pooled_forces(networks)}

@@ -20,7 +20,7 @@ import statistics
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from .._records import Value
 from ..errors import InputError
@@ -39,6 +39,9 @@ from ..protocols.events import (
 from ..protocols.shear import ShearMode
 from ..relaxation import Minimizer
 from .tables import write_table
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 
 @dataclass(frozen=True)
@@ -97,6 +100,20 @@ class PlasticityRun:
             }
             out["cycle_ends"] = [c.row() for c in self.cycles]
         return out
+
+    def figure(self, title: str = "") -> Figure:
+        """The driven stress against strain with the events marked, and the distributions of
+        their stress and energy drops (:func:`~athermal.studies.plot.events_figure`)."""
+        from .plot import events_figure
+
+        curve = {"strain": [s.strain for s in self.states], "tau": [s.tau for s in self.states]}
+        events = {
+            "strain": [e.strain for e in self.events],
+            "tau_before": [e.before.tau for e in self.events],
+            "stress_drop": [e.stress_drop for e in self.events],
+            "energy_drop": [e.energy_drop for e in self.events],
+        }
+        return events_figure(curve, events, title=title)
 
 
 def run_plasticity(

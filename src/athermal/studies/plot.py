@@ -456,3 +456,96 @@ def criticality_figure(
         ax.legend(fontsize="small", loc="upper left")
     fig.suptitle(title or f"{exponents.packings} packings, {live} non-rattlers")
     return fig
+
+
+def _drops(ax: Axes, sizes: Mapping[str, Sequence[float]], xlabel: str) -> None:
+    """Log-binned densities of each label's sizes, with the fitted power law with cutoff
+    (:func:`~athermal.analysis.avalanches.power_law_tail`) dashed and its exponent labelled."""
+    from ..analysis.avalanches import log_binned, power_law_tail
+
+    for label, values in sizes.items():
+        centres, density, _ = log_binned(values)
+        seen = density > 0
+        fit = power_law_tail(values)
+        text = label if fit is None else rf"{label}: $\tau$ = {fit.exponent:.2f} ± {fit.stderr:.2f}"
+        (line,) = ax.loglog(centres[seen], density[seen], "o", markersize=3, label=text)
+        if fit is not None:
+            s = np.logspace(np.log10(fit.s_min), np.log10(max(values)), 50)
+            ax.loglog(s, fit.density(s), "--", color=line.get_color(), linewidth=1.0)
+    from matplotlib.ticker import NullFormatter
+
+    ax.xaxis.set_minor_formatter(NullFormatter())  # labelled minor ticks crowd a short range
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("probability density")
+    if sizes:
+        ax.legend(fontsize="small")
+
+
+def events_figure(
+    curve: Mapping[str, Sequence[float]],
+    events: Mapping[str, Sequence[float]],
+    *,
+    title: str = "",
+) -> Figure:
+    """An AQS run with exact plastic events: the driven stress against strain (``curve``:
+    ``strain``, ``tau``) with each event marked where it starts (``events``: ``strain``,
+    ``tau_before``, ``stress_drop``, ``energy_drop``), and the distributions of the stress and
+    energy drops (log bins, fitted power law with cutoff dashed)."""
+    fig = new_figure(12.0, 3.8)
+    stress, drops, energy = fig.subplots(1, 3)
+    stress.plot(curve["strain"], curve["tau"], "-", linewidth=0.8)
+    stress.plot(events["strain"], events["tau_before"], "v", markersize=3, label="events")
+    stress.set_xlabel(r"strain $\gamma$")
+    stress.set_ylabel(r"driven stress $\tau$ " + STRESS_UNITS)
+    stress.legend(fontsize="small")
+    _drops(drops, {"events": events["stress_drop"]}, r"stress drop $\Delta\tau$")
+    _drops(energy, {"events": events["energy_drop"]}, r"energy drop $\Delta E$")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def avalanche_figure(
+    drops: Mapping[str, Mapping[str, Sequence[float]]], *, title: str = ""
+) -> Figure:
+    """The stress and energy drops of several ensembles (label -> ``stress_drop``,
+    ``energy_drop``): their densities in log bins with their fitted power laws."""
+    fig = new_figure(9.0, 3.8)
+    stress, energy = fig.subplots(1, 2)
+    _drops(stress, {k: v["stress_drop"] for k, v in drops.items()}, r"stress drop $\Delta\tau$")
+    _drops(energy, {k: v["energy_drop"] for k, v in drops.items()}, r"energy drop $\Delta E$")
+    if title:
+        fig.suptitle(title)
+    return fig
+
+
+def yielding_figure(
+    sweeps: Mapping[str, Sequence[Mapping[str, Any]]], *, title: str = ""
+) -> Figure:
+    """Cyclic shear against its amplitude, one line per sweep (label -> the rows of
+    :func:`~athermal.studies.avalanches.yielding`'s ``amplitudes``): the fraction of packings
+    that reached a limit cycle, and the cycles it took them (mean and standard error)."""
+    fig = new_figure(9.0, 3.6)
+    fraction, cycles = fig.subplots(1, 2)
+    for label, rows in sweeps.items():
+        amplitude = [r["amplitude"] for r in rows]
+        (line,) = fraction.plot(amplitude, [r["fraction_reached"] for r in rows], "o-", label=label)
+        reached = [r for r in rows if r["cycles_to_reach"]["n"]]
+        cycles.errorbar(
+            [r["amplitude"] for r in reached],
+            [r["cycles_to_reach"]["mean"] for r in reached],
+            yerr=[r["cycles_to_reach"]["stderr"] for r in reached],
+            fmt="o-",
+            capsize=2,
+            color=line.get_color(),
+            label=label,
+        )
+    fraction.set_xlabel("amplitude A")
+    fraction.set_ylabel("fraction reaching a limit cycle")
+    fraction.set_ylim(-0.05, 1.05)
+    cycles.set_xlabel("amplitude A")
+    cycles.set_ylabel("cycles to reach it")
+    fraction.legend(fontsize="small")
+    if title:
+        fig.suptitle(title)
+    return fig
