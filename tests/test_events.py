@@ -231,7 +231,7 @@ def test_plane_shear_between_rough_walls_has_events():
         (["--figure", "f.png"], "--figure"),
         (["--amplitude", "0.01"], "--amplitude"),
         (["--cycles", "2"], "--cycles"),
-        (["--events", "--resume"], "--resume"),
+        (["--events", "--resume"], "--resume"),  # nothing to resume
         (["--events", "--rtol", "1e-6"], "--rtol"),
         (["--cycles", "2", "--amplitude", "0.01", "--strain", "0.1"], "--strain"),
     ],
@@ -248,3 +248,84 @@ def test_options_that_would_do_nothing_are_refused_in_one_line(tmp_path, capsys,
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and flag in err[0]
     assert not out.exists()
+
+
+class Killed(Exception):
+    """Stands for a kill at a chosen moment of a run."""
+
+
+def kill_at(which):
+    """An ``on_item`` that raises :class:`Killed` at the ``which``-th item it is shown that
+    passes ``which``'s test (a callable of the item and its count)."""
+    seen = []
+
+    def on_item(item):
+        seen.append(item)
+        if which(item, seen):
+            raise Killed
+
+    return on_item
+
+
+@pytest.mark.parametrize("moment", ["at an event", "before its after state's row"])
+def test_a_killed_event_run_resumes_to_the_same_events(tmp_path, moment):
+    """Killed as the second event is found (its frames not yet written) or just after the first
+    event's frames (its after state's row not yet in the table), the run resumed goes on from
+    the last event: the same events (strains to 2e-10), one frame before and after each, the
+    tables as an uninterrupted run's."""
+    from athermal.io import count_frames, read_gsd
+    from athermal.studies.plasticity import PlasticitySpec, run_plasticity
+
+    spec = PlasticitySpec(mode="simple", strain=0.06, step=1e-3)
+    whole = run_plasticity(START, HERTZ, spec, tmp_path / "whole.gsd")
+    if moment == "at an event":
+        stop = kill_at(lambda item, seen: sum(isinstance(s, PlasticEvent) for s in seen) == 2)
+    else:
+        first = []
+
+        def stop_at(item, seen):
+            if isinstance(item, PlasticEvent):
+                first.append(item)
+            return bool(first) and item is first[0].after
+
+        stop = kill_at(stop_at)
+    out = tmp_path / "cut.gsd"
+    with pytest.raises(Killed):
+        run_plasticity(START, HERTZ, spec, out, on_item=stop)
+    cut = count_frames(out)
+    again = run_plasticity(START, HERTZ, spec, out, resume=True)
+    assert cut < count_frames(out) == 1 + 2 * len(whole.events) == 9
+    assert len(again.events) == len(whole.events)
+    for x, y in zip(again.events, whole.events, strict=True):
+        assert x["index"] == y["index"] and abs(x["strain"] - y["strain"]) <= 2e-10
+    assert [r["strain"] for r in again.states][:3] == [r["strain"] for r in whole.states][:3]
+    assert len(again.states) == len(whole.states)
+    marks = [float(read_gsd(out, k).log["event_before"]) for k in range(1, 9)]
+    assert marks == [0, -1, 1, -1, 2, -1, 3, -1]  # each event's frames once, in order
+    other = PlasticitySpec(mode="simple", strain=0.05, step=1e-3)
+    with pytest.raises(InputError, match="another run"):
+        run_plasticity(START, HERTZ, other, out, resume=True)
+
+
+def test_a_killed_cyclic_run_resumes_from_its_last_cycle():
+    """Killed in its second cycle, cyclic shear resumed from the end of the first reaches the
+    same limit cycle as an uninterrupted run."""
+    import tempfile
+    from pathlib import Path
+
+    from athermal.studies.plasticity import PlasticitySpec, run_plasticity
+
+    folder = Path(tempfile.mkdtemp())
+    spec = PlasticitySpec(mode="simple", step=1e-3, amplitude=0.06, cycles=5)
+    whole = run_plasticity(START, HERTZ, spec, folder / "whole.gsd").summary()
+    stop = kill_at(
+        lambda item, seen: (
+            sum(isinstance(s, CycleEnd) for s in seen) == 1 and isinstance(item, PlasticEvent)
+        )
+    )
+    with pytest.raises(Killed):
+        run_plasticity(START, HERTZ, spec, folder / "cut.gsd", on_item=stop)
+    again = run_plasticity(START, HERTZ, spec, folder / "cut.gsd", resume=True).summary()
+    assert again["limit_cycle"] == whole["limit_cycle"]
+    assert [c["events"] for c in again["cycle_ends"]] == [c["events"] for c in whole["cycle_ends"]]
+    assert again["events"] == whole["events"]

@@ -41,6 +41,7 @@ from math import isqrt
 from pathlib import Path
 from typing import IO
 
+import gsd.fl
 import gsd.hoomd
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -206,6 +207,35 @@ def read_gsd(path: PathLike, frame: int = -1) -> Frame:
         log={name: _observable(value) for name, value in stored.items() if name not in _RESERVED},
         position_lo=lo,
     )
+
+
+def truncate_gsd(path: PathLike, count: int) -> None:
+    """Keep the first ``count`` frames (>= 1) of a trajectory and drop the rest, atomically
+    (a copy of those frames, chunk for chunk, replaces the file); nothing happens when it has
+    no more than ``count``."""
+    if not 1 <= count:
+        raise InputError(f"count: must be >= 1, got {count}")
+    target = Path(path)
+    with _open_read(target) as traj:
+        total = len(traj)
+    if count >= total:
+        return
+    what = "cannot drop its last frames"
+    with replacing(target, what=what, why=lambda exc: _why(exc, target)) as temporary:
+        with gsd.fl.open(str(target), "r") as source:
+            names = source.find_matching_chunk_names("")
+            with gsd.fl.open(
+                str(temporary),
+                "w",
+                application=source.application,
+                schema=source.schema,
+                schema_version=source.schema_version,
+            ) as copy:
+                for frame in range(count):
+                    for name in names:
+                        if source.chunk_exists(frame=frame, name=name):
+                            copy.write_chunk(name, source.read_chunk(frame=frame, name=name))
+                    copy.end_frame()
 
 
 def count_frames(path: PathLike) -> int:

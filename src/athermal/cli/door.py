@@ -275,8 +275,6 @@ def _idle(args: argparse.Namespace) -> None:
             continue  # ensemble events and cycles, modes' and criticality's --figure
         if option in given and not have[need]:
             raise InputError(f"{FLAGS.get(option, '--' + option.replace('_', '-'))}: {what}")
-    if "resume" in given and _plastic(args):
-        raise InputError("--resume: a run with exact events starts again; drop --resume")
     if "table" in given and _plastic(args):
         raise InputError("--table: a run with exact events writes its tables beside --output")
     if "resume" in given:

@@ -8,7 +8,6 @@ object on stdout). ``--resume`` continues an interrupted run from its trajectory
 from __future__ import annotations
 
 import argparse
-import hashlib
 import sys
 import time
 import warnings
@@ -43,6 +42,7 @@ from ..studies.checkpoint import (
     Step,
     Trajectory,
     compression_step,
+    fingerprint,
     jamming_step,
     run_id,
     shear_step,
@@ -109,16 +109,6 @@ def _digits(bracket: float) -> int:
 
 def _table_path(args: argparse.Namespace, output: str) -> str:
     return args.table if args.table is not None else str(Path(output).with_suffix(".csv"))
-
-
-def _fingerprint(packing: Packing) -> str:
-    """Digest of a start configuration, so a resumed run checks it starts from the same one."""
-    digest = hashlib.sha256()
-    for arr in (packing.positions, packing.radii, packing.cell.h):
-        digest.update(np.ascontiguousarray(arr).tobytes())
-    if packing.cell.walls:  # (a periodic start's digest as before)
-        digest.update(bytes(packing.cell.walls))
-    return digest.hexdigest()
 
 
 def _trajectory(
@@ -308,7 +298,7 @@ def compress(args: argparse.Namespace) -> None:
         "compress",
         model,
         frame.seed,
-        start=_fingerprint(packing),
+        start=fingerprint(packing),
         phi_c=phi_c,
         deltas=deltas.tolist(),
         rtol=args.rtol,
@@ -396,7 +386,7 @@ def shear(args: argparse.Namespace) -> None:
         model,
         frame.seed,
         glued=frozen,
-        start=_fingerprint(packing),
+        start=fingerprint(packing),
         mode=args.mode,
         strain=args.strain,
         step=args.step,
@@ -489,7 +479,14 @@ def _plastic(
             )
 
     run = run_plasticity(
-        packing, model, spec, args.output, seed=frame.seed, overwrite=args.overwrite, on_item=show
+        packing,
+        model,
+        spec,
+        args.output,
+        seed=frame.seed,
+        overwrite=args.overwrite,
+        resume=args.resume,
+        on_item=show,
     )
     figure = None
     if args.figure != "none":

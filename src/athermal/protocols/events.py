@@ -30,8 +30,9 @@ minimum), to the round-off floor; modes as :func:`~athermal.protocols.shear.shea
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
@@ -186,6 +187,19 @@ def soft_mode(
     return float(values[0]), mode, rattler
 
 
+@dataclass(frozen=True, eq=False)
+class Checkpoint:
+    """Where an interrupted run goes on from: the relaxed ``packing`` at ``strain`` (the state
+    just after an event, or a cycle's end), the ``events`` found before it, and in cyclic shear
+    the packings at the ends of the cycles done, the start's first (``ends``; the last is
+    ``packing``)."""
+
+    packing: Packing = field(repr=False)
+    strain: float
+    events: int
+    ends: tuple[Packing, ...] = field(default=(), repr=False)
+
+
 def _lowest(h: sp.csr_matrix, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``k`` lowest eigenpairs of ``h``: dense up to a few hundred rows, else ARPACK in
     shift-invert mode (:func:`~athermal.analysis.modes.lowest_eigenpairs`)."""
@@ -231,10 +245,10 @@ class _Shear:
         layers = rough_walls(start, wall_layer) if mode == "plane" else None
         return cls(model, mode, layers, minimizer, same)
 
-    def first(self, start: Packing) -> BranchState:
-        """``start`` relaxed: the first state, at strain 0."""
-        relaxed, iterations = self.relax(start, 0.0)
-        return self.state(relaxed, 0.0, iterations)
+    def first(self, start: Packing, strain: float) -> BranchState:
+        """``start`` (at ``strain``) relaxed: the first state."""
+        relaxed, iterations = self.relax(start, strain)
+        return self.state(relaxed, strain, iterations)
 
     def relax(self, packing: Packing, strain: float) -> tuple[Packing, int]:
         """``packing`` relaxed to a minimum (the protocols' relaxation) at the round-off floor,
@@ -348,9 +362,11 @@ def plastic_events(
     minimizer: Minimizer | None = None,
     wall_layer: float | None = None,
     same: float = SAME_STATE,
+    checkpoint: Checkpoint | None = None,
 ) -> Iterator[BranchState | PlasticEvent]:
     """Shear ``start`` quasi-statically to ``strain`` and yield every branch state and every
-    plastic event, each event located to ``tol`` in strain (module docstring).
+    plastic event, each event located to ``tol`` in strain (module docstring); from a
+    ``checkpoint``, the run goes on from there (its state, relaxed again, is not yielded).
 
     Parameters
     ----------
@@ -367,12 +383,18 @@ def plastic_events(
     wall_layer : plane shear's rough walls (:func:`~athermal.protocols.shear.rough_walls`).
     same : two relaxed states are one minimum when no particle that is no rattler lies farther
         than this x the mean diameter from its place in the other (:data:`SAME_STATE`).
+    checkpoint : where an interrupted run of the same settings from the same ``start`` goes on
+        (the rough walls are still ``start``'s).
     """
     strain = positive_scalar(strain, "strain")
     largest = check_steps(step, max_step, tol, strain)
     run = _Shear.of(start, model, mode, strain, minimizer, wall_layer, same)
-    first = run.first(start)
-    yield first
+    if checkpoint is None:
+        first = run.first(start, 0.0)
+        yield first
+    else:
+        first = run.first(checkpoint.packing, checkpoint.strain)
+        run.events = checkpoint.events
     yield from _follow(run, [first], strain, step, largest, tol)
 
 
@@ -554,20 +576,29 @@ def cyclic_shear(
     wall_layer: float | None = None,
     stop: bool = True,
     same: float = SAME_STATE,
+    checkpoint: Checkpoint | None = None,
 ) -> Iterator[BranchState | PlasticEvent | CycleEnd]:
     """Shear ``start`` quasi-statically back and forth between strains ``+amplitude`` and
     ``-amplitude`` (each cycle 0 -> A -> -A -> 0), yielding every branch state and plastic
     event (located as :func:`plastic_events` does) and, after each cycle, its
     :class:`CycleEnd`. A cycle whose end is the end of an earlier cycle (the same minimum to
     ``same``, as :func:`plastic_events` compares states) closes a limit cycle
-    (:func:`limit_cycle`); with ``stop`` the run ends there, else after ``cycles`` cycles."""
+    (:func:`limit_cycle`); with ``stop`` the run ends there, else after ``cycles`` cycles.
+    From a ``checkpoint`` (at a cycle's end) the run goes on with the next cycle, the ends
+    before compared as ever."""
     amplitude = check_cycles(amplitude, cycles)
     largest = check_steps(step, max_step, tol, amplitude)
     run = _Shear.of(start, model, mode, amplitude, minimizer, wall_layer, same)
-    branch = [run.first(start)]
-    yield branch[0]
-    ends = [branch[0]]
-    for cycle in range(1, int(cycles) + 1):
+    if checkpoint is None:
+        branch = [run.first(start, 0.0)]
+        yield branch[0]
+        ends = [branch[0]]
+    else:
+        ends = [run.state(packing, 0.0) for packing in checkpoint.ends[:-1]]
+        branch = [run.first(checkpoint.packing, 0.0)]
+        ends.append(branch[0])
+        run.events = checkpoint.events
+    for cycle in range(len(ends), int(cycles) + 1):
         before = run.events
         for target in (amplitude, -amplitude, 0.0):
             yield from _follow(run, branch, target, step, largest, tol)
@@ -581,7 +612,19 @@ def cyclic_shear(
             return
 
 
-def limit_cycle(ends: list[CycleEnd]) -> LimitCycle:
+class Ended(Protocol):
+    """What :func:`limit_cycle` reads of a cycle's end (a :class:`CycleEnd`, or its row read
+    back)."""
+
+    @property
+    def cycle(self) -> int: ...
+    @property
+    def events(self) -> int: ...
+    @property
+    def repeats(self) -> int | None: ...
+
+
+def limit_cycle(ends: Sequence[Ended]) -> LimitCycle:
     """The limit cycle of the first of ``ends`` (a cyclic shear's, in order) that repeats an
     earlier cycle's end: entered at the end of cycle ``cycle - repeats``, ``repeats`` cycles
     long, with the events of its last ``repeats`` cycles; not reached when none repeats."""

@@ -23,6 +23,7 @@ from ..analysis.observables import measure
 from ..errors import FileFormatError, InputError
 from ..io import Frame, append_gsd, claim, count_frames, read_gsd, write_gsd
 from ..model.contact import ContactModel
+from ..model.packing import Packing
 from ..protocols import CompressionStep, JammingStep, ShearStep
 
 BRACKET = "phi_high"
@@ -38,6 +39,16 @@ def run_id(protocol: str, parameters: Mapping[str, Any]) -> float:
     """A 52-bit digest (exact in float64) of the protocol name and its parameters."""
     text = json.dumps({"protocol": protocol, **parameters}, sort_keys=True, default=str)
     return float(int(hashlib.sha256(text.encode()).hexdigest()[:13], 16))
+
+
+def fingerprint(packing: Packing) -> str:
+    """Digest of a start configuration, so a resumed run checks it starts from the same one."""
+    digest = hashlib.sha256()
+    for arr in (packing.positions, packing.radii, packing.cell.h):
+        digest.update(np.ascontiguousarray(arr).tobytes())
+    if packing.cell.walls:  # (a periodic start's digest as before)
+        digest.update(bytes(packing.cell.walls))
+    return digest.hexdigest()
 
 
 def step_log(step: Step) -> dict[str, float]:

@@ -18,18 +18,22 @@ from __future__ import annotations
 import math
 import statistics
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from .._records import Value
 from ..errors import InputError
-from ..io import append_gsd, claim
+from ..io import append_gsd, claim, count_frames, read_gsd, truncate_gsd
 from ..model.contact import ContactModel
 from ..model.packing import Packing
 from ..protocols.events import (
     EVENT_TOL,
     BranchState,
+    Checkpoint,
     CycleEnd,
     PlasticEvent,
     cyclic_shear,
@@ -38,7 +42,8 @@ from ..protocols.events import (
 )
 from ..protocols.shear import ShearMode
 from ..relaxation import Minimizer
-from .tables import write_table
+from .checkpoint import fingerprint, run_id
+from .tables import read_table, write_table
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -61,36 +66,48 @@ class PlasticitySpec:
     wall_layer: float | None = None
 
 
+@dataclass(frozen=True)
+class _CycleRow:
+    """A cycle's end as its table row holds it (what :func:`limit_cycle` reads)."""
+
+    cycle: int
+    events: int
+    repeats: int | None
+
+
 @dataclass(frozen=True, eq=False)
 class PlasticityRun:
-    """What a run found: its states, events and cycles' ends, and the files it wrote."""
+    """What a run found, as its tables hold it: the rows of its states, events and cycles'
+    ends (those of a resumed run's first part read back), and the files it wrote."""
 
-    states: list[BranchState]
-    events: list[PlasticEvent]
-    cycles: list[CycleEnd]
+    states: list[dict[str, Value]]
+    events: list[dict[str, Value]]
+    cycles: list[dict[str, Value]]
     files: dict[str, str]
 
     def summary(self) -> dict[str, Any]:
         """The run in numbers: events, their drops (mean, largest), the strain between
         events, and for cyclic shear the limit cycle and each cycle's end."""
-        drops = [e.stress_drop for e in self.events]
-        energy = [e.energy_drop for e in self.events]
+        drops = [float(e["stress_drop"]) for e in self.events]
+        energy = [float(e["energy_drop"]) for e in self.events]
         out: dict[str, Any] = {
             "states": len(self.states),
             "events": len(self.events),
             "stress_drop_mean": statistics.fmean(drops) if drops else math.nan,
             "stress_drop_max": max(drops, default=math.nan),
             "energy_drop_mean": statistics.fmean(energy) if energy else math.nan,
-            "moved_mean": statistics.fmean(e.moved for e in self.events) if drops else math.nan,
+            "moved_mean": (
+                statistics.fmean(float(e["moved"]) for e in self.events) if drops else math.nan
+            ),
             "relaxations_per_event": (
-                statistics.fmean(e.trials for e in self.events) if drops else math.nan
+                statistics.fmean(float(e["trials"]) for e in self.events) if drops else math.nan
             ),
         }
         if len(self.events) > 1 and not self.cycles:
-            gaps = [b.strain - a.strain for a, b in zip(self.events, self.events[1:], strict=False)]
-            out["strain_between_events"] = statistics.fmean(gaps)
+            strains = [float(e["strain"]) for e in self.events]
+            out["strain_between_events"] = statistics.fmean(np.diff(strains).tolist())
         if self.cycles:
-            found = limit_cycle(self.cycles)
+            found = limit_cycle([_cycle_row(c) for c in self.cycles])
             out["limit_cycle"] = {
                 "reached": found.reached,
                 "cycle": found.cycle,
@@ -98,7 +115,7 @@ class PlasticityRun:
                 "events_per_period": found.events,
                 "cycles_run": found.cycles,
             }
-            out["cycle_ends"] = [c.row() for c in self.cycles]
+            out["cycle_ends"] = self.cycles
         return out
 
     def figure(self, title: str = "") -> Figure:
@@ -106,14 +123,21 @@ class PlasticityRun:
         their stress and energy drops (:func:`~athermal.studies.plot.events_figure`)."""
         from .plot import events_figure
 
-        curve = {"strain": [s.strain for s in self.states], "tau": [s.tau for s in self.states]}
+        def column(rows: list[dict[str, Value]], name: str) -> list[float]:
+            return [float(r[name]) for r in rows]
+
+        curve = {"strain": column(self.states, "strain"), "tau": column(self.states, "tau")}
         events = {
-            "strain": [e.strain for e in self.events],
-            "tau_before": [e.before.tau for e in self.events],
-            "stress_drop": [e.stress_drop for e in self.events],
-            "energy_drop": [e.energy_drop for e in self.events],
+            name: column(self.events, name)
+            for name in ("strain", "tau_before", "stress_drop", "energy_drop")
         }
         return events_figure(curve, events, title=title)
+
+
+def _cycle_row(row: dict[str, Value]) -> _CycleRow:
+    """The :class:`_CycleRow` of a cycles table's row."""
+    repeats = int(row["repeats"])
+    return _CycleRow(int(row["cycle"]), int(row["events"]), None if repeats < 0 else repeats)
 
 
 def run_plasticity(
@@ -124,10 +148,14 @@ def run_plasticity(
     *,
     seed: int | None = None,
     overwrite: bool = False,
+    resume: bool = False,
     on_item: Callable[[BranchState | PlasticEvent | CycleEnd], None] | None = None,
 ) -> PlasticityRun:
     """Run ``spec`` from ``start`` and write its files next to ``output`` (module docstring);
-    ``on_item`` sees every state, event and cycle end as it comes."""
+    ``on_item`` sees every state, event and cycle end as it comes. With ``resume`` a run
+    interrupted there (the same spec and start, else :class:`InputError`) goes on from its last
+    event (from its last cycle's end in cyclic shear); its frames and rows after that point are
+    dropped and found again."""
     target = Path(output)
     files = {
         "trajectory": str(target),
@@ -136,14 +164,70 @@ def run_plasticity(
     }
     if spec.cycles is not None:
         files["cycles"] = str(target.with_suffix(".cycles.csv"))
+    identity = run_id("plasticity", {**asdict(spec), "start": fingerprint(start)})
     lock = claim(target)
     try:
-        if target.exists() and not overwrite:
+        done = None
+        if resume and target.exists():
+            done = _read_back(target, files, identity, spec.cycles is not None)
+        elif target.exists() and not overwrite:
             raise InputError(f"output: {target} exists; replace it with overwrite")
-        target.unlink(missing_ok=True)
-        return _run(start, model, spec, target, files, seed, on_item)
+        else:
+            target.unlink(missing_ok=True)
+        return _run(start, model, spec, target, files, seed, identity, done, on_item)
     finally:
         lock.close()
+
+
+@dataclass(frozen=True, eq=False)
+class _Done:
+    """A run read back: where it goes on from, and its rows so far."""
+
+    checkpoint: Checkpoint
+    run: PlasticityRun
+
+
+def _read_back(target: Path, files: dict[str, str], identity: float, cyclic: bool) -> _Done:
+    """The interrupted run in ``target``: its frames after the last event (the last cycle's
+    end) dropped, its checkpoint there and its rows up to there."""
+    frames = [read_gsd(target, k) for k in range(count_frames(target))]
+    if float(frames[0].log.get("run", np.nan)) != identity:
+        raise InputError(
+            f"resume: {target} holds another run (its settings or start differ); drop resume or "
+            "write elsewhere"
+        )
+    marked = "cycle" if cyclic else "event_after"
+    events, cycles = _rows(files["events"]), _rows(files.get("cycles"))
+
+    def tabled(log: dict[str, NDArray[np.float64]]) -> bool:  # its rows all in the tables
+        return int(log["events"]) <= len(events) and int(log["cycle"]) <= len(cycles)
+
+    last = max(
+        (k for k, f in enumerate(frames) if float(f.log[marked]) >= 0 and tabled(f.log)),
+        default=0,
+    )
+    truncate_gsd(target, last + 1)
+    log = frames[last].log
+    states = _rows(files["states"])[: int(log["states"])]
+    if len(states) < int(log["states"]):  # killed before the table was written
+        states.append({name: _infinite(name, float(log[name])) for name in states[0]})
+    events = events[: int(log["events"])]
+    cycles = cycles[: max(int(log["cycle"]), 0)]
+    ends = [frames[0]] + [f for f in frames[1 : last + 1] if float(f.log["cycle"]) >= 1]
+    checkpoint = Checkpoint(
+        frames[last].packing,
+        float(log["strain"]),
+        len(events),
+        tuple(f.packing for f in ends) if cyclic else (),
+    )
+    return _Done(checkpoint, PlasticityRun(states, events, cycles, dict(files)))
+
+
+def _rows(path: str | None) -> list[dict[str, Value]]:
+    """The rows of the table at ``path`` (none where there is no table)."""
+    if path is None or not Path(path).exists():
+        return []
+    return [dict(row) for row in read_table(path)]
 
 
 def _run(
@@ -153,9 +237,11 @@ def _run(
     target: Path,
     files: dict[str, str],
     seed: int | None,
+    identity: float,
+    done: _Done | None,
     on_item: Callable[[BranchState | PlasticEvent | CycleEnd], None] | None,
 ) -> PlasticityRun:
-    """:func:`run_plasticity` with its output claimed."""
+    """:func:`run_plasticity` with its output claimed (``done``: a run read back)."""
     options: dict[str, Any] = {
         "mode": spec.mode,
         "step": spec.step,
@@ -163,6 +249,7 @@ def _run(
         "tol": spec.tol,
         "minimizer": spec.minimizer,
         "wall_layer": spec.wall_layer,
+        "checkpoint": None if done is None else done.checkpoint,
     }
     items = (
         plastic_events(start, model, strain=spec.strain, **options)
@@ -171,11 +258,11 @@ def _run(
             start, model, amplitude=spec.amplitude or 0.0, cycles=spec.cycles, **options
         )
     )
-    run = PlasticityRun([], [], [], files)
+    run = PlasticityRun([], [], [], files) if done is None else done.run
 
-    def frame(state: BranchState, **marks: Value) -> None:
+    def frame(state: BranchState, states: int, **marks: Value) -> None:
         log: dict[str, Value] = {"event_before": -1, "event_after": -1, "cycle": -1}
-        log.update(marks)
+        log.update(marks, run=identity, states=states, events=len(run.events))
         append_gsd(
             target,
             state.packing,
@@ -184,27 +271,42 @@ def _run(
             observables={**_finite(state.row()), **log, "soft_mode": state.mode},
         )
 
+    def tables() -> None:
+        write_table(files["states"], run.states)
+        if run.events:
+            write_table(files["events"], run.events)
+        if run.cycles:
+            write_table(files["cycles"], run.cycles)
+
+    after = None
     for item in items:
         if on_item is not None:
             on_item(item)
         if isinstance(item, BranchState):
             if not run.states:
-                frame(item)
-            run.states.append(item)
+                frame(item, 1)
+            run.states.append(item.row())
+            if item is after or len(run.states) == 1:
+                tables()
         elif isinstance(item, PlasticEvent):
-            frame(item.before, event_before=item.index)
-            frame(item.after, event_after=item.index)
-            run.events.append(item)
-            write_table(files["events"], [e.row() for e in run.events])
-            write_table(files["states"], [s.row() for s in run.states])
+            frame(item.before, len(run.states), event_before=item.index)
+            run.events.append(item.row())
+            frame(item.after, len(run.states) + 1, event_after=item.index)
+            tables()
+            after = item.after
         else:
-            frame(item.state, cycle=item.cycle)
-            run.cycles.append(item)
-            write_table(files["cycles"], [c.row() for c in run.cycles])
-    write_table(files["states"], [s.row() for s in run.states])
+            run.cycles.append(item.row())
+            frame(item.state, len(run.states), cycle=item.cycle)
+            tables()
+    tables()
     if not run.events:
         files.pop("events")
     return run
+
+
+def _infinite(name: str, value: float) -> float:
+    """A frame's logged number as its row holds it (the inverse of :func:`_finite`)."""
+    return float("inf") if name == "lowest_eigenvalue" and value == -1.0 else value
 
 
 def _finite(row: dict[str, Value]) -> dict[str, float]:
