@@ -1,6 +1,7 @@
 """The how-to pages' examples run as pasted (those that need no cluster, GPU or hours)."""
 
 import importlib.util
+import json
 import re
 from pathlib import Path
 
@@ -95,11 +96,17 @@ def test_the_law_page_relaxes_a_law_of_its_own(tmp_path):
 def test_the_plasticity_page_locates_events_and_a_limit_cycle(tmp_path):
     """The page's commands and script as pasted: events located and written, the script's
     claims printed, and the cyclic run reaching the limit cycle it describes."""
-    shear, script, cyclic = blocks(HOWTO / "plasticity.md")
+    shear, script, cyclic, ensemble, summary, cycles = blocks(HOWTO / "plasticity.md")
     paste(shear, tmp_path)
-    for name in ("events.gsd", "events.csv", "events.events.csv"):
+    for name in ("events.gsd", "events.csv", "events.events.csv", "events.png"):
         assert (tmp_path / name).stat().st_size > 0
     assert paste(script, tmp_path).strip() == "True True True"
     paste(cyclic, tmp_path)
     table = (tmp_path / "cycles.cycles.csv").read_text().splitlines()
     assert table[0].startswith("cycle,") and len(table) >= 2
+    paste(ensemble, tmp_path)
+    assert (tmp_path / "avalanches" / "avalanches.png").exists()
+    assert paste(summary, tmp_path).strip() == "2 True True"
+    paste(cycles, tmp_path)
+    yielding = json.loads((tmp_path / "yielding" / "summary.json").read_text())["yielding"]
+    assert [a["amplitude"] for a in yielding["amplitudes"]] == [0.002, 0.05]
