@@ -169,7 +169,8 @@ def yielding(args: argparse.Namespace) -> None:
                 cycles=args.cycles,
             ),
         )
-        name = f"cycles_n{args.n}_a{args.alpha:g}_dphi{dphi:g}_c{args.cycles}"
+        amplitudes = "-".join(f"{a:g}" for a in args.amplitudes)
+        name = f"cycles_n{args.n}_a{args.alpha:g}_dphi{dphi:g}_c{args.cycles}_A{amplitudes}"
         result = ensemble(spec, args.ensembles / name, args.realizations, args.workers)
         rows.append({"delta_phi": dphi, **result.summary["yielding"]})
     lines = [

@@ -305,6 +305,12 @@ def test_a_killed_event_run_resumes_to_the_same_events(tmp_path, moment):
     other = PlasticitySpec(mode="simple", strain=0.05, step=1e-3)
     with pytest.raises(InputError, match="another run"):
         run_plasticity(START, HERTZ, other, out, resume=True)
+    from athermal import write_gsd
+
+    write_gsd(tmp_path / "foreign.gsd", START)  # no run's file: refused, left as it was
+    with pytest.raises(InputError, match="another run"):
+        run_plasticity(START, HERTZ, spec, tmp_path / "foreign.gsd", resume=True)
+    assert count_frames(tmp_path / "foreign.gsd") == 1
 
 
 def test_a_killed_cyclic_run_resumes_from_its_last_cycle():

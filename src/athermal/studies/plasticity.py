@@ -10,7 +10,9 @@ otherwise) and every cycle's end (``cycle``), with the state's numbers (``lowest
 an event: the critical mode); ``<output>.csv`` the branch states (the
 stress-strain curve); ``<output>.events.csv`` the events; ``<output>.cycles.csv`` the cycles'
 ends. Tables are rewritten atomically after each event and cycle and at the end, frames
-appended.
+appended. Each frame's log also holds the run's identity ``run`` (its spec and start) and the
+rows of ``states`` and ``events`` up to it: a run resumed (``resume``) goes on from its last
+event's frame (cyclic shear: its last cycle's end) whose rows reached the tables.
 """
 
 from __future__ import annotations
@@ -172,7 +174,7 @@ def run_plasticity(
             done = _read_back(target, files, identity, spec.cycles is not None)
         elif target.exists() and not overwrite:
             raise InputError(f"output: {target} exists; replace it with overwrite")
-        else:
+        if done is None:
             target.unlink(missing_ok=True)
         return _run(start, model, spec, target, files, seed, identity, done, on_item)
     finally:
@@ -187,15 +189,18 @@ class _Done:
     run: PlasticityRun
 
 
-def _read_back(target: Path, files: dict[str, str], identity: float, cyclic: bool) -> _Done:
+def _read_back(target: Path, files: dict[str, str], identity: float, cyclic: bool) -> _Done | None:
     """The interrupted run in ``target``: its frames after the last event (the last cycle's
-    end) dropped, its checkpoint there and its rows up to there."""
-    frames = [read_gsd(target, k) for k in range(count_frames(target))]
-    if float(frames[0].log.get("run", np.nan)) != identity:
+    end) dropped, its checkpoint there and its rows up to there; None when it was stopped
+    before its first table (it starts again)."""
+    if float(read_gsd(target, 0).log.get("run", np.nan)) != identity:
         raise InputError(
             f"resume: {target} holds another run (its settings or start differ); drop resume or "
             "write elsewhere"
         )
+    if not _rows(files["states"]):
+        return None
+    frames = [read_gsd(target, k) for k in range(count_frames(target))]
     marked = "cycle" if cyclic else "event_after"
     events, cycles = _rows(files["events"]), _rows(files.get("cycles"))
 
