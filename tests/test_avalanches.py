@@ -76,7 +76,7 @@ def record(strains, drops, reached=0.0):
         }
         for s, d in zip(strains, drops, strict=True)
     )
-    return EventsRecord(0.01, reached or max(strains), 10, events, 1.0)
+    return EventsRecord(0.01, reached or max(strains), 10, events, 1.0, 1.0, 0.5)
 
 
 def test_statistics_pool_the_events_after_the_transient():
@@ -86,7 +86,7 @@ def test_statistics_pool_the_events_after_the_transient():
     b = record([0.07, 0.1], [3.0, 4.0])
     stats = avalanche_statistics([a, b], 0.05)
     assert stats["events"] == 4
-    assert stats["stress_drop"]["mean"] == pytest.approx(2.5)
+    assert stats["stress_drop"]["mean"] == pytest.approx(5.0)  # in units of 0.5
     assert stats["strain_between_events"]["mean"] == pytest.approx((0.02 + 0.03) / 2)
     assert stats["strain_sheared"] == pytest.approx(0.03 + 0.05)
     assert stats["stress_drop_exponent"] is None  # too few events to fit

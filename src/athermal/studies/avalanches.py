@@ -12,9 +12,11 @@ and :func:`~athermal.protocols.events.cyclic_shear` do.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from itertools import pairwise
 from typing import Any
+
+import numpy as np
 
 from .._validate import choice, positive_scalar
 from ..analysis.avalanches import log_binned, power_law_tail
@@ -75,13 +77,18 @@ class EventsSpec:
 @dataclass(frozen=True)
 class EventsRecord:
     """A realization's AQS run: the strain reached, its states and events (each with
-    :data:`EVENT_COLUMNS`), and its seconds."""
+    :data:`EVENT_COLUMNS`, drops in the cell's units), its seconds, and the units of energy and
+    stress of its particles: ``k d^alpha`` and ``k d^(alpha - dim)`` for the law's
+    :meth:`~athermal.model.law.ContactLaw.energy_unit` at the largest stiffness ``k`` and the
+    mean diameter ``d``."""
 
     delta_phi: float
     strain: float
     states: int
     events: tuple[dict[str, float], ...]
     seconds: float
+    energy_unit: float
+    stress_unit: float
 
 
 @dataclass(frozen=True)
@@ -116,7 +123,17 @@ def shear_events(start: Packing, model: ContactModel, spec: EventsSpec) -> Event
             events.append({k: float(row[k]) for k in EVENT_COLUMNS})
         else:
             states, reached = states + 1, item.strain
-    return EventsRecord(spec.delta_phi, reached, states, tuple(events), time.perf_counter() - t0)
+    diameter = 2.0 * float(np.mean(start.radii))
+    energy = model.law.energy_unit(float(model.kmat.max()), diameter)
+    return EventsRecord(
+        spec.delta_phi,
+        reached,
+        states,
+        tuple(events),
+        time.perf_counter() - t0,
+        energy,
+        energy / diameter**start.dim,
+    )
 
 
 def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> CyclesRecord:
@@ -157,15 +174,20 @@ def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> Cycle
 
 def pooled_drops(records: list[EventsRecord], transient: float) -> dict[str, list[float]]:
     """The stress and energy drops (``stress_drop``, ``energy_drop``) of the events after
-    ``transient`` of all ``records``."""
-    pooled = [e for r in records for e in r.events if e["strain"] >= transient]
-    return {name: [e[name] for e in pooled] for name in ("stress_drop", "energy_drop")}
+    ``transient`` of all ``records``, each in its record's units (``stress_unit``,
+    ``energy_unit``): comparable across sizes and densities."""
+    drops: dict[str, list[float]] = {"stress_drop": [], "energy_drop": []}
+    for r in records:
+        kept = [e for e in r.events if e["strain"] >= transient]
+        drops["stress_drop"] += [e["stress_drop"] / r.stress_unit for e in kept]
+        drops["energy_drop"] += [e["energy_drop"] / r.energy_unit for e in kept]
+    return drops
 
 
 def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[str, Any]:
     """The events after ``transient`` pooled over ``records``: how many, the mean stress and
-    energy drops and strain between events (with standard errors), the saddle-node fraction,
-    the fitted exponents of both drops' distributions
+    energy drops (in the records' units) and strain between events (with standard errors), the
+    saddle-node fraction, the fitted exponents of both drops' distributions
     (:func:`~athermal.analysis.avalanches.power_law_tail`) and their log-binned densities."""
     kept = [[e for e in r.events if e["strain"] >= transient] for r in records]
     pooled = [e for events in kept for e in events]
@@ -182,7 +204,7 @@ def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[
     for name, sizes in drops.items():
         out[name] = sample_stats(sizes)
         fit = power_law_tail(sizes)
-        out[f"{name}_exponent"] = None if fit is None else fit.__dict__
+        out[f"{name}_exponent"] = None if fit is None else asdict(fit)
         centres, density, counts = log_binned(sizes)
         out[f"{name}_density"] = {
             "centres": centres.tolist(),
