@@ -335,3 +335,17 @@ def test_a_killed_cyclic_run_resumes_from_its_last_cycle():
     assert again["limit_cycle"] == whole["limit_cycle"]
     assert [c["events"] for c in again["cycle_ends"]] == [c["events"] for c in whole["cycle_ends"]]
     assert again["events"] == whole["events"]
+
+
+def test_the_jax_engine_locates_the_same_events():
+    """Relaxed by the JAX engine (JAX's CPU build here), the same events at the same strains
+    (to 2e-10) and drops as by the numba engine."""
+    pytest.importorskip("jax")
+    from athermal.relaxation import Minimizer
+
+    numba = events(strain=0.03, step=1e-3, tol=1e-10)
+    jax = events(strain=0.03, step=1e-3, tol=1e-10, minimizer=Minimizer(backend="jax"))
+    assert len(jax) == len(numba) >= 1
+    for x, y in zip(jax, numba, strict=True):
+        assert abs(x.strain - y.strain) <= 2e-10
+        assert x.stress_drop == pytest.approx(y.stress_drop, rel=1e-4)
