@@ -498,8 +498,8 @@ def events_figure(
     stress.set_xlabel(r"strain $\gamma$")
     stress.set_ylabel(r"driven stress $\tau$ " + STRESS_UNITS)
     stress.legend(fontsize="small")
-    _drops(drops, {"events": events["stress_drop"]}, r"stress drop $\Delta\tau$")
-    _drops(energy, {"events": events["energy_drop"]}, r"energy drop $\Delta E$")
+    _drops(drops, {"events": events["stress_drop"]}, r"stress drop $\Delta\tau$ " + STRESS_UNITS)
+    _drops(energy, {"events": events["energy_drop"]}, r"energy drop $\Delta E$ ($k\,\ell^\alpha$)")
     if title:
         fig.suptitle(title)
     return fig
@@ -509,11 +509,15 @@ def avalanche_figure(
     drops: Mapping[str, Mapping[str, Sequence[float]]], *, title: str = ""
 ) -> Figure:
     """The stress and energy drops of several ensembles (label -> ``stress_drop``,
-    ``energy_drop``): their densities in log bins with their fitted power laws."""
+    ``energy_drop``, in the particles' units as
+    :func:`~athermal.studies.avalanches.pooled_drops` gives them): their densities in log bins
+    with their fitted power laws."""
     fig = new_figure(9.0, 3.8)
     stress, energy = fig.subplots(1, 2)
-    _drops(stress, {k: v["stress_drop"] for k, v in drops.items()}, r"stress drop $\Delta\tau$")
-    _drops(energy, {k: v["energy_drop"] for k, v in drops.items()}, r"energy drop $\Delta E$")
+    stress_label = r"stress drop $\Delta\tau$ ($k\,d^{\alpha-d}$, $d$ the mean diameter)"
+    energy_label = r"energy drop $\Delta E$ ($k\,d^{\alpha}$)"
+    _drops(stress, {k: v["stress_drop"] for k, v in drops.items()}, stress_label)
+    _drops(energy, {k: v["energy_drop"] for k, v in drops.items()}, energy_label)
     if title:
         fig.suptitle(title)
     return fig
