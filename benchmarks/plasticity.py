@@ -10,7 +10,8 @@ their stress and energy drops (mean, largest), the particles that moved, the fra
 events that end in a saddle-node, the strain between events; with ``--newton`` the same run by
 Newton-CG against L-BFGS: iterations per relaxation and seconds per event. The pooled energy
 drops go into a log-binned histogram; the figure shows each N's stress-strain curve with its
-events and the drops' distribution.
+events and the drops' distribution. Cyclic shear and the yielding amplitude:
+``benchmarks/avalanches.py --yielding``.
 
     python -m benchmarks.plasticity                     # N = 256, 1024; Hooke and Hertz
     python -m benchmarks.plasticity --n 64 --strain 0.01 --budget 30 --output-dir "$(mktemp -d)"
@@ -31,10 +32,7 @@ import numpy as np
 
 from athermal.protocols.events import (
     BranchState,
-    CycleEnd,
     PlasticEvent,
-    cyclic_shear,
-    limit_cycle,
     plastic_events,
 )
 from athermal.relaxation import Minimizer
@@ -93,43 +91,6 @@ def one(
     }
 
 
-def cycles(
-    n: int, alpha: float, dphi: float, amplitudes: list[float], most: int
-) -> list[dict[str, Any]]:
-    """Cyclic shear of one packing at each amplitude: whether a limit cycle came within
-    ``most`` cycles, after which cycle, its period and events, and the seconds."""
-    spec = JamSpec(n=n, alpha=alpha)
-    jammed = jam_packing(spec, 1)
-    start = jammed.packing.at_phi(jammed.phi_c + dphi)
-    rows = []
-    for amplitude in amplitudes:
-        t0 = time.perf_counter()
-        ends = [
-            item
-            for item in cyclic_shear(
-                start, spec.model, amplitude=amplitude, cycles=most, step=min(1e-3, amplitude)
-            )
-            if isinstance(item, CycleEnd)
-        ]
-        found = limit_cycle(ends)
-        rows.append(
-            {
-                "n": n,
-                "alpha": alpha,
-                "amplitude": amplitude,
-                "reached": found.reached,
-                "cycle": found.cycle,
-                "period": found.period,
-                "events_per_period": found.events,
-                "cycles_run": found.cycles,
-                "events": sum(e.events for e in ends),
-                "seconds": time.perf_counter() - t0,
-            }
-        )
-        print(rows[-1], flush=True)
-    return rows
-
-
 def figure(runs: list[dict[str, Any]], path: Path) -> None:
     """Each run's stress-strain curve with its events, and the energy drops' distribution."""
     from matplotlib.figure import Figure
@@ -173,41 +134,11 @@ def main() -> None:
     parser.add_argument("--strain", type=float, default=0.2)
     parser.add_argument("--budget", type=float, default=600.0, help="seconds per run at most")
     parser.add_argument("--newton", action="store_true", help="also by Newton-CG (the first N)")
-    parser.add_argument(
-        "--amplitudes",
-        type=float,
-        nargs="*",
-        default=[],
-        help="cyclic shear at these amplitudes instead (the first N and alpha)",
-    )
-    parser.add_argument("--cycles", type=int, default=20, help="cycles at most (--amplitudes)")
     parser.add_argument("--core", type=int, default=None)
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     parser.add_argument("--figure-dir", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
     pinned = pin(args.core)
-    if args.amplitudes:
-        rows = cycles(args.n[0], args.alphas[0], args.dphi, args.amplitudes, args.cycles)
-        lines = [
-            "# Cyclic AQS shear to a limit cycle (benchmarks/plasticity.py --amplitudes)",
-            "",
-            f"N = {args.n[0]}, alpha = {args.alphas[0]:g}, phi_c + {args.dphi:g}, simple shear "
-            f"0 -> A -> -A -> 0, at most {args.cycles} cycles; events located to 1e-9.",
-            "",
-            "| A | limit cycle | entered after cycle | period | events / period | cycles run "
-            "| events | seconds |",
-            "|---|---|---|---|---|---|---|---|",
-        ]
-        for r in rows:
-            lines.append(
-                f"| {r['amplitude']:g} | {'yes' if r['reached'] else 'no'} | {r['cycle']} | "
-                f"{r['period']} | {r['events_per_period']} | {r['cycles_run']} | {r['events']} | "
-                f"{r['seconds']:.0f} |"
-            )
-        name = f"cycles_n{args.n[0]}_a{args.alphas[0]:g}_dphi{args.dphi:g}"
-        save(args.output_dir, name, {"rows": rows, "pinned": pinned}, "\n".join(lines))
-        print("\n".join(lines))
-        return
     runs = []
     for alpha in args.alphas:
         for n in args.n:
