@@ -28,6 +28,7 @@ Results: ``benchmarks/results/avalanches.md`` / ``yielding.md`` (and ``.json``);
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -108,14 +109,18 @@ def avalanches(args: argparse.Namespace) -> None:
     lines = [
         "# Avalanches of AQS simple shear (benchmarks/avalanches.py)",
         "",
+        f"`python -m benchmarks.avalanches {' '.join(sys.argv[1:])}`",
+        "",
         f"alpha = {args.alpha:g}, phi_c + {args.dphi:g}; events located to {args.tol:g} in "
         f"strain; events below strain {args.transient:g} left out. Means with their standard "
         "errors (over events); tau: the exponent of P(S) ~ S^-tau exp(-S/S_c) (maximum "
         "likelihood, S_min chosen by the KS distance) with its standard error, and in brackets "
-        "its range over the starts S_min at the 0 ... 0.6 quantiles of the sizes.",
+        "its range over the starts S_min at the 0 ... 0.6 quantiles of the sizes. Drops in "
+        "units of k d^(alpha-d) (stress) and k d^alpha (energy), d the mean diameter. Seconds: "
+        "the realizations' shear runs summed, one core each.",
         "",
         "| d | N | M | events | <d tau> | <d E> | <d gamma> | tau (stress) | tau (energy) "
-        "| saddle-node | one-core s |",
+        "| saddle-node | seconds |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
@@ -175,6 +180,8 @@ def yielding(args: argparse.Namespace) -> None:
         rows.append({"delta_phi": dphi, **result.summary["yielding"]})
     lines = [
         "# Yielding under cyclic AQS shear (benchmarks/avalanches.py --yielding)",
+        "",
+        f"`python -m benchmarks.avalanches {' '.join(sys.argv[1:])}`",
         "",
         f"N = {args.n}, alpha = {args.alpha:g}, {args.realizations} packings per phi_c + "
         f"Delta phi, each sheared 0 -> A -> -A -> 0 at most {args.cycles} cycles at each A "
