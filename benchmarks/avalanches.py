@@ -71,11 +71,17 @@ def avalanches(args: argparse.Namespace) -> None:
             "events",
             jam=JamSpec(n=n, dim=dim, alpha=args.alpha),
             events=EventsSpec(
-                delta_phi=args.dphi, strain=strain, transient=args.transient, tol=args.tol
+                delta_phi=args.dphi,
+                strain=strain,
+                transient=args.transient,
+                step=args.step,
+                max_step=args.max_step,
+                tol=args.tol,
             ),
         )
         t0 = time.perf_counter()
-        name = f"events_d{dim}_n{n}_a{args.alpha:g}_dphi{args.dphi:g}_s{strain:g}"
+        name = f"events_d{dim}_n{n}_a{args.alpha:g}_dphi{args.dphi:g}_s{strain:g}_h{args.step:g}"
+        name += "" if args.max_step is None else f"-{args.max_step:g}"
         result = ensemble(spec, args.ensembles / name, m, args.workers)
         stats = result.summary["avalanches"]
         records = [r.events for r in result.realizations if r.events is not None]
@@ -111,7 +117,9 @@ def avalanches(args: argparse.Namespace) -> None:
         "",
         f"`python -m benchmarks.avalanches {' '.join(sys.argv[1:])}`",
         "",
-        f"alpha = {args.alpha:g}, phi_c + {args.dphi:g}; events located to {args.tol:g} in "
+        f"alpha = {args.alpha:g}, phi_c + {args.dphi:g}; strain step {args.step:g}"
+        + ("" if args.max_step is None else f" growing to {args.max_step:g}")
+        + f"; events located to {args.tol:g} in "
         f"strain; events below strain {args.transient:g} left out. Means with their standard "
         "errors (over events); tau: the exponent of P(S) ~ S^-tau exp(-S/S_c) (maximum "
         "likelihood, S_min chosen by the KS distance) with its standard error, and in brackets "
@@ -168,7 +176,8 @@ def yielding(args: argparse.Namespace) -> None:
             jam=JamSpec(n=args.n, alpha=args.alpha),
             events=EventsSpec(
                 delta_phi=dphi,
-                step=1e-3,
+                step=args.step,
+                max_step=args.max_step,
                 tol=args.tol,
                 amplitudes=tuple(args.amplitudes),
                 cycles=args.cycles,
@@ -176,6 +185,7 @@ def yielding(args: argparse.Namespace) -> None:
         )
         amplitudes = "-".join(f"{a:g}" for a in args.amplitudes)
         name = f"cycles_n{args.n}_a{args.alpha:g}_dphi{dphi:g}_c{args.cycles}_A{amplitudes}"
+        name += f"_h{args.step:g}" + ("" if args.max_step is None else f"-{args.max_step:g}")
         result = ensemble(spec, args.ensembles / name, args.realizations, args.workers)
         rows.append({"delta_phi": dphi, **result.summary["yielding"]})
     lines = [
@@ -185,7 +195,9 @@ def yielding(args: argparse.Namespace) -> None:
         "",
         f"N = {args.n}, alpha = {args.alpha:g}, {args.realizations} packings per phi_c + "
         f"Delta phi, each sheared 0 -> A -> -A -> 0 at most {args.cycles} cycles at each A "
-        f"from the same start; events located to {args.tol:g}. A limit cycle: a cycle's end "
+        f"from the same start; strain step {args.step:g} (at most A/2)"
+        + ("" if args.max_step is None else f" growing to {args.max_step:g}")
+        + f"; events located to {args.tol:g}. A limit cycle: a cycle's end "
         "is an earlier cycle's end (the same minimum to 1e-6 mean diameters). Yielding "
         "amplitude: between the largest A at which more than half reached a limit cycle and "
         "the smallest at which at most half did.",
@@ -197,8 +209,11 @@ def yielding(args: argparse.Namespace) -> None:
         for a in r["amplitudes"]:
             lines.append(
                 f"| {r['delta_phi']:g} | {a['amplitude']:g} | {a['fraction_reached']:.2f} | "
-                f"{_mean(a['cycles_to_reach'])} | {_mean(a['period'])} | "
-                f"{_mean(a['events_per_period'])} |"
+                + " | ".join(
+                    "-" if not a["fraction_reached"] else f"{a[k]:.3g} +- {a[k + '_stderr']:.1g}"
+                    for k in ("cycles_to_reach", "period", "events_per_period")
+                )
+                + " |"
             )
     lines.append("")
     for r in rows:
@@ -230,6 +245,8 @@ def main() -> None:
     parser.add_argument("--dphi", type=float, default=0.02)
     parser.add_argument("--transient", type=float, default=0.05)
     parser.add_argument("--tol", type=float, default=1e-9)
+    parser.add_argument("--step", type=float, default=1e-4, help="the events' strain step")
+    parser.add_argument("--max-step", type=float, default=None, help="growth (default: none)")
     parser.add_argument("--n", type=int, default=64, help="--yielding: particles")
     parser.add_argument("--realizations", type=int, default=3, help="--yielding: per Delta phi")
     parser.add_argument(

@@ -269,6 +269,12 @@ def add_events_options(parser: Options, protocol: str) -> None:
         "--step", type=float, default=EventsSpec.step, help="first strain step (it grows)"
     )
     parser.add_argument(
+        "--max-step",
+        type=float,
+        default=None,
+        help="let the step grow between events up to this (default: --step, no growth)",
+    )
+    parser.add_argument(
         "--tol", type=float, default=EventsSpec.tol, help="an event's bracket in strain"
     )
     if protocol == "events":

@@ -345,7 +345,7 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
     )
     plastic = she.add_argument_group(
         "exact plastic events (docs/howto/plasticity.md): every event located by the end of "
-        "its branch of minima, the step growing between events"
+        "its branch of minima"
     )
     plastic.add_argument(
         "--events",
@@ -360,7 +360,8 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
         "--max-step",
         type=float,
         default=None,
-        help="largest strain step between events (with --events; default: 10 --step)",
+        help="let the step grow between events up to this (with --events; default: --step, no "
+        "growth: a long step can miss an event whose hysteresis loop it spans)",
     )
     plastic.add_argument(
         "--cycles",

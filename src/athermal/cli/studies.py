@@ -39,6 +39,7 @@ SHEAR = {"mode": "mode", "strain": "strain", "step": "step", "delta_phi": "shear
 EVENTS = {
     **SHEAR,
     "tol": "tol",
+    "max_step": "max_step",
     "transient": "transient",
     "amplitudes": "amplitudes",
     "cycles": "cycles",

@@ -12,7 +12,8 @@ once. :func:`plastic_events` follows the branches and locates each end in strain
 * a state is on the branch of the previous one when the packing, taken back to the previous
   strain and relaxed, returns to the previous minimum (:data:`SAME_STATE`): a state past the end
   returns elsewhere (another basin), one before it to the same minimum;
-* between events the strain step grows (x :data:`GROWTH`, up to ``max_step``) and is held below
+* between events the strain step may grow (x :data:`GROWTH`, up to ``max_step``; by default it
+  does not: a step wider than an event's hysteresis loop can miss the event) and is held below
   the end of the branch extrapolated from ``lambda_min^2``, linear in ``gamma_c - gamma`` near
   it; an event is bracketed by a state on the branch and one off it;
 * the bracket shrinks by trials short of the extrapolated end and then just past it, or by
@@ -335,13 +336,11 @@ def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
 
 
 def check_steps(step: float, max_step: float | None, tol: float, strain: float) -> float:
-    """``max_step`` (default ``10 step``, at most ``strain``) after the settings' checks:
+    """``max_step`` (default ``step``: no growth; at most ``strain``) after the settings' checks:
     ``tol < step <= max_step <= strain``, each > 0."""
     step = positive_scalar(step, "step")
     tol = positive_scalar(tol, "tol")
-    largest = (
-        min(10.0 * step, strain) if max_step is None else positive_scalar(max_step, "max_step")
-    )
+    largest = min(step, strain) if max_step is None else positive_scalar(max_step, "max_step")
     if not tol < step <= largest <= strain:
         raise InputError(
             f"step: need tol < step <= max_step <= strain, got {tol:g}, {step:g}, {largest:g}, "
@@ -376,7 +375,10 @@ def plastic_events(
         (:func:`~athermal.protocols.shear.check_mode`).
     strain : the final strain.
     step : the first strain step, and the step after each event; it grows by :data:`GROWTH`
-        up to ``max_step`` (default ``10 step``) while the packing stays on its branch.
+        up to ``max_step`` (default ``step``: no growth) while the packing stays on its branch.
+        A step wider than an event's hysteresis loop (the event and its reverse, both within
+        it) can miss that event: the state strained back returns to the branch's minimum
+        (``docs/decisions.md``, "Events a long step misses").
     tol : the largest bracket of an event, in strain.
     minimizer : how each state is relaxed (default L-BFGS), to the round-off floor
         (:func:`~athermal.relaxation.round_off_floor`).

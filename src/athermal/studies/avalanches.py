@@ -46,14 +46,16 @@ class EventsSpec:
     """The AQS shear of every realization (protocols ``events`` and ``cycles``): the jammed
     packing at ``phi_c + delta_phi``, sheared in ``mode`` to ``strain`` (``events``; the events
     below ``transient`` are recorded but left out of the statistics) or ``cycles`` cycles at
-    each of ``amplitudes`` (``cycles``, each from the same start), with ``step`` and ``tol``
-    as :func:`~athermal.protocols.events.plastic_events` takes them."""
+    each of ``amplitudes`` (``cycles``, each from the same start), with ``step``, ``max_step``
+    and ``tol`` as :func:`~athermal.protocols.events.plastic_events` takes them (in cyclic shear
+    at most half the amplitude)."""
 
     delta_phi: float = 0.01
     mode: ShearMode = "simple"
     strain: float = 0.2
     transient: float = 0.05
     step: float = 1e-4
+    max_step: float | None = None
     tol: float = EVENT_TOL
     amplitudes: tuple[float, ...] = (0.02, 0.05, 0.1)
     cycles: int = 20
@@ -62,7 +64,7 @@ class EventsSpec:
     def __post_init__(self) -> None:
         positive_scalar(self.delta_phi, "delta_phi")
         choice(self.mode, "mode", SHEAR_MODES)
-        check_steps(self.step, None, self.tol, self.strain)
+        check_steps(self.step, self.max_step, self.tol, self.strain)
         if not 0.0 <= self.transient < self.strain:
             raise InputError(
                 f"transient: need 0 <= transient < strain, got {self.transient:g}, {self.strain:g}"
@@ -71,7 +73,12 @@ class EventsSpec:
             raise InputError("amplitudes: need at least one")
         for amplitude in self.amplitudes:
             check_cycles(amplitude, self.cycles)
-            check_steps(min(self.step, amplitude / 2.0), None, self.tol, amplitude)
+            check_steps(*self.cycle_steps(amplitude), self.tol, amplitude)
+
+    def cycle_steps(self, amplitude: float) -> tuple[float, float | None]:
+        """The step and largest step of cyclic shear at ``amplitude``: at most half of it."""
+        half = amplitude / 2.0
+        return min(self.step, half), None if self.max_step is None else min(self.max_step, half)
 
 
 @dataclass(frozen=True)
@@ -115,6 +122,7 @@ def shear_events(start: Packing, model: ContactModel, spec: EventsSpec) -> Event
         mode=spec.mode,
         strain=spec.strain,
         step=spec.step,
+        max_step=spec.max_step,
         tol=spec.tol,
         minimizer=spec.minimizer,
     ):
@@ -138,7 +146,7 @@ def shear_events(start: Packing, model: ContactModel, spec: EventsSpec) -> Event
 
 def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> CyclesRecord:
     """The :class:`CyclesRecord` of ``start`` sheared in cycles at each amplitude of ``spec``
-    (the step at most half the amplitude)."""
+    (:meth:`EventsSpec.cycle_steps`)."""
     rows = []
     for amplitude in spec.amplitudes:
         t0 = time.perf_counter()
@@ -150,7 +158,8 @@ def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> Cycle
                 amplitude=amplitude,
                 cycles=spec.cycles,
                 mode=spec.mode,
-                step=min(spec.step, amplitude / 2.0),
+                step=spec.cycle_steps(amplitude)[0],
+                max_step=spec.cycle_steps(amplitude)[1],
                 tol=spec.tol,
                 minimizer=spec.minimizer,
             )
@@ -215,8 +224,9 @@ def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[
 
 
 def yielding(records: list[CyclesRecord]) -> dict[str, Any]:
-    """Per amplitude over ``records``: the fraction of realizations that reached a limit cycle,
-    the cycles to reach it and the events per period (means over those that did); and the
+    """Per amplitude over ``records`` (one flat row each): the fraction of realizations that
+    reached a limit cycle, the cycles to reach it, the period and the events per period (means
+    and standard errors over those that did, NaN where none did); and the
     yielding amplitude's bracket: the largest amplitude at which most (more than half) reached
     one, below the smallest at which most did not (None where there is no such pair)."""
     amplitudes = sorted({row["amplitude"] for r in records for row in r.rows})
@@ -224,18 +234,19 @@ def yielding(records: list[CyclesRecord]) -> dict[str, Any]:
     for amplitude in amplitudes:
         rows = [row for r in records for row in r.rows if row["amplitude"] == amplitude]
         reached = [row for row in rows if row["reached"]]
-        table.append(
-            {
-                "amplitude": amplitude,
-                "realizations": len(rows),
-                "fraction_reached": len(reached) / len(rows),
-                "cycles_to_reach": sample_stats([float(row["cycle"]) for row in reached]),
-                "period": sample_stats([float(row["period"]) for row in reached]),
-                "events_per_period": sample_stats(
-                    [float(row["events_per_period"]) for row in reached]
-                ),
-            }
-        )
+        entry: dict[str, Any] = {
+            "amplitude": amplitude,
+            "realizations": len(rows),
+            "fraction_reached": len(reached) / len(rows),
+        }
+        for name, column in (
+            ("cycles_to_reach", "cycle"),
+            ("period", "period"),
+            ("events_per_period", "events_per_period"),
+        ):
+            stats = sample_stats([float(row[column]) for row in reached])
+            entry[name], entry[f"{name}_stderr"] = stats["mean"], stats["stderr"]
+        table.append(entry)
     below = [t["amplitude"] for t in table if t["fraction_reached"] > 0.5]
     above = [t["amplitude"] for t in table if t["fraction_reached"] <= 0.5]
     bracket = None

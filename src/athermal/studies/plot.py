@@ -534,11 +534,11 @@ def yielding_figure(
     for label, rows in sweeps.items():
         amplitude = [r["amplitude"] for r in rows]
         (line,) = fraction.plot(amplitude, [r["fraction_reached"] for r in rows], "o-", label=label)
-        reached = [r for r in rows if r["cycles_to_reach"]["n"]]
+        reached = [r for r in rows if r["fraction_reached"] > 0.0]
         cycles.errorbar(
             [r["amplitude"] for r in reached],
-            [r["cycles_to_reach"]["mean"] for r in reached],
-            yerr=[r["cycles_to_reach"]["stderr"] for r in reached],
+            [r["cycles_to_reach"] for r in reached],
+            yerr=[r["cycles_to_reach_stderr"] for r in reached],
             fmt="o-",
             capsize=2,
             color=line.get_color(),
