@@ -49,6 +49,7 @@ MEANS = (
     ("energy_drop", "<d E>"),
     ("strain_between_events", "<d gamma>"),
 )
+"""The means fitted against N (key of the statistics, label)."""
 
 
 def ensemble(spec: EnsembleSpec, directory: Path, realizations: int, workers: int) -> Any:
@@ -106,9 +107,11 @@ def avalanches(args: argparse.Namespace) -> None:
         if len({r["n"] for r in at}) < 3:
             continue
         scaling[dim] = {}
-        for key, _ in MEANS:
+        series = {key: [r[key]["mean"] for r in at] for key, _ in MEANS}
+        series["stress_sd"] = [r["stress"]["sd"] for r in at]  # the stress fluctuation
+        for key, values in series.items():
             try:
-                fit = fit_power_law([r["n"] for r in at], [r[key]["mean"] for r in at])
+                fit = fit_power_law([r["n"] for r in at], values)
             except InputError:
                 continue
             scaling[dim][key] = {"exponent": fit.exponent, "stderr": fit.stderr}
@@ -127,25 +130,31 @@ def avalanches(args: argparse.Namespace) -> None:
         "units of k d^(alpha-d) (stress) and k d^alpha (energy), d the mean diameter. Seconds: "
         "the realizations' shear runs summed, one core each.",
         "",
-        "| d | N | M | events | <d tau> | <d E> | <d gamma> | tau (stress) | tau (energy) "
-        "| saddle-node | seconds |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| d | N | M | events | <d tau> | <d E> | <d gamma> | <tau>, sd | tau (stress) "
+        "| tau (energy) | saddle-node | seconds |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         lines.append(
             f"| {r['dim']} | {r['n']} | {r['realizations']} | {r['events']} | "
             + " | ".join(_mean(r[key]) for key, _ in MEANS)
+            + f" | {r['stress']['mean']:.3g}, {r['stress']['sd']:.2g}"
             + f" | {_tau(r['stress_drop_exponent'])} | {_tau(r['energy_drop_exponent'])} | "
             f"{r['saddle_node_fraction']:.2f} | {r['compute_seconds']:.0f} |"
         )
     if scaling:
-        lines += ["", "Finite-size scaling, mean ~ N^b (least squares in log-log):", ""]
+        lines += [
+            "",
+            "Finite-size scaling, mean (and sd of tau where events start) ~ N^b (least squares "
+            "in log-log):",
+            "",
+        ]
         for dim, fits in scaling.items():
             lines.append(
                 f"- {dim}D: "
                 + ", ".join(
                     f"{label} b = {fits[key]['exponent']:.2f} +- {fits[key]['stderr']:.2f}"
-                    for key, label in MEANS
+                    for key, label in (*MEANS, ("stress_sd", "sd of tau"))
                     if key in fits
                 )
             )

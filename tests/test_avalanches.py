@@ -89,6 +89,7 @@ def test_statistics_pool_the_events_after_the_transient():
     assert stats["stress_drop"]["mean"] == pytest.approx(5.0)  # in units of 0.5
     assert stats["strain_between_events"]["mean"] == pytest.approx((0.02 + 0.03) / 2)
     assert stats["strain_sheared"] == pytest.approx(0.03 + 0.05)
+    assert stats["stress"]["mean"] == pytest.approx(2.0) and stats["stress"]["n"] == 4
     assert stats["stress_drop_exponent"] is None  # too few events to fit
 
 

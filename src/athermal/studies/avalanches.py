@@ -196,7 +196,8 @@ def pooled_drops(records: list[EventsRecord], transient: float) -> dict[str, lis
 def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[str, Any]:
     """The events after ``transient`` pooled over ``records``: how many, the mean stress and
     energy drops (in the records' units) and strain between events (with standard errors), the
-    saddle-node fraction, the fitted exponents of both drops' distributions
+    driven stress where events start (``stress``: its ``sd`` the steady state's stress
+    fluctuation), the saddle-node fraction, the fitted exponents of both drops' distributions
     (:func:`~athermal.analysis.avalanches.power_law_tail`) and their log-binned densities."""
     kept = [[e for e in r.events if e["strain"] >= transient] for r in records]
     pooled = [e for events in kept for e in events]
@@ -209,6 +210,13 @@ def avalanche_statistics(records: list[EventsRecord], transient: float) -> dict[
         "strain_between_events": sample_stats(gaps),
         "saddle_node_fraction": sample_stats([e["saddle_node"] for e in pooled])["mean"],
         "moved": sample_stats([e["moved"] for e in pooled]),
+        "stress": sample_stats(
+            [
+                e["tau_before"] / r.stress_unit
+                for r, ev in zip(records, kept, strict=True)
+                for e in ev
+            ]
+        ),
     }
     for name, sizes in drops.items():
         out[name] = sample_stats(sizes)
