@@ -265,9 +265,7 @@ def add_events_options(parser: Options, protocol: str) -> None:
     parser.add_argument(
         "--mode", default=EventsSpec.mode, choices=SHEAR_MODES, help="how the packings are sheared"
     )
-    parser.add_argument(
-        "--step", type=float, default=EventsSpec.step, help="first strain step (it grows)"
-    )
+    parser.add_argument("--step", type=float, default=EventsSpec.step, help="strain step")
     parser.add_argument(
         "--max-step",
         type=float,
