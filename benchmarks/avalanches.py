@@ -274,6 +274,7 @@ def main() -> None:
     parser.add_argument("--figure-dir", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
     pin(args.core)
+    args.figure_dir.mkdir(parents=True, exist_ok=True)
     if args.yielding:
         yielding(args)
     if args.run:
