@@ -1,4 +1,5 @@
-"""Power-law fits ``y = a x^b`` by least squares in log-log space, with standard errors."""
+"""Power-law fits ``y = a x^b`` by least squares in log-log space, with standard errors; a
+sample's mean with its standard error."""
 
 from __future__ import annotations
 

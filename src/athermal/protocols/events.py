@@ -555,6 +555,17 @@ class LimitCycle:
     events: int | None
     cycles: int
 
+    def row(self) -> dict[str, bool | int | None]:
+        """Its numbers for JSON: ``reached``, ``cycle``, ``period``, ``events_per_period``,
+        ``cycles_run`` (None where no limit cycle was reached)."""
+        return {
+            "reached": self.reached,
+            "cycle": self.cycle,
+            "period": self.period,
+            "events_per_period": self.events,
+            "cycles_run": self.cycles,
+        }
+
 
 def check_cycles(amplitude: float, cycles: int) -> float:
     """``amplitude`` after the checks of a cyclic shear's settings (> 0, and ``cycles`` an

@@ -150,6 +150,7 @@ def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> Cycle
     rows = []
     for amplitude in spec.amplitudes:
         t0 = time.perf_counter()
+        step, largest = spec.cycle_steps(amplitude)
         ends = [
             item
             for item in cyclic_shear(
@@ -158,22 +159,17 @@ def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> Cycle
                 amplitude=amplitude,
                 cycles=spec.cycles,
                 mode=spec.mode,
-                step=spec.cycle_steps(amplitude)[0],
-                max_step=spec.cycle_steps(amplitude)[1],
+                step=step,
+                max_step=largest,
                 tol=spec.tol,
                 minimizer=spec.minimizer,
             )
             if isinstance(item, CycleEnd)
         ]
-        found = limit_cycle(ends)
         rows.append(
             {
                 "amplitude": amplitude,
-                "reached": found.reached,
-                "cycle": found.cycle,
-                "period": found.period,
-                "events_per_period": found.events,
-                "cycles_run": found.cycles,
+                **limit_cycle(ends).row(),
                 "events": sum(e.events for e in ends),
                 "seconds": time.perf_counter() - t0,
             }

@@ -109,14 +109,7 @@ class PlasticityRun:
             strains = [float(e["strain"]) for e in self.events]
             out["strain_between_events"] = statistics.fmean(np.diff(strains).tolist())
         if self.cycles:
-            found = limit_cycle([_cycle_row(c) for c in self.cycles])
-            out["limit_cycle"] = {
-                "reached": found.reached,
-                "cycle": found.cycle,
-                "period": found.period,
-                "events_per_period": found.events,
-                "cycles_run": found.cycles,
-            }
+            out["limit_cycle"] = limit_cycle([_cycle_row(c) for c in self.cycles]).row()
             out["cycle_ends"] = self.cycles
         return out
 
