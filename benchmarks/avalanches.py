@@ -37,6 +37,7 @@ import numpy as np
 
 from athermal.analysis.fitting import fit_power_law
 from athermal.errors import InputError
+from athermal.protocols.events import LONGEST
 from athermal.studies import plot
 from athermal.studies.avalanches import EventsSpec, pooled_drops
 from athermal.studies.ensemble import run_ensemble
@@ -81,8 +82,8 @@ def avalanches(args: argparse.Namespace) -> None:
             ),
         )
         t0 = time.perf_counter()
-        name = f"events_d{dim}_n{n}_a{args.alpha:g}_dphi{args.dphi:g}_s{strain:g}_h{args.step:g}"
-        name += "" if args.max_step is None else f"-{args.max_step:g}"
+        name = f"events_d{dim}_n{n}_a{args.alpha:g}_dphi{args.dphi:g}_s{strain:g}"
+        name += f"_h{args.step:g}-{args.max_step:g}"
         result = ensemble(spec, args.ensembles / name, m, args.workers)
         stats = result.summary["avalanches"]
         records = [r.events for r in result.realizations if r.events is not None]
@@ -120,9 +121,8 @@ def avalanches(args: argparse.Namespace) -> None:
         "",
         f"`python -m benchmarks.avalanches {' '.join(sys.argv[1:])}`",
         "",
-        f"alpha = {args.alpha:g}, phi_c + {args.dphi:g}; strain step {args.step:g}"
-        + ("" if args.max_step is None else f" growing to {args.max_step:g}")
-        + f"; events located to {args.tol:g} in "
+        f"alpha = {args.alpha:g}, phi_c + {args.dphi:g}; strain step {args.step:g} growing "
+        f"to {args.max_step:g}; events located to {args.tol:g} in "
         f"strain; events below strain {args.transient:g} left out. Means with their standard "
         "errors (over events); tau: the exponent of P(S) ~ S^-tau exp(-S/S_c) (maximum "
         "likelihood, S_min chosen by the KS distance) with its standard error, and in brackets "
@@ -194,7 +194,7 @@ def yielding(args: argparse.Namespace) -> None:
         )
         amplitudes = "-".join(f"{a:g}" for a in args.amplitudes)
         name = f"cycles_n{args.n}_a{args.alpha:g}_dphi{dphi:g}_c{args.cycles}_A{amplitudes}"
-        name += f"_h{args.step:g}" + ("" if args.max_step is None else f"-{args.max_step:g}")
+        name += f"_h{args.step:g}-{args.max_step:g}"
         result = ensemble(spec, args.ensembles / name, args.realizations, args.workers)
         rows.append({"delta_phi": dphi, **result.summary["yielding"]})
     lines = [
@@ -204,9 +204,8 @@ def yielding(args: argparse.Namespace) -> None:
         "",
         f"N = {args.n}, alpha = {args.alpha:g}, {args.realizations} packings per phi_c + "
         f"Delta phi, each sheared 0 -> A -> -A -> 0 at most {args.cycles} cycles at each A "
-        f"from the same start; strain step {args.step:g} (at most A/2)"
-        + ("" if args.max_step is None else f" growing to {args.max_step:g}")
-        + f"; events located to {args.tol:g}. A limit cycle: a cycle's end "
+        f"from the same start; strain step {args.step:g} growing to {args.max_step:g} (each at "
+        f"most A/2); events located to {args.tol:g}. A limit cycle: a cycle's end "
         "is an earlier cycle's end (the same minimum to 1e-6 mean diameters). Yielding "
         "amplitude: between the largest A at which more than half reached a limit cycle and "
         "the smallest at which at most half did.",
@@ -255,7 +254,9 @@ def main() -> None:
     parser.add_argument("--transient", type=float, default=0.05)
     parser.add_argument("--tol", type=float, default=1e-9)
     parser.add_argument("--step", type=float, default=1e-4, help="the events' strain step")
-    parser.add_argument("--max-step", type=float, default=None, help="growth (default: none)")
+    parser.add_argument(
+        "--max-step", type=float, default=None, help="the largest step (default: 10 x --step)"
+    )
     parser.add_argument("--n", type=int, default=64, help="--yielding: particles")
     parser.add_argument("--realizations", type=int, default=3, help="--yielding: per Delta phi")
     parser.add_argument(
@@ -273,6 +274,8 @@ def main() -> None:
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     parser.add_argument("--figure-dir", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
+    if args.max_step is None:
+        args.max_step = LONGEST * args.step
     pin(args.core)
     args.figure_dir.mkdir(parents=True, exist_ok=True)
     if args.yielding:

@@ -270,7 +270,7 @@ def add_events_options(parser: Options, protocol: str) -> None:
         "--max-step",
         type=float,
         default=None,
-        help="let the step grow between events up to this (default: --step, no growth)",
+        help="the largest step, grown to between events (default: 10 x --step)",
     )
     parser.add_argument(
         "--tol", type=float, default=EventsSpec.tol, help="an event's bracket in strain"

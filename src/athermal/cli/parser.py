@@ -360,8 +360,7 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
         "--max-step",
         type=float,
         default=None,
-        help="let the step grow between events up to this (with --events; default: --step, no "
-        "growth: a long step can miss an event whose hysteresis loop it spans)",
+        help="the largest step, grown to between events (with --events; default: 10 x --step)",
     )
     plastic.add_argument(
         "--cycles",

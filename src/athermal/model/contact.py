@@ -198,6 +198,16 @@ class Contacts(LawContacts):
         """The law's small-overlap exponent (:attr:`~athermal.model.law.ContactLaw.alpha`)."""
         return self.law.alpha
 
+    def overlaps_in(self, packing: Packing) -> NDArray[np.float64]:
+        """The overlaps of these pairs (nearest image) and then of these wall contacts, with the
+        particles where ``packing`` has them (negative where a contact has opened)."""
+        sep = packing.cell.minimum_image(packing.positions[self.i] - packing.positions[self.j])
+        pairs = packing.radii[self.i] + packing.radii[self.j] - row_norms(sep)
+        if self.walls is None:
+            return pairs
+        walls = self.walls.overlaps_in(packing.positions, packing.radii, packing.cell)
+        return np.concatenate([pairs, walls])
+
     @property
     def count(self) -> int:
         """Pair contacts and wall contacts together."""

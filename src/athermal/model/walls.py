@@ -70,10 +70,30 @@ class WallContacts(LawContacts):
         """From the contact point on the wall to the centre, ``distance x normal`` ``(W, d)``."""
         return self.distance[:, None] * self.normal
 
+    def overlaps_in(
+        self, positions: NDArray[np.float64], radii: NDArray[np.float64], cell: Cell
+    ) -> NDArray[np.float64]:
+        """The overlaps ``(W,)`` of these particles with these walls at ``positions`` in
+        ``cell`` (negative where a particle has left its wall)."""
+        half = 0.5 * cell.h[self.axis, self.axis]
+        return radii[self.particle] - _wall_distance(
+            positions[self.particle, self.axis], half, self.side
+        )
+
     def hessian_terms(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.float64]]:
         """Each contact's one Hessian entry: particle, axis and ``E''(delta)`` at
         ``(particle d + axis)`` on the diagonal (a flat wall: no other)."""
         return self.particle, self.axis, self.normal_stiffness
+
+
+def _wall_distance(
+    coordinate: NDArray[np.float64],
+    half: NDArray[np.float64] | float,
+    side: NDArray[np.float64] | float,
+) -> NDArray[np.float64]:
+    """The distances from centres at ``coordinate`` along a wall's axis to the lower
+    (``side`` +1) or upper (-1) wall of a cell ``2 half`` wide along it."""
+    return half + side * coordinate
 
 
 def find_wall_contacts(
@@ -88,7 +108,8 @@ def find_wall_contacts(
     particles, axes, sides, distances = [np.zeros(0, np.int64)], [np.zeros(0, np.int64)], [], []
     for a in cell.walls:
         half = 0.5 * cell.h[a, a]
-        for side, distance in ((1.0, positions[:, a] + half), (-1.0, half - positions[:, a])):
+        for side in (1.0, -1.0):
+            distance = _wall_distance(positions[:, a], half, side)
             hit = np.flatnonzero(distance < radii)
             particles.append(hit)
             axes.append(np.full(hit.size, a))

@@ -12,13 +12,20 @@ once. :func:`plastic_events` follows the branches and locates each end in strain
 * a state is on the branch of the previous one when the packing, taken back to the previous
   strain and relaxed, returns to the previous minimum (:data:`SAME_STATE`): a state past the end
   returns elsewhere (another basin), one before it to the same minimum;
-* between events the strain step may grow (x :data:`GROWTH`, up to ``max_step``; by default it
-  does not: a step wider than an event's hysteresis loop can miss the event) and is held below
+* between events the strain step grows (x :data:`GROWTH`, up to ``max_step``) and is held below
   the end of the branch extrapolated from ``lambda_min^2``, linear in ``gamma_c - gamma`` near
   it; an event is bracketed by a state on the branch and one off it;
-* the bracket shrinks by trials short of the extrapolated end and then just past it, or by
-  bisection where no end is predicted inside it, until it is narrower than ``tol``; the state
-  past the end is then one reached from within the bracket.
+* with Hooke's law a branch can also end where a contact opens (the Hessian loses the contact's
+  stiffness at once, with no eigenvalue falling toward it), and an event whose hysteresis loop
+  lies within one step would pass the return test: the branch ends and comes back inside the
+  step. So a step over which a contact of the network opened is narrowed like an event, until
+  the opening is crossed by a step no wider than ``tol``: every loop wider than ``tol`` is
+  seen (``docs/decisions.md``, "Events a long step misses");
+* the bracket shrinks by trials short of the predicted end (``lambda_min^2`` extrapolated to
+  zero, or the next contact to open, its overlap extrapolated from the states before) and then
+  just past it, or by bisection where no end is predicted inside it or the predictions fail,
+  until it is narrower than ``tol``; the state past the end is then one reached from within
+  the bracket.
 
 Each event reports its strains (the last on the branch, the first off it, the extrapolated
 critical strain), the driven stress and energy just before and just after, the lowest
@@ -44,7 +51,7 @@ from .._validate import positive_scalar
 from ..analysis.modes import lowest_eigenpairs
 from ..analysis.moduli import DENSE_EIGEN_DOFS, nonrattler_contacts, nonrattler_hessian
 from ..errors import ConvergenceError, InputError
-from ..model.contact import ContactModel
+from ..model.contact import ContactModel, Contacts
 from ..model.objective import Objective
 from ..model.packing import Packing
 from ..relaxation import Minimizer, Relaxer, force_tolerance
@@ -58,6 +65,8 @@ other than this x the mean diameter (far above what relaxations of one basin dif
 below what an event moves: ``docs/decisions.md``, "Plastic events")."""
 GROWTH = 2.0
 """Factor by which the strain step grows after a step that stayed on the branch."""
+LONGEST = 10.0
+"""The largest strain step by default, x the first step."""
 APPROACH = 0.5
 """Between events a step goes at most this fraction of the way to the extrapolated end of the
 branch."""
@@ -74,7 +83,8 @@ narrow the bracket to ``tol`` around no event."""
 class BranchState:
     """A relaxed minimum at ``strain``: its packing, driven stress ``tau``, energy, pressure,
     the lowest nonzero eigenvalue of its Hessian (rattlers out, translations skipped) and that
-    mode ``(N, d)`` (unit, zero on rattlers), and the relaxations' iterations."""
+    mode ``(N, d)`` (unit, zero on rattlers), the rattlers, the contacts of the others (pairs
+    and walls: the contact network), and the relaxations' iterations."""
 
     strain: float
     packing: Packing = field(repr=False)
@@ -84,10 +94,11 @@ class BranchState:
     lowest_eigenvalue: float
     mode: NDArray[np.float64] = field(repr=False)
     rattler: NDArray[np.bool_] = field(repr=False)
+    contacts: Contacts = field(repr=False)
     iterations: int = 0
 
     def row(self) -> dict[str, Value]:
-        """The state's numbers (no packing, mode or rattlers)."""
+        """The state's numbers (no packing, mode, rattlers or contacts)."""
         return as_row(self)
 
 
@@ -158,8 +169,20 @@ def soft_mode(
     translations along its periodic axes skipped; with ``frozen``, those particles held), its
     unit mode ``(N, d)`` (zero on rattlers, the sign fixed by its largest component) and the
     rattler mask ``(N,)``; infinity and a zero mode when every particle is a rattler."""
-    dim = packing.dim
     contacts, rattler = nonrattler_contacts(packing, model, frozen)
+    value, mode = _soft_mode(packing, contacts, rattler, frozen)
+    return value, mode, rattler
+
+
+def _soft_mode(
+    packing: Packing,
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    frozen: NDArray[np.bool_] | None,
+) -> tuple[float, NDArray[np.float64]]:
+    """:func:`soft_mode`'s eigenvalue and mode from the network's ``contacts`` and ``rattler``
+    mask."""
+    dim = packing.dim
     h, dofs = nonrattler_hessian(contacts, rattler, dim)
     translations = 0
     if frozen is not None:  # the held particles pin the rest
@@ -168,7 +191,7 @@ def soft_mode(
     else:
         translations = packing.cell.periodic_axes
     if dofs.size <= translations:  # no contact network (unjammed): nothing is stiff
-        return float("inf"), np.zeros((packing.n, dim)), rattler
+        return float("inf"), np.zeros((packing.n, dim))
     values, vectors = _lowest(h, translations + 1)
     if translations:
         axes = [a for a in range(dim) if a not in packing.cell.walls]
@@ -185,7 +208,7 @@ def soft_mode(
     flat = mode.reshape(-1)
     if flat[np.argmax(np.abs(flat))] < 0.0:
         mode = -mode
-    return float(values[0]), mode, rattler
+    return float(values[0]), mode
 
 
 @dataclass(frozen=True, eq=False)
@@ -226,6 +249,9 @@ class _Shear:
         self.minimizer = minimizer or Minimizer()
         self.same_state = positive_scalar(same, "same")
         self.frozen = None if layers is None else layers[0] | layers[1]
+        # a contact that opens takes its stiffness from the Hessian at once (Hooke's law): the
+        # branch can end there, with no eigenvalue falling toward it
+        self.openings = bool(model.law.stiffness(np.zeros(1), 1.0)[0] > 0.0)
         self.relaxations = 0
         self.events = 0
 
@@ -267,9 +293,19 @@ class _Shear:
     def state(self, packing: Packing, strain: float, iterations: int = 0) -> BranchState:
         """The :class:`BranchState` of the relaxed ``packing`` at ``strain``."""
         obs, tau = step_stress(packing, self.model, self.mode, self.layers)
-        value, mode, rattler = soft_mode(packing, self.model, self.frozen)
+        contacts, rattler = nonrattler_contacts(packing, self.model, self.frozen)
+        value, mode = _soft_mode(packing, contacts, rattler, self.frozen)
         return BranchState(
-            strain, packing, tau, obs.energy, obs.pressure, value, mode, rattler, iterations
+            strain,
+            packing,
+            tau,
+            obs.energy,
+            obs.pressure,
+            value,
+            mode,
+            rattler,
+            contacts,
+            iterations,
         )
 
     def advance(self, base: BranchState, strain: float) -> tuple[BranchState, bool]:
@@ -286,6 +322,52 @@ class _Shear:
             strained(forward, self.mode, strain, base.strain, self.layers), base.strain
         )
         return self.state(forward, strain, iterations + more), self.same(back, base)
+
+    def crossing(
+        self, lo: BranchState, hi: BranchState, below: BranchState | None = None
+    ) -> float | None:
+        """Where the first contact of ``lo``'s network that is open in ``hi`` (a state on the
+        same branch) opened: extrapolated from ``below`` and ``lo`` (:meth:`opening`) where that
+        falls between ``lo`` and ``hi``, else its overlap interpolated linearly between ``lo``
+        and ``hi`` (an overlap's slope changes where another contact opens, so the states on one
+        side predict it better); None when none is open, or when an opening cannot end a branch
+        at once (the law's stiffness vanishes at zero overlap: its Hessian is continuous
+        there)."""
+        if not self.openings or lo.contacts.i.size == 0:
+            return None
+        at, after = lo.contacts.overlaps_in(lo.packing), lo.contacts.overlaps_in(hi.packing)
+        opened = after <= 0.0
+        if not opened.any():
+            return None
+        width = hi.strain - lo.strain
+        fraction = at[opened] / (at[opened] - after[opened])
+        if below is not None:
+            ahead = self._ahead(lo, below)[opened] * (lo.strain - below.strain) / width
+            fraction = np.where(ahead <= 1.0, ahead, fraction)
+        return lo.strain + float(np.min(fraction)) * width
+
+    def opening(self, lo: BranchState, below: BranchState | None) -> float | None:
+        """Where the first contact of ``lo``'s network opens ahead of ``lo``, its overlap
+        extrapolated linearly from ``below`` (a state before ``lo`` on its branch) and ``lo``;
+        None when no overlap falls, without ``below``, or when an opening cannot end a branch
+        at once (:meth:`crossing`)."""
+        if not self.openings or below is None or lo.contacts.i.size == 0:
+            return None
+        ahead = self._ahead(lo, below)
+        if not np.isfinite(ahead).any():
+            return None
+        return lo.strain + float(np.min(ahead)) * (lo.strain - below.strain)
+
+    @staticmethod
+    def _ahead(lo: BranchState, below: BranchState) -> NDArray[np.float64]:
+        """For each contact of ``lo``'s network, how many steps ``below -> lo`` ahead of ``lo``
+        its overlap reaches zero, extrapolated linearly; infinity where it does not fall."""
+        at = lo.contacts.overlaps_in(lo.packing)
+        before = lo.contacts.overlaps_in(below.packing)
+        falling = before > at
+        ahead = np.full(at.size, np.inf)
+        ahead[falling] = at[falling] / (before[falling] - at[falling])
+        return ahead
 
     def same(self, packing: Packing, base: BranchState) -> bool:
         """Whether ``packing`` is ``base``'s minimum (:data:`SAME_STATE`): its particles that are
@@ -336,11 +418,13 @@ def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
 
 
 def check_steps(step: float, max_step: float | None, tol: float, strain: float) -> float:
-    """``max_step`` (default ``step``: no growth; at most ``strain``) after the settings' checks:
-    ``tol < step <= max_step <= strain``, each > 0."""
+    """``max_step`` (default :data:`LONGEST` x ``step``, at most ``strain``) after the settings'
+    checks: ``tol < step <= max_step <= strain``, each > 0."""
     step = positive_scalar(step, "step")
     tol = positive_scalar(tol, "tol")
-    largest = min(step, strain) if max_step is None else positive_scalar(max_step, "max_step")
+    largest = (
+        min(LONGEST * step, strain) if max_step is None else positive_scalar(max_step, "max_step")
+    )
     if not tol < step <= largest <= strain:
         raise InputError(
             f"step: need tol < step <= max_step <= strain, got {tol:g}, {step:g}, {largest:g}, "
@@ -375,10 +459,9 @@ def plastic_events(
         (:func:`~athermal.protocols.shear.check_mode`).
     strain : the final strain.
     step : the first strain step, and the step after each event; it grows by :data:`GROWTH`
-        up to ``max_step`` (default ``step``: no growth) while the packing stays on its branch.
-        A step wider than an event's hysteresis loop (the event and its reverse, both within
-        it) can miss that event: the state strained back returns to the branch's minimum
-        (``docs/decisions.md``, "Events a long step misses").
+        up to ``max_step`` (default :data:`LONGEST` x ``step``) while the packing stays on its
+        branch. The events found do not depend on it: a step over which a contact opened is
+        narrowed to ``tol`` (module docstring).
     tol : the largest bracket of an event, in strain.
     minimizer : how each state is relaxed (default L-BFGS), to the round-off floor
         (:func:`~athermal.relaxation.round_off_floor`).
@@ -421,58 +504,130 @@ def _follow(
         if direction * (end - base.strain) > 0.0:
             ahead = min(ahead, max(APPROACH * direction * (end - base.strain), tol))
         state, on = run.advance(base, base.strain + direction * ahead)
-        if on:
+        opened = on and ahead > tol and run.crossing(base, state) is not None
+        if on and not opened:
             branch.append(state)
             yield state
             size = min(GROWTH * size, largest)
             continue
         seen = len(branch)
-        event = _locate(run, branch, state, tol, direction)
+        event = _locate(run, branch, state, tol, direction, opened)
         yield from branch[seen:]  # the states the search found on the branch
         size = step
-        if event is None:  # the long step had left the branch's basin, not the branch
+        if event is None:  # no event: the branch went on through the bracket
             continue
         yield event
         branch[:] = [event.after]
         yield event.after
 
 
+@dataclass(frozen=True, eq=False)
+class _Above:
+    """A state past a bracket's lower end: reached from the strain ``origin``, and either
+    ``off`` the branch (strained back it returned elsewhere) or on it past an opened contact
+    (``off`` False), where the branch may have ended and come back within the step."""
+
+    state: BranchState
+    origin: float
+    off: bool
+
+
 def _locate(
-    run: _Shear, branch: list[BranchState], off: BranchState, tol: float, direction: float
+    run: _Shear,
+    branch: list[BranchState],
+    past: BranchState,
+    tol: float,
+    direction: float,
+    opened: bool = False,
 ) -> PlasticEvent | None:
-    """The event between the branch's last state and ``off``, a state past its end in
-    ``direction``: the bracket shrunk below ``tol`` (module docstring), the states on the
-    branch appended to ``branch``. The state past the end must be reached from within the
-    bracket: one reached from farther (a long step's relaxation may leave the branch's basin
-    while the branch goes on) is reached again from the bracket's lower end, once the bracket
-    is :data:`STALE` times narrower than that step and when it is narrower than ``tol``; None
-    when the branch then goes on."""
-    start, off_from = run.relaxations, branch[-1].strain
-    for _ in range(MAX_TRIALS):
-        lo = branch[-1]
-        width = direction * (off.strain - lo.strain)
-        if width <= tol and direction * (off.strain - off_from) <= tol:
-            event = _event(run, branch, off, run.events, run.relaxations - start, direction)
+    """The event between the branch's last state and ``past``, a state past its end in
+    ``direction`` (``opened``: a state on the branch past an opened contact, which may hide an
+    event whose loop lies within the step), the states found on the branch appended to
+    ``branch``; None when the branch goes on through ``past``.
+
+    The bracket shrinks below ``tol`` toward the nearest of the states above it, by trials aimed
+    at the predicted end (:func:`_trial`), bisection when two trials gained less than half of
+    it. An opened contact is crossed by a step no wider than ``tol``: a branch that ends there
+    and comes back within a wider step is seen by the return test. A state off the branch must
+    be reached from within the bracket: one reached from farther (a long step's relaxation may
+    leave the branch's basin while the branch goes on) is reached again from the bracket's lower
+    end, once the bracket is :data:`STALE` times narrower than that step and when it is
+    narrower than ``tol``."""
+    start = run.relaxations
+    above = [_Above(past, branch[-1].strain, not opened)]
+    widths: list[float] = []  # the bracket before each trial, since a state above was left
+    missed = False  # whether the last step across a predicted opening opened nothing
+    trials = 0  # since the last progress: a state above left behind, or an opening crossed
+    while trials < MAX_TRIALS:
+        trials += 1
+        lo, top = branch[-1], above[-1]
+        width = direction * (top.state.strain - lo.strain)
+        if top.off and width <= tol and direction * (top.state.strain - top.origin) <= tol:
+            event = _event(run, branch, top.state, run.events, run.relaxations - start, direction)
             run.events += 1
             return event
-        end = direction * (_end_of_branch(branch, direction) - lo.strain)  # ahead of lo
-        ahead = 0.5 * width  # bisection, unless the end is predicted in the bracket
-        if width <= tol or direction * (off.strain - off_from) > STALE * width:
-            ahead = width  # reach the state past the end again, from the bracket
-        elif 0.0 < end < width:
-            ahead = end - max(0.1 * end, 0.3 * tol) if end > tol else end + 0.4 * tol
-            ahead = min(max(ahead, 0.1 * tol), width - 0.1 * tol)
+        if not top.off and run.crossing(lo, top.state) is None:  # no contact opens before it
+            branch.append(top.state)
+            above.pop()
+            widths, trials = [], 0
+            if not above:
+                return None
+            continue
+        ahead, kind = _trial(run, branch, top, width, tol, direction)
+        if (kind == "across" and missed) or (
+            kind != "again" and len(widths) >= 2 and width > 0.5 * widths[-2]
+        ):
+            ahead, kind = 0.5 * width, "half"  # the predictions fail: bisect
+        widths.append(width)
         state, on = run.advance(lo, lo.strain + direction * ahead)
-        if on:
+        if ahead == width:  # reached again from within the bracket
+            above.pop()
+            widths, trials = [], 0
+        opened = run.crossing(lo, state) is not None
+        if on and (ahead <= tol or not opened):
             branch.append(state)
-            if ahead == width:
+            missed = kind == "across" and not opened
+            trials = 0 if kind == "across" and opened else trials
+            if not above:
                 return None
         else:
-            off, off_from = state, lo.strain
+            above.append(_Above(state, lo.strain, not on))
     raise ConvergenceError(
         f"plastic event after strain {branch[-1].strain:.12g}: not located to {tol:g} in "
         f"{MAX_TRIALS} trials"
     )
+
+
+def _trial(
+    run: _Shear,
+    branch: list[BranchState],
+    top: _Above,
+    width: float,
+    tol: float,
+    direction: float,
+) -> tuple[float, str]:
+    """How far past the branch's last state to try toward ``top``, ``width`` ahead, and the
+    kind of trial: all the way (``"again"``) when ``top`` is off the branch and must be reached
+    again from the bracket (:data:`STALE`); else short of the nearer of the predicted ends
+    inside the bracket (``"aim"``), ``lambda_min^2`` extrapolated to zero (short by a tenth of
+    the way, or just past it within ``tol``) and the next contact to open (short by ``0.4 tol``,
+    or across it by a step of ``tol``: ``"across"``); halfway (``"half"``) when neither lies
+    inside."""
+    lo = branch[-1]
+    if top.off and (width <= tol or direction * (top.state.strain - top.origin) > STALE * width):
+        return width, "again"
+    below = branch[-2] if len(branch) > 1 else None
+    aims = []
+    end = direction * (_end_of_branch(branch, direction) - lo.strain)
+    if 0.0 < end < width:
+        ahead = end - max(0.1 * end, 0.3 * tol) if end > tol else end + 0.4 * tol
+        aims.append((min(max(ahead, 0.1 * tol), width - 0.1 * tol), "aim"))
+    opens = run.opening(lo, below) if top.off else run.crossing(lo, top.state, below)
+    if opens is not None and 0.0 <= direction * (opens - lo.strain) < width:
+        ahead = direction * (opens - lo.strain)
+        ahead -= max(0.1 * ahead if top.off else 0.0, 0.4 * tol)
+        aims.append((ahead, "aim") if ahead > 0.1 * tol else (min(tol, width), "across"))
+    return min(aims) if aims else (0.5 * width, "half")
 
 
 def _event(
