@@ -37,7 +37,8 @@ import numpy as np
 
 from athermal.analysis.fitting import fit_power_law
 from athermal.errors import InputError
-from athermal.protocols.events import LONGEST
+from athermal.model.contact import ContactModel
+from athermal.protocols.events import LONGEST, opens_at_once
 from athermal.studies import plot
 from athermal.studies.avalanches import EventsSpec, pooled_drops
 from athermal.studies.ensemble import run_ensemble
@@ -255,7 +256,7 @@ def main() -> None:
     parser.add_argument("--tol", type=float, default=1e-9)
     parser.add_argument("--step", type=float, default=1e-4, help="the events' strain step")
     parser.add_argument(
-        "--max-step", type=float, default=None, help="the largest step (default: 10 x --step)"
+        "--max-step", type=float, default=None, help="the largest step (default: the library's)"
     )
     parser.add_argument("--n", type=int, default=64, help="--yielding: particles")
     parser.add_argument("--realizations", type=int, default=3, help="--yielding: per Delta phi")
@@ -274,8 +275,9 @@ def main() -> None:
     parser.add_argument("--output-dir", type=Path, default=ROOT / "benchmarks" / "results")
     parser.add_argument("--figure-dir", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
-    if args.max_step is None:
-        args.max_step = LONGEST * args.step
+    if args.max_step is None:  # the library's default, named in the folders and tables
+        grows = opens_at_once(ContactModel(args.alpha))
+        args.max_step = LONGEST * args.step if grows else args.step
     pin(args.core)
     args.figure_dir.mkdir(parents=True, exist_ok=True)
     if args.yielding:

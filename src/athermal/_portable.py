@@ -375,6 +375,17 @@ def root(x: float, d: int) -> float:
     return min(candidates, key=lambda c: (abs(Fraction(c) ** 3 - target), c))
 
 
+def coarse(x: float, bits: int = 24) -> float:
+    """``x`` cut to its ``bits`` leading significant bits (toward zero; infinities and NaN as
+    they are): a value that LAPACK or ARPACK computes, whose last bits follow the BLAS kernel
+    and the threads, made the same on every machine but where it lies within those bits of a
+    cut."""
+    if not math.isfinite(x) or x == 0.0:
+        return float(x)
+    mantissa, exponent = math.frexp(x)
+    return math.ldexp(math.trunc(math.ldexp(mantissa, bits)), exponent - bits)
+
+
 # sin(2 pi s) on s in [-1/4, 1/4] as t * P(t^2), t = 2 pi s: the Taylor series to t^23 (its
 # remainder below 2e-17 at |t| = pi / 2), coefficients (-1)^k / (2k + 1)!
 _SIN_TERMS = tuple((-1.0) ** k / math.factorial(2 * k + 1) for k in range(12))

@@ -270,7 +270,8 @@ def add_events_options(parser: Options, protocol: str) -> None:
         "--max-step",
         type=float,
         default=None,
-        help="the largest step, grown to between events (default: 10 x --step)",
+        help="the largest step, grown to between events (default: 10 x --step with Hooke's "
+        "law, alpha 2; else --step)",
     )
     parser.add_argument(
         "--tol", type=float, default=EventsSpec.tol, help="an event's bracket in strain"

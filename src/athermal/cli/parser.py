@@ -360,7 +360,8 @@ def _shear_command(sub: argparse._SubParsersAction) -> None:
         "--max-step",
         type=float,
         default=None,
-        help="the largest step, grown to between events (with --events; default: 10 x --step)",
+        help="the largest step, grown to between events (with --events; default: 10 x --step "
+        "with Hooke's law, alpha 2; else --step)",
     )
     plastic.add_argument(
         "--cycles",

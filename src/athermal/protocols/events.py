@@ -12,7 +12,8 @@ once. :func:`plastic_events` follows the branches and locates each end in strain
 * a state is on the branch of the previous one when the packing, taken back to the previous
   strain and relaxed, returns to the previous minimum (:data:`SAME_STATE`): a state past the end
   returns elsewhere (another basin), one before it to the same minimum;
-* between events the strain step grows (x :data:`GROWTH`, up to ``max_step``) and is held below
+* between events the strain step grows (x :data:`GROWTH`, up to ``max_step``; by default only
+  where a contact's opening can end a branch, :data:`LONGEST`) and is held below
   the end of the branch extrapolated from ``lambda_min^2``, linear in ``gamma_c - gamma`` near
   it; an event is bracketed by a state on the branch and one off it;
 * with Hooke's law a branch can also end where a contact opens (the Hessian loses the contact's
@@ -39,13 +40,14 @@ minimum), to the round-off floor; modes as :func:`~athermal.protocols.shear.shea
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from .._portable import coarse
 from .._records import Value, as_row
 from .._validate import positive_scalar
 from ..analysis.modes import lowest_eigenpairs
@@ -66,7 +68,9 @@ below what an event moves: ``docs/decisions.md``, "Plastic events")."""
 GROWTH = 2.0
 """Factor by which the strain step grows after a step that stayed on the branch."""
 LONGEST = 10.0
-"""The largest strain step by default, x the first step."""
+"""The largest strain step by default, x the first step, where a contact's opening can end a
+branch (:func:`opens_at_once`: every loop wider than ``tol`` is seen whatever the step); else
+the step does not grow by default (``docs/decisions.md``, "Events a long step misses")."""
 APPROACH = 0.5
 """Between events a step goes at most this fraction of the way to the extrapolated end of the
 branch."""
@@ -82,8 +86,9 @@ narrow the bracket to ``tol`` around no event."""
 @dataclass(frozen=True, eq=False)
 class BranchState:
     """A relaxed minimum at ``strain``: its packing, driven stress ``tau``, energy, pressure,
-    the lowest nonzero eigenvalue of its Hessian (rattlers out, translations skipped) and that
-    mode ``(N, d)`` (unit, zero on rattlers), the rattlers, the contacts of the others (pairs
+    the lowest nonzero eigenvalue of its Hessian (rattlers out, translations skipped; to 24
+    significant bits, :func:`~athermal._portable.coarse`) and that mode ``(N, d)`` (unit, zero
+    on rattlers), the rattlers, the contacts of the others (pairs
     and walls: the contact network), and the relaxations' iterations."""
 
     strain: float
@@ -249,9 +254,7 @@ class _Shear:
         self.minimizer = minimizer or Minimizer()
         self.same_state = positive_scalar(same, "same")
         self.frozen = None if layers is None else layers[0] | layers[1]
-        # a contact that opens takes its stiffness from the Hessian at once (Hooke's law): the
-        # branch can end there, with no eigenvalue falling toward it
-        self.openings = bool(model.law.stiffness(np.zeros(1), 1.0)[0] > 0.0)
+        self.openings = opens_at_once(model)
         self.relaxations = 0
         self.events = 0
 
@@ -301,7 +304,7 @@ class _Shear:
             tau,
             obs.energy,
             obs.pressure,
-            value,
+            coarse(value),  # it sets the steps: the same on every machine
             mode,
             rattler,
             contacts,
@@ -323,6 +326,18 @@ class _Shear:
         )
         return self.state(forward, strain, iterations + more), self.same(back, base)
 
+    def tracked(self, state: BranchState) -> Contacts:
+        """The contacts of ``state``'s network whose opening changes the Hessian of the free
+        particles: all but those between two held particles and held particles' wall
+        contacts."""
+        if self.frozen is None:
+            return state.contacts
+        held = self.frozen
+        kept = state.contacts.subset(~(held[state.contacts.i] & held[state.contacts.j]))
+        if kept.walls is None:
+            return kept
+        return replace(kept, walls=kept.walls.subset(~held[kept.walls.particle]))
+
     def crossing(
         self, lo: BranchState, hi: BranchState, below: BranchState | None = None
     ) -> float | None:
@@ -333,9 +348,10 @@ class _Shear:
         side predict it better); None when none is open, or when an opening cannot end a branch
         at once (the law's stiffness vanishes at zero overlap: its Hessian is continuous
         there)."""
-        if not self.openings or lo.contacts.i.size == 0:
+        if not self.openings:
             return None
-        at, after = lo.contacts.overlaps_in(lo.packing), lo.contacts.overlaps_in(hi.packing)
+        tracked = self.tracked(lo)
+        at, after = tracked.overlaps_in(lo.packing), tracked.overlaps_in(hi.packing)
         opened = after <= 0.0
         if not opened.any():
             return None
@@ -351,19 +367,19 @@ class _Shear:
         extrapolated linearly from ``below`` (a state before ``lo`` on its branch) and ``lo``;
         None when no overlap falls, without ``below``, or when an opening cannot end a branch
         at once (:meth:`crossing`)."""
-        if not self.openings or below is None or lo.contacts.i.size == 0:
+        if not self.openings or below is None:
             return None
         ahead = self._ahead(lo, below)
         if not np.isfinite(ahead).any():
             return None
         return lo.strain + float(np.min(ahead)) * (lo.strain - below.strain)
 
-    @staticmethod
-    def _ahead(lo: BranchState, below: BranchState) -> NDArray[np.float64]:
-        """For each contact of ``lo``'s network, how many steps ``below -> lo`` ahead of ``lo``
-        its overlap reaches zero, extrapolated linearly; infinity where it does not fall."""
-        at = lo.contacts.overlaps_in(lo.packing)
-        before = lo.contacts.overlaps_in(below.packing)
+    def _ahead(self, lo: BranchState, below: BranchState) -> NDArray[np.float64]:
+        """For each contact of ``lo``'s network (:meth:`tracked`), how many steps ``below ->
+        lo`` ahead of ``lo`` its overlap reaches zero, extrapolated linearly; infinity where it
+        does not fall."""
+        tracked = self.tracked(lo)
+        at, before = tracked.overlaps_in(lo.packing), tracked.overlaps_in(below.packing)
         falling = before > at
         ahead = np.full(at.size, np.inf)
         ahead[falling] = at[falling] / (before[falling] - at[falling])
@@ -414,17 +430,25 @@ def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
         roots = np.roots(np.polyfit(u, y, 2))
         real = [r.real for r in roots if abs(r.imag) <= 1e-12 * abs(r.real) and r.real > 0.0]
         line = min(real) if real else line
-    return b.strain + direction * line
+    return b.strain + direction * coarse(line)  # LAPACK's fit: the same on every machine
 
 
-def check_steps(step: float, max_step: float | None, tol: float, strain: float) -> float:
-    """``max_step`` (default :data:`LONGEST` x ``step``, at most ``strain``) after the settings'
-    checks: ``tol < step <= max_step <= strain``, each > 0."""
+def opens_at_once(model: ContactModel) -> bool:
+    """Whether a contact that opens takes its stiffness from the Hessian at once (a law with
+    stiffness at zero overlap, as Hooke's): a branch can then end where a contact opens, with
+    no eigenvalue falling toward it."""
+    return bool(model.law.stiffness(np.zeros(1), 1.0)[0] > 0.0)
+
+
+def check_steps(
+    step: float, max_step: float | None, tol: float, strain: float, grows: bool = True
+) -> float:
+    """``max_step`` (default :data:`LONGEST` x ``step`` if ``grows``, else ``step``; at most
+    ``strain``) after the settings' checks: ``tol < step <= max_step <= strain``, each > 0."""
     step = positive_scalar(step, "step")
     tol = positive_scalar(tol, "tol")
-    largest = (
-        min(LONGEST * step, strain) if max_step is None else positive_scalar(max_step, "max_step")
-    )
+    longest = LONGEST * step if grows else step
+    largest = min(longest, strain) if max_step is None else positive_scalar(max_step, "max_step")
     if not tol < step <= largest <= strain:
         raise InputError(
             f"step: need tol < step <= max_step <= strain, got {tol:g}, {step:g}, {largest:g}, "
@@ -459,9 +483,12 @@ def plastic_events(
         (:func:`~athermal.protocols.shear.check_mode`).
     strain : the final strain.
     step : the first strain step, and the step after each event; it grows by :data:`GROWTH`
-        up to ``max_step`` (default :data:`LONGEST` x ``step``) while the packing stays on its
-        branch. The events found do not depend on it: a step over which a contact opened is
-        narrowed to ``tol`` (module docstring).
+        up to ``max_step`` while the packing stays on its branch: by default to :data:`LONGEST`
+        x ``step`` where a contact's opening can end a branch (:func:`opens_at_once`, Hooke's
+        law), whose events do not depend on the step (a step over which a contact opened is
+        narrowed to ``tol``, module docstring); else it does not grow, and an event whose
+        hysteresis loop lies inside one step can be missed (``docs/decisions.md``, "Events a
+        long step misses").
     tol : the largest bracket of an event, in strain.
     minimizer : how each state is relaxed (default L-BFGS), to the round-off floor
         (:func:`~athermal.relaxation.round_off_floor`).
@@ -472,7 +499,7 @@ def plastic_events(
         (the rough walls are still ``start``'s).
     """
     strain = positive_scalar(strain, "strain")
-    largest = check_steps(step, max_step, tol, strain)
+    largest = check_steps(step, max_step, tol, strain, opens_at_once(model))
     run = _Shear.of(start, model, mode, strain, minimizer, wall_layer, same)
     if checkpoint is None:
         first = run.first(start, 0.0)
@@ -646,7 +673,7 @@ def _event(
     squares = np.einsum("ij,ij->i", u, u)
     moved = float(squares.sum() ** 2 / np.sum(squares**2)) if squares.any() else 0.0
     diameter = 2.0 * float(np.mean(before.packing.radii))
-    made, broken = _contact_changes(run, before.packing, off.packing, live)
+    made, broken = _contact_changes(before, off, live)
     return PlasticEvent(
         index=index,
         strain=before.strain,
@@ -663,13 +690,12 @@ def _event(
 
 
 def _contact_changes(
-    run: _Shear, before: Packing, after: Packing, live: NDArray[np.bool_]
+    before: BranchState, after: BranchState, live: NDArray[np.bool_]
 ) -> tuple[int, int]:
     """Contacts between the particles of ``live`` made and broken from ``before`` to
     ``after``."""
     pairs = []
-    for packing in (before, after):
-        contacts, _ = nonrattler_contacts(packing, run.model, run.frozen)
+    for contacts in (before.contacts, after.contacts):
         keep = live[contacts.i] & live[contacts.j]
         pairs.append(set(zip(contacts.i[keep].tolist(), contacts.j[keep].tolist(), strict=True)))
     return len(pairs[1] - pairs[0]), len(pairs[0] - pairs[1])
@@ -755,7 +781,7 @@ def cyclic_shear(
     From a ``checkpoint`` (at a cycle's end) the run goes on with the next cycle, the ends
     before compared as ever."""
     amplitude = check_cycles(amplitude, cycles)
-    largest = check_steps(step, max_step, tol, amplitude)
+    largest = check_steps(step, max_step, tol, amplitude, opens_at_once(model))
     run = _Shear.of(start, model, mode, amplitude, minimizer, wall_layer, same)
     if checkpoint is None:
         branch = [run.first(start, 0.0)]
