@@ -75,7 +75,7 @@ APPROACH = 0.5
 """Between events a step goes at most this fraction of the way to the extrapolated end of the
 branch."""
 MAX_TRIALS = 100
-"""Trials at most to locate one event."""
+"""Trials at most to locate one event, or one opening of a contact, without progress."""
 STALE = 4.0
 """The state past the end of a branch is reached again from the bracket's lower end once the
 bracket is this many times narrower than the step that reached it: a long step's relaxation may
@@ -610,11 +610,11 @@ def _locate(
         if ahead == width:  # reached again from within the bracket
             above.pop()
             widths, trials = [], 0
-        opened = run.crossing(lo, state) is not None
-        if on and (ahead <= tol or not opened):
+        opens = run.crossing(lo, state) is not None
+        if on and (ahead <= tol or not opens):
             branch.append(state)
-            missed = kind == "across" and not opened
-            trials = 0 if kind == "across" and opened else trials
+            missed = kind == "across" and not opens
+            trials = 0 if kind == "across" and opens else trials
             if not above:
                 return None
         else:
