@@ -38,7 +38,7 @@ import numpy as np
 from athermal.analysis.fitting import fit_power_law
 from athermal.errors import InputError
 from athermal.model.contact import ContactModel
-from athermal.protocols.events import LONGEST, opens_at_once
+from athermal.protocols.events import default_max_step, opens_at_once
 from athermal.studies import plot
 from athermal.studies.avalanches import EventsSpec, pooled_drops
 from athermal.studies.ensemble import run_ensemble
@@ -276,8 +276,7 @@ def main() -> None:
     parser.add_argument("--figure-dir", type=Path, default=ROOT / "docs" / "figures")
     args = parser.parse_args()
     if args.max_step is None:  # the library's default, named in the folders and tables
-        grows = opens_at_once(ContactModel(args.alpha))
-        args.max_step = LONGEST * args.step if grows else args.step
+        args.max_step = default_max_step(args.step, opens_at_once(ContactModel(args.alpha)))
     pin(args.core)
     args.figure_dir.mkdir(parents=True, exist_ok=True)
     if args.yielding:

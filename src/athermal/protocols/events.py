@@ -358,7 +358,7 @@ class _Shear:
         width = hi.strain - lo.strain
         fraction = at[opened] / (at[opened] - after[opened])
         if below is not None:
-            ahead = self._ahead(lo, below)[opened] * (lo.strain - below.strain) / width
+            ahead = _ahead(tracked, at, below.packing)[opened] * (lo.strain - below.strain) / width
             fraction = np.where(ahead <= 1.0, ahead, fraction)
         return lo.strain + float(np.min(fraction)) * width
 
@@ -369,21 +369,11 @@ class _Shear:
         at once (:meth:`crossing`)."""
         if not self.openings or below is None:
             return None
-        ahead = self._ahead(lo, below)
+        tracked = self.tracked(lo)
+        ahead = _ahead(tracked, tracked.overlaps_in(lo.packing), below.packing)
         if not np.isfinite(ahead).any():
             return None
         return lo.strain + float(np.min(ahead)) * (lo.strain - below.strain)
-
-    def _ahead(self, lo: BranchState, below: BranchState) -> NDArray[np.float64]:
-        """For each contact of ``lo``'s network (:meth:`tracked`), how many steps ``below ->
-        lo`` ahead of ``lo`` its overlap reaches zero, extrapolated linearly; infinity where it
-        does not fall."""
-        tracked = self.tracked(lo)
-        at, before = tracked.overlaps_in(lo.packing), tracked.overlaps_in(below.packing)
-        falling = before > at
-        ahead = np.full(at.size, np.inf)
-        ahead[falling] = at[falling] / (before[falling] - at[falling])
-        return ahead
 
     def same(self, packing: Packing, base: BranchState) -> bool:
         """Whether ``packing`` is ``base``'s minimum (:data:`SAME_STATE`): its particles that are
@@ -433,11 +423,28 @@ def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
     return b.strain + direction * coarse(line)  # LAPACK's fit: the same on every machine
 
 
+def _ahead(contacts: Contacts, at: NDArray[np.float64], below: Packing) -> NDArray[np.float64]:
+    """For each of ``contacts``, whose overlaps are ``at`` now, how many steps from ``below``
+    (the packing a step before) ahead its overlap reaches zero, extrapolated linearly;
+    infinity where it does not fall."""
+    before = contacts.overlaps_in(below)
+    falling = before > at
+    ahead = np.full(at.size, np.inf)
+    ahead[falling] = at[falling] / (before[falling] - at[falling])
+    return ahead
+
+
 def opens_at_once(model: ContactModel) -> bool:
     """Whether a contact that opens takes its stiffness from the Hessian at once (a law with
     stiffness at zero overlap, as Hooke's): a branch can then end where a contact opens, with
     no eigenvalue falling toward it."""
     return bool(model.law.stiffness(np.zeros(1), 1.0)[0] > 0.0)
+
+
+def default_max_step(step: float, grows: bool) -> float:
+    """The largest step when none is given: :data:`LONGEST` x ``step`` where the step
+    ``grows`` (:func:`opens_at_once`), else ``step``."""
+    return LONGEST * step if grows else step
 
 
 def check_steps(
@@ -447,7 +454,7 @@ def check_steps(
     ``strain``) after the settings' checks: ``tol < step <= max_step <= strain``, each > 0."""
     step = positive_scalar(step, "step")
     tol = positive_scalar(tol, "tol")
-    longest = LONGEST * step if grows else step
+    longest = default_max_step(step, grows)
     largest = min(longest, strain) if max_step is None else positive_scalar(max_step, "max_step")
     if not tol < step <= largest <= strain:
         raise InputError(
@@ -593,14 +600,19 @@ def _locate(
             event = _event(run, branch, top.state, run.events, run.relaxations - start, direction)
             run.events += 1
             return event
-        if not top.off and run.crossing(lo, top.state) is None:  # no contact opens before it
-            branch.append(top.state)
-            above.pop()
-            widths, trials = [], 0
-            if not above:
-                return None
-            continue
-        ahead, kind = _trial(run, branch, top, width, tol, direction)
+        below = branch[-2] if len(branch) > 1 else None
+        if top.off:
+            opens = run.opening(lo, below)
+        else:
+            opens = run.crossing(lo, top.state, below)
+            if opens is None:  # no contact of lo's opens before it: it is on the branch
+                branch.append(top.state)
+                above.pop()
+                widths, trials = [], 0
+                if not above:
+                    return None
+                continue
+        ahead, kind = _trial(branch, top, width, tol, direction, opens)
         if (kind == "across" and missed) or (
             kind != "again" and len(widths) >= 2 and width > 0.5 * widths[-2]
         ):
@@ -610,11 +622,11 @@ def _locate(
         if ahead == width:  # reached again from within the bracket
             above.pop()
             widths, trials = [], 0
-        opens = run.crossing(lo, state) is not None
-        if on and (ahead <= tol or not opens):
+        opened = run.crossing(lo, state) is not None
+        if on and (ahead <= tol or not opened):
             branch.append(state)
-            missed = kind == "across" and not opens
-            trials = 0 if kind == "across" and opens else trials
+            missed = kind == "across" and not opened
+            trials = 0 if kind == "across" and opened else trials
             if not above:
                 return None
         else:
@@ -626,30 +638,28 @@ def _locate(
 
 
 def _trial(
-    run: _Shear,
     branch: list[BranchState],
     top: _Above,
     width: float,
     tol: float,
     direction: float,
+    opens: float | None,
 ) -> tuple[float, str]:
     """How far past the branch's last state to try toward ``top``, ``width`` ahead, and the
     kind of trial: all the way (``"again"``) when ``top`` is off the branch and must be reached
     again from the bracket (:data:`STALE`); else short of the nearer of the predicted ends
     inside the bracket (``"aim"``), ``lambda_min^2`` extrapolated to zero (short by a tenth of
     the way, or just past it within ``tol``) and the next contact to open (short by ``0.4 tol``,
-    or across it by a step of ``tol``: ``"across"``); halfway (``"half"``) when neither lies
-    inside."""
+    or across it by a step of ``tol``: ``"across"``; ``opens``, :meth:`_Shear.opening` or
+    :meth:`_Shear.crossing`); halfway (``"half"``) when neither lies inside."""
     lo = branch[-1]
     if top.off and (width <= tol or direction * (top.state.strain - top.origin) > STALE * width):
         return width, "again"
-    below = branch[-2] if len(branch) > 1 else None
     aims = []
     end = direction * (_end_of_branch(branch, direction) - lo.strain)
     if 0.0 < end < width:
         ahead = end - max(0.1 * end, 0.3 * tol) if end > tol else end + 0.4 * tol
         aims.append((min(max(ahead, 0.1 * tol), width - 0.1 * tol), "aim"))
-    opens = run.opening(lo, below) if top.off else run.crossing(lo, top.state, below)
     if opens is not None and 0.0 <= direction * (opens - lo.strain) < width:
         ahead = direction * (opens - lo.strain)
         ahead -= max(0.1 * ahead if top.off else 0.0, 0.4 * tol)
