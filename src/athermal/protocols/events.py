@@ -53,6 +53,7 @@ from .._validate import positive_scalar
 from ..analysis.modes import lowest_eigenpairs
 from ..analysis.moduli import DENSE_EIGEN_DOFS, nonrattler_contacts, nonrattler_hessian
 from ..errors import ConvergenceError, InputError
+from ..linalg import cholesky
 from ..model.contact import ContactModel, Contacts
 from ..model.objective import Objective
 from ..model.packing import Packing
@@ -188,13 +189,7 @@ def _soft_mode(
     """:func:`soft_mode`'s eigenvalue and mode from the network's ``contacts`` and ``rattler``
     mask."""
     dim = packing.dim
-    h, dofs = nonrattler_hessian(contacts, rattler, dim)
-    translations = 0
-    if frozen is not None:  # the held particles pin the rest
-        free = np.flatnonzero(~frozen[dofs // dim])
-        h, dofs = h[free][:, free].tocsr(), dofs[free]
-    else:
-        translations = packing.cell.periodic_axes
+    h, dofs, translations = _free_hessian(packing, contacts, rattler, frozen)
     if dofs.size <= translations:  # no contact network (unjammed): nothing is stiff
         return float("inf"), np.zeros((packing.n, dim))
     values, vectors = _lowest(h, translations + 1)
@@ -214,6 +209,65 @@ def _soft_mode(
     if flat[np.argmax(np.abs(flat))] < 0.0:
         mode = -mode
     return float(values[0]), mode
+
+
+def _free_hessian(
+    packing: Packing,
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    frozen: NDArray[np.bool_] | None,
+) -> tuple[sp.csr_matrix, NDArray[np.intp], int]:
+    """The Hessian of the network's ``contacts`` over the coordinates of the particles that are
+    neither rattlers nor ``frozen``, their flat indices among the ``N d`` coordinates, and the
+    number of its zero modes that are translations (the periodic axes; none where particles
+    are held)."""
+    dim = packing.dim
+    h, dofs = nonrattler_hessian(contacts, rattler, dim)
+    if frozen is None:
+        return h, dofs, packing.cell.periodic_axes
+    free = np.flatnonzero(~frozen[dofs // dim])  # the held particles pin the rest
+    return h[free][:, free].tocsr(), dofs[free], 0
+
+
+def _removal(
+    packing: Packing,
+    contacts: Contacts,
+    rattler: NDArray[np.bool_],
+    frozen: NDArray[np.bool_] | None,
+    which: int,
+) -> float:
+    """``k b^T H^-1 b`` for the contact ``which`` of the network's ``contacts`` (pairs, then
+    wall contacts): ``b`` the gradient of its overlap, ``k`` the law's stiffness at zero
+    overlap, ``H`` the Hessian of the free particles that are no rattlers (the first pinned
+    along the periodic axes, which takes out the translations; ``b`` is orthogonal to them).
+    At zero force the contact's term of ``H`` is ``k b b^T``, and ``H - k b b^T`` is positive
+    definite if and only if this is below 1 (``H`` positive definite); infinity where ``H`` is
+    not."""
+    dim = packing.dim
+    h, dofs, translations = _free_hessian(packing, contacts, rattler, frozen)
+    rows = np.arange(dofs.size)
+    if translations:  # dofs holds the first live particle's coordinates first
+        periodic = [a for a in range(dim) if a not in packing.cell.walls]
+        rows = np.setdiff1d(rows, periodic)
+    b = np.zeros(packing.n * dim)
+    pairs = contacts.i.size
+    if which < pairs:
+        normal = contacts.normal[which]
+        b[contacts.i[which] * dim + np.arange(dim)] += normal
+        b[contacts.j[which] * dim + np.arange(dim)] -= normal
+        k = contacts.stiffness[which]
+    else:
+        assert contacts.walls is not None
+        wall = which - pairs
+        b[contacts.walls.particle[wall] * dim + contacts.walls.axis[wall]] = 1.0
+        k = contacts.walls.stiffness[wall]
+    factor = cholesky(h[rows][:, rows].tocsr())
+    if factor is None:
+        return float("inf")
+    column = b[dofs][rows]
+    y = factor.solve(column[:, None])[:, 0]
+    stiffness = float(contacts.law.stiffness(np.zeros(1), k)[0])
+    return stiffness * float(np.sum(column * y))
 
 
 @dataclass(frozen=True, eq=False)
@@ -339,28 +393,45 @@ class _Shear:
         return replace(kept, walls=kept.walls.subset(~held[kept.walls.particle]))
 
     def crossing(
-        self, lo: BranchState, hi: BranchState, below: BranchState | None = None
-    ) -> float | None:
+        self,
+        lo: BranchState,
+        hi: BranchState,
+        below: BranchState | None = None,
+        cleared: frozenset[Key] = frozenset(),
+    ) -> tuple[float, Key] | None:
         """Where the first contact of ``lo``'s network that is open in ``hi`` (a state on the
-        same branch) opened: extrapolated from ``below`` and ``lo`` (:meth:`opening`) where that
-        falls between ``lo`` and ``hi``, else its overlap interpolated linearly between ``lo``
-        and ``hi`` (an overlap's slope changes where another contact opens, so the states on one
-        side predict it better); None when none is open, or when an opening cannot end a branch
-        at once (the law's stiffness vanishes at zero overlap: its Hessian is continuous
-        there)."""
+        same branch) opened, and that contact (:func:`_key`): extrapolated from ``below`` and
+        ``lo`` (:meth:`opening`) where that falls between ``lo`` and ``hi``, else its overlap
+        interpolated linearly between ``lo`` and ``hi`` (an overlap's slope changes where
+        another contact opens, so the states on one side predict it better); None when none
+        is open but those ``cleared`` (their openings cannot end the branch), or when an
+        opening cannot end a branch at once (the law's stiffness vanishes at zero overlap: its
+        Hessian is continuous there)."""
         if not self.openings:
             return None
         tracked = self.tracked(lo)
         at, after = tracked.overlaps_in(lo.packing), tracked.overlaps_in(hi.packing)
-        opened = after <= 0.0
-        if not opened.any():
+        opened = np.array(
+            [c for c in np.flatnonzero(after <= 0.0).tolist() if _key(tracked, c) not in cleared],
+            dtype=np.intp,
+        )
+        if not opened.size:
             return None
         width = hi.strain - lo.strain
         fraction = at[opened] / (at[opened] - after[opened])
         if below is not None:
             ahead = _ahead(tracked, at, below.packing)[opened] * (lo.strain - below.strain) / width
             fraction = np.where(ahead <= 1.0, ahead, fraction)
-        return lo.strain + float(np.min(fraction)) * width
+        first = int(np.argmin(fraction))
+        return lo.strain + float(fraction[first]) * width, _key(tracked, int(opened[first]))
+
+    def removal(self, state: BranchState, key: Key) -> float:
+        """``k b^T H^-1 b`` at ``state`` for its network's contact ``key`` (:func:`_removal`, to
+        24 significant bits: it decides the path), infinity where ``state`` lacks it."""
+        which = _index(state.contacts, key)
+        if which is None:
+            return float("inf")
+        return coarse(_removal(state.packing, state.contacts, state.rattler, self.frozen, which))
 
     def opening(self, lo: BranchState, below: BranchState | None) -> float | None:
         """Where the first contact of ``lo``'s network opens ahead of ``lo``, its overlap
@@ -421,6 +492,38 @@ def _end_of_branch(states: list[BranchState], direction: float = 1.0) -> float:
         real = [r.real for r in roots if abs(r.imag) <= 1e-12 * abs(r.real) and r.real > 0.0]
         line = min(real) if real else line
     return b.strain + direction * coarse(line)  # LAPACK's fit: the same on every machine
+
+
+Key = tuple[int, int, int]
+"""A contact by its particles: ``(0, i, j)`` with ``i < j`` for a pair, ``(1, particle, 2 axis +
+(1 at the lower wall))`` for a wall contact."""
+
+
+def _key(contacts: Contacts, which: int) -> Key:
+    """The :data:`Key` of ``contacts``' contact ``which`` (pairs, then wall contacts)."""
+    pairs = contacts.i.size
+    if which < pairs:
+        i, j = int(contacts.i[which]), int(contacts.j[which])
+        return (0, min(i, j), max(i, j))
+    assert contacts.walls is not None
+    wall = which - pairs
+    lower = int(contacts.walls.side[wall] > 0.0)
+    return (1, int(contacts.walls.particle[wall]), 2 * int(contacts.walls.axis[wall]) + lower)
+
+
+def _index(contacts: Contacts, key: Key) -> int | None:
+    """Where the contact ``key`` is among ``contacts`` (pairs, then wall contacts), or None."""
+    kind, a, b = key
+    if kind == 0:
+        low, high = np.minimum(contacts.i, contacts.j), np.maximum(contacts.i, contacts.j)
+        found = np.flatnonzero((low == a) & (high == b))
+        return int(found[0]) if found.size else None
+    if contacts.walls is None:
+        return None
+    walls = contacts.walls
+    code = 2 * walls.axis + (walls.side > 0.0)
+    found = np.flatnonzero((walls.particle == a) & (code == b))
+    return contacts.i.size + int(found[0]) if found.size else None
 
 
 def _ahead(contacts: Contacts, at: NDArray[np.float64], below: Packing) -> NDArray[np.float64]:
@@ -588,15 +691,23 @@ def _locate(
     end, once the bracket is :data:`STALE` times narrower than that step and when it is
     narrower than ``tol``."""
     start = run.relaxations
-    above = [_Above(past, branch[-1].strain, not opened)]
-    widths: list[float] = []  # the bracket before each trial, since a state above was left
+    lo = branch[-1]
+    above = [_Above(past, lo.strain, not opened)]
+    gaps: list[float] = []  # each trial's distance to its target, since the last progress
+    predicted: float | None = None  # the last trial's predicted opening
     missed = False  # whether the last step across a predicted opening opened nothing
     trials = 0  # since the last progress: a state above left behind, or an opening crossed
+    cleared: set[Key] = set()  # the contact whose opening, the next ahead of lo, cannot end
+    # the branch (one: an opening changes the removals of the others)
+    tested: dict[Key, tuple[float, float]] = {}  # each one's last strain tested and removal
     while trials < MAX_TRIALS:
         trials += 1
+        if branch[-1] is not lo:  # an opening of another contact changes the removals
+            cleared = set()
         lo, top = branch[-1], above[-1]
         width = direction * (top.state.strain - lo.strain)
-        if top.off and width <= tol and direction * (top.state.strain - top.origin) <= tol:
+        reached = direction * (top.state.strain - top.origin)
+        if top.off and _within(width, tol, lo.strain) and _within(reached, tol, lo.strain):
             event = _event(run, branch, top.state, run.events, run.relaxations - start, direction)
             run.events += 1
             return event
@@ -604,29 +715,37 @@ def _locate(
         if top.off:
             opens = run.opening(lo, below)
         else:
-            opens = run.crossing(lo, top.state, below)
-            if opens is None:  # no contact of lo's opens before it: it is on the branch
+            found = run.crossing(lo, top.state, below, frozenset(cleared))
+            if found is None:  # no contact of lo's opens before it: it is on the branch
                 branch.append(top.state)
                 above.pop()
-                widths, trials = [], 0
+                gaps, trials = [], 0
                 if not above:
                     return None
                 continue
-        ahead, kind = _trial(branch, top, width, tol, direction, opens)
+            opens, key = found
+            if not cleared and _harmless(run, lo, key, opens, direction, tested):
+                cleared.add(key)  # the next one is tested past this opening
+                trials = 0
+                continue
+        shift = None if opens is None or predicted is None else abs(opens - predicted)
+        ahead, kind, gap = _trial(branch, top, width, tol, direction, opens, shift)
         if (kind == "across" and missed) or (
-            kind != "again" and len(widths) >= 2 and width > 0.5 * widths[-2]
+            kind != "again" and len(gaps) >= 2 and gap > 0.5 * gaps[-2]
         ):
-            ahead, kind = 0.5 * width, "half"  # the predictions fail: bisect
-        widths.append(width)
+            ahead, kind, gap = 0.5 * width, "half", width  # the predictions fail: bisect
+        gaps.append(gap)
+        predicted = opens
         state, on = run.advance(lo, lo.strain + direction * ahead)
         if ahead == width:  # reached again from within the bracket
             above.pop()
-            widths, trials = [], 0
-        opened = run.crossing(lo, state) is not None
+            gaps, trials = [], 0
+        opened = run.crossing(lo, state, cleared=frozenset(cleared)) is not None
         if on and (ahead <= tol or not opened):
             branch.append(state)
             missed = kind == "across" and not opened
-            trials = 0 if kind == "across" and opened else trials
+            if kind == "across" and opened:  # progress: the next opening is the target
+                gaps, trials, predicted = [], 0, None
             if not above:
                 return None
         else:
@@ -637,6 +756,35 @@ def _locate(
     )
 
 
+def _harmless(
+    run: _Shear,
+    lo: BranchState,
+    key: Key,
+    opens: float,
+    direction: float,
+    tested: dict[Key, tuple[float, float]],
+) -> bool:
+    """Whether the contact ``key`` of ``lo``'s network, predicted to open at the strain
+    ``opens``, cannot end the branch there: its removal (:meth:`_Shear.removal`) is below 1 at
+    ``lo`` and extrapolated to ``opens`` from the last state where it was evaluated
+    (``tested``, updated), linearly, no farther ahead than the two states lie apart, and only
+    where it rises. Between the two states and the opening no contact of the network opens
+    (``key`` opens first), so the removal changes smoothly there, or falls where a contact
+    closes."""
+    previous = tested.get(key)
+    if previous is not None and previous[0] == lo.strain:
+        return False
+    value = run.removal(lo, key)
+    tested[key] = (lo.strain, value)
+    if previous is None or not value < 1.0:
+        return False
+    strain, before = previous
+    span, left = direction * (lo.strain - strain), direction * (opens - lo.strain)
+    if not 0.0 <= left <= span:
+        return False
+    return value + max(value - before, 0.0) * left / span < 1.0
+
+
 def _trial(
     branch: list[BranchState],
     top: _Above,
@@ -644,27 +792,44 @@ def _trial(
     tol: float,
     direction: float,
     opens: float | None,
-) -> tuple[float, str]:
-    """How far past the branch's last state to try toward ``top``, ``width`` ahead, and the
-    kind of trial: all the way (``"again"``) when ``top`` is off the branch and must be reached
-    again from the bracket (:data:`STALE`); else short of the nearer of the predicted ends
-    inside the bracket (``"aim"``), ``lambda_min^2`` extrapolated to zero (short by a tenth of
-    the way, or just past it within ``tol``) and the next contact to open (short by ``0.4 tol``,
-    or across it by a step of ``tol``: ``"across"``; ``opens``, :meth:`_Shear.opening` or
-    :meth:`_Shear.crossing`); halfway (``"half"``) when neither lies inside."""
+    shift: float | None = None,
+) -> tuple[float, str, float]:
+    """How far past the branch's last state to try toward ``top``, ``width`` ahead, the kind
+    of trial and the distance to its target: all the way (``"again"``) when ``top`` is off the
+    branch and must be reached again from the bracket (:data:`STALE`); else short of the nearer
+    of the predicted ends inside the bracket (``"aim"``), ``lambda_min^2`` extrapolated to zero
+    (short by a tenth of the way, or just past it within ``tol``) and the next contact to open
+    (``opens``, :meth:`_Shear.opening` or :meth:`_Shear.crossing`; short by ``0.4 tol``, and
+    where ``top`` is off the branch by a tenth of the way or, when the prediction moved by
+    ``shift`` since the last trial, twice that if less; or across it by a step of ``tol``:
+    ``"across"``); halfway (``"half"``) when neither lies inside."""
     lo = branch[-1]
-    if top.off and (width <= tol or direction * (top.state.strain - top.origin) > STALE * width):
-        return width, "again"
+    if top.off and (
+        _within(width, tol, lo.strain)
+        or direction * (top.state.strain - top.origin) > STALE * width
+    ):
+        return width, "again", width
     aims = []
     end = direction * (_end_of_branch(branch, direction) - lo.strain)
     if 0.0 < end < width:
         ahead = end - max(0.1 * end, 0.3 * tol) if end > tol else end + 0.4 * tol
-        aims.append((min(max(ahead, 0.1 * tol), width - 0.1 * tol), "aim"))
+        aims.append((min(max(ahead, 0.1 * tol), width - 0.1 * tol), "aim", end))
     if opens is not None and 0.0 <= direction * (opens - lo.strain) < width:
-        ahead = direction * (opens - lo.strain)
-        ahead -= max(0.1 * ahead if top.off else 0.0, 0.4 * tol)
-        aims.append((ahead, "aim") if ahead > 0.1 * tol else (min(tol, width), "across"))
-    return min(aims) if aims else (0.5 * width, "half")
+        target = direction * (opens - lo.strain)
+        short = 0.0
+        if top.off:
+            short = 0.1 * target if shift is None else min(0.1 * target, 2.0 * shift)
+        ahead = target - max(short, 0.4 * tol)
+        aims.append(
+            (ahead, "aim", target) if ahead > 0.1 * tol else (min(tol, width), "across", target)
+        )
+    return min(aims) if aims else (0.5 * width, "half", width)
+
+
+def _within(width: float, tol: float, strain: float) -> bool:
+    """Whether a bracket ``width`` wide near ``strain`` is no wider than ``tol``, up to the
+    rounding of the strains (a few units in the last place of ``strain``)."""
+    return width <= tol + 4.0 * float(np.spacing(abs(strain)))
 
 
 def _event(
