@@ -367,13 +367,17 @@ class _Shear:
 
     def advance(self, base: BranchState, strain: float) -> tuple[BranchState, bool]:
         """The minimum reached from ``base`` strained to ``strain``, and whether it lies on
-        ``base``'s branch: strained back and relaxed, it returns to ``base``. A ``base``
-        without a contact network (unjammed: every particle a rattler) has no branch: any
-        state reached from it counts as on it (floppy AQS depends on the step)."""
-        forward, iterations = self.relax(
-            strained(base.packing, self.mode, base.strain, strain, self.layers), strain
-        )
+        ``base``'s branch: it stayed where ``base``'s minimum, strained, was (:meth:`same`: no
+        other minimum lies that close), or strained back and relaxed it returns to ``base``
+        (near the end of a branch the basin of ``base`` can be narrower than a relaxation's
+        first steps, and the return alone fails). A ``base`` without a contact network
+        (unjammed: every particle a rattler) has no branch: any state reached from it counts
+        as on it (floppy AQS depends on the step)."""
+        moved = strained(base.packing, self.mode, base.strain, strain, self.layers)
+        forward, iterations = self.relax(moved, strain)
         if base.rattler.all():
+            return self.state(forward, strain, iterations), True
+        if self.same(forward, base, moved):
             return self.state(forward, strain, iterations), True
         back, more = self.relax(
             strained(forward, self.mode, strain, base.strain, self.layers), base.strain
@@ -446,12 +450,13 @@ class _Shear:
             return None
         return lo.strain + float(np.min(ahead)) * (lo.strain - below.strain)
 
-    def same(self, packing: Packing, base: BranchState) -> bool:
+    def same(self, packing: Packing, base: BranchState, where: Packing | None = None) -> bool:
         """Whether ``packing`` is ``base``'s minimum (:data:`SAME_STATE`): its particles that are
-        no rattlers in ``base`` in their places, or all of them where ``base`` has no contact
-        network (unjammed)."""
+        no rattlers in ``base`` in their places (``where``: ``base``'s packing, or it strained
+        to ``packing``'s strain), or all of them where ``base`` has no contact network
+        (unjammed)."""
         live = ~base.rattler if (~base.rattler).any() else np.ones(base.packing.n, dtype=bool)
-        delta = self.displacement(base.packing, packing, live)
+        delta = self.displacement(base.packing if where is None else where, packing, live)
         diameter = 2.0 * float(np.mean(base.packing.radii))
         limit = self.same_state * diameter
         return bool(np.max(np.linalg.norm(delta, axis=1), initial=0.0) <= limit)
