@@ -11,7 +11,8 @@ once. :func:`plastic_events` follows the branches and locates each end in strain
 
 * a state is on the branch of the previous one when the packing, taken back to the previous
   strain and relaxed, returns to the previous minimum (:data:`SAME_STATE`): a state past the end
-  returns elsewhere (another basin), one before it to the same minimum;
+  returns elsewhere (another basin), one before it to the same minimum; a state that stayed
+  where the previous minimum, strained, was is on the branch without that return;
 * between events the strain step grows (x :data:`GROWTH`, up to ``max_step``; by default only
   where a contact's opening can end a branch, :data:`LONGEST`) and is held below
   the end of the branch extrapolated from ``lambda_min^2``, linear in ``gamma_c - gamma`` near
@@ -21,7 +22,10 @@ once. :func:`plastic_events` follows the branches and locates each end in strain
   lies within one step would pass the return test: the branch ends and comes back inside the
   step. So a step over which a contact of the network opened is narrowed like an event, until
   the opening is crossed by a step no wider than ``tol``: every loop wider than ``tol`` is
-  seen (``docs/decisions.md``, "Events a long step misses");
+  seen (``docs/decisions.md``, "Events a long step misses"). An opening whose contact's removal
+  leaves the Hessian positive definite cannot end the branch (``k b^T H^-1 b < 1`` at zero
+  force, :func:`_removal`, extrapolated to the opening from the trials short of it) and is
+  crossed without narrowing;
 * the bracket shrinks by trials short of the predicted end (``lambda_min^2`` extrapolated to
   zero, or the next contact to open, its overlap extrapolated from the states before) and then
   just past it, or by bisection where no end is predicted inside it or the predictions fail,
