@@ -145,6 +145,43 @@ def test_the_events_ensemble_writes_its_statistics_and_resumes(tmp_path, capsys)
     assert again["computed"] == [] and again["summary"]["avalanches"] == stats
 
 
+def test_a_killed_events_run_goes_on_from_its_last_event(tmp_path, monkeypatch):
+    """A realization's AQS run saves its state after each event: killed after its second event
+    (here: interrupted as the generator resumes), it goes on from there to the same events, to
+    the bit, as a run never stopped; the file of another start is refused."""
+    import athermal.studies.avalanches as avalanches
+    from athermal import ContactModel, jam, random_packing
+    from athermal.protocols.events import PlasticEvent
+
+    harmonic = ContactModel(2.0)
+    jammed = jam(random_packing(32, 0.8, seed=1), harmonic)
+    start = jammed.packing.at_phi(jammed.phi_c + 0.02)
+    spec = EventsSpec(delta_phi=0.02, strain=0.05, transient=0.0, step=1e-3)
+    whole = avalanches.shear_events(start, harmonic, spec)
+    assert len(whole.events) >= 3
+    saved = tmp_path / "run.events.json"
+    original = avalanches.plastic_events
+
+    def killed(*args, **kwargs):
+        seen = 0
+        for item in original(*args, **kwargs):
+            yield item
+            seen += isinstance(item, PlasticEvent)
+            if seen == 2:
+                raise KeyboardInterrupt
+
+    monkeypatch.setattr(avalanches, "plastic_events", killed)
+    with pytest.raises(KeyboardInterrupt):
+        avalanches.shear_events(start, harmonic, spec, saved, identity=7.0)
+    assert len(json.loads(saved.read_text())["events"]) == 2
+    monkeypatch.setattr(avalanches, "plastic_events", original)
+    resumed = avalanches.shear_events(start, harmonic, spec, saved, identity=7.0)
+    assert resumed.events == whole.events
+    assert (resumed.states, resumed.strain) == (whole.states, whole.strain)
+    with pytest.raises(InputError, match="saved by another run"):
+        avalanches.shear_events(start.at_phi(jammed.phi_c + 0.03), harmonic, spec, saved, 7.0)
+
+
 def test_the_cycles_ensemble_reports_the_limit_cycles(tmp_path, capsys):
     out = tmp_path / "ens"
     main(

@@ -11,9 +11,11 @@ and :func:`~athermal.protocols.events.cyclic_shear` do.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import asdict, dataclass, field
 from itertools import pairwise
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,11 +23,14 @@ import numpy as np
 from .._validate import choice, positive_scalar
 from ..analysis.avalanches import log_binned, power_law_tail
 from ..analysis.fitting import sample_stats
-from ..errors import InputError
+from ..atomic import write_text
+from ..errors import FileFormatError, InputError
+from ..model.cell import Cell
 from ..model.contact import ContactModel
 from ..model.packing import Packing
 from ..protocols.events import (
     EVENT_TOL,
+    Checkpoint,
     CycleEnd,
     PlasticEvent,
     check_cycles,
@@ -36,6 +41,7 @@ from ..protocols.events import (
 )
 from ..protocols.shear import SHEAR_MODES, ShearMode
 from ..relaxation import Minimizer
+from .checkpoint import fingerprint
 
 EVENT_COLUMNS = ("strain", "tau_before", "stress_drop", "energy_drop", "moved", "saddle_node")
 """What a realization keeps of each event."""
@@ -112,10 +118,28 @@ def start_of(packing: Packing, phi_c: float, spec: EventsSpec) -> Packing:
     return packing.at_phi(phi_c + spec.delta_phi)
 
 
-def shear_events(start: Packing, model: ContactModel, spec: EventsSpec) -> EventsRecord:
-    """The :class:`EventsRecord` of ``start`` sheared as ``spec`` says."""
+def shear_events(
+    start: Packing,
+    model: ContactModel,
+    spec: EventsSpec,
+    saved: Path | None = None,
+    identity: float = 0.0,
+) -> EventsRecord:
+    """The :class:`EventsRecord` of ``start`` sheared as ``spec`` says. With ``saved`` (a JSON
+    file), the state just after each event and the record so far are written there
+    (atomically, with the run's ``identity`` and ``start``'s fingerprint), and a run that finds
+    the file goes on from its last event, to the same events as a run never stopped; a file of
+    another run is refused (:class:`~athermal.errors.InputError`)."""
     t0 = time.perf_counter()
-    states, events, reached = 0, [], 0.0
+    so_far = None if saved is None else _saved(saved, start, identity)
+    states, events, reached, seconds = 0, [], 0.0, 0.0
+    checkpoint = None
+    if so_far is not None:
+        states, events = so_far["states"], so_far["events"]
+        reached, seconds = so_far["strain"], so_far["seconds"]
+        cell = Cell(np.array(so_far["h"]), start.cell.walls)
+        after = Packing(np.array(so_far["positions"]), start.radii, cell)
+        checkpoint = Checkpoint(after, reached, len(events))
     for item in plastic_events(
         start,
         model,
@@ -125,10 +149,23 @@ def shear_events(start: Packing, model: ContactModel, spec: EventsSpec) -> Event
         max_step=spec.max_step,
         tol=spec.tol,
         minimizer=spec.minimizer,
+        checkpoint=checkpoint,
     ):
         if isinstance(item, PlasticEvent):
             row = item.row()
             events.append({k: float(row[k]) for k in EVENT_COLUMNS})
+            if saved is not None:  # the state after it is counted on resuming, not yielded
+                record = {
+                    "identity": identity,
+                    "start": fingerprint(start),
+                    "strain": item.after.strain,
+                    "positions": item.after.packing.positions.tolist(),
+                    "h": item.after.packing.cell.h.tolist(),
+                    "states": states + 1,
+                    "events": events,
+                    "seconds": seconds + time.perf_counter() - t0,
+                }
+                write_text(saved, json.dumps(record) + "\n")
         else:
             states, reached = states + 1, item.strain
     diameter = 2.0 * float(np.mean(start.radii))
@@ -138,10 +175,26 @@ def shear_events(start: Packing, model: ContactModel, spec: EventsSpec) -> Event
         reached,
         states,
         tuple(events),
-        time.perf_counter() - t0,
+        seconds + time.perf_counter() - t0,
         energy,
         energy / diameter**start.dim,
     )
+
+
+def _saved(path: Path, start: Packing, identity: float) -> dict[str, Any] | None:
+    """The record that :func:`shear_events` saved at ``path`` for the run ``identity`` from
+    ``start``, or None when there is none; one of another run is refused."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None
+    try:
+        record: dict[str, Any] = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise FileFormatError(f"{path}: not a saved AQS run ({exc.msg})") from None
+    if record.get("identity") != identity or record.get("start") != fingerprint(start):
+        raise InputError(f"{path}: saved by another run (other settings or start)")
+    return record
 
 
 def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> CyclesRecord:

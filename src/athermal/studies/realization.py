@@ -246,14 +246,17 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -> Realization:
     """Run realization ``index`` (its ``seed``) of ``spec`` into ``directory``; return its result.
 
-    The jamming trajectory is a checkpoint: a retried realization continues it.
+    The jamming trajectory is a checkpoint: a retried realization continues it; so is the AQS
+    run of ``events`` from its last event (``realization-NNNN.events.json``, removed once the
+    realization's result is written).
     """
     t0 = time.perf_counter()
     stem = Path(directory) / f"realization-{index:04d}"
     model = spec.jam.model
+    identity = run_id("realization", {**spec.parameters(), "index": index, "seed": seed})
     trajectory = Trajectory(
         f"{stem}.gsd",
-        run_id("realization", {**spec.parameters(), "index": index, "seed": seed}),
+        identity,
         model=model,
         seed=seed,
         resume=True,
@@ -280,7 +283,8 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
     elif spec.protocol in ("events", "cycles"):
         start = start_of(jammed.packing, jammed.phi_c, spec.events)
         if spec.protocol == "events":
-            sections["events"] = shear_events(start, model, spec.events)
+            saved = Path(f"{stem}.events.json")
+            sections["events"] = shear_events(start, model, spec.events, saved, identity)
         else:
             sections["cycles"] = shear_cycles(start, model, spec.events)
     sections["forces"] = ForceRecord.of(force_statistics(jammed.packing, model))
@@ -304,4 +308,5 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         **sections,
     )
     write_json(Path(f"{stem}.json"), result.to_json())
+    Path(f"{stem}.events.json").unlink(missing_ok=True)  # its record is in the result
     return result
