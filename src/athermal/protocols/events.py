@@ -692,13 +692,14 @@ def _locate(
     ``branch``; None when the branch goes on through ``past``.
 
     The bracket shrinks below ``tol`` toward the nearest of the states above it, by trials aimed
-    at the predicted end (:func:`_trial`), bisection when two trials gained less than half of
-    it. An opened contact is crossed by a step no wider than ``tol``: a branch that ends there
-    and comes back within a wider step is seen by the return test. A state off the branch must
-    be reached from within the bracket: one reached from farther (a long step's relaxation may
-    leave the branch's basin while the branch goes on) is reached again from the bracket's lower
-    end, once the bracket is :data:`STALE` times narrower than that step and when it is
-    narrower than ``tol``."""
+    at the predicted end (:func:`_trial`), bisection when the distance to their target did not
+    halve in two trials. An opened contact is crossed by a step no wider than ``tol``: a branch
+    that ends there and comes back within a wider step is seen by the return test; unless its
+    opening cannot end the branch (:func:`_harmless`, one opening at a time). A state off the
+    branch must be reached from within the bracket: one reached from farther (a long step's
+    relaxation may leave the branch's basin while the branch goes on) is reached again from the
+    bracket's lower end, once the bracket is :data:`STALE` times narrower than that step and
+    when it is narrower than ``tol``."""
     start = run.relaxations
     lo = branch[-1]
     above = [_Above(past, lo.strain, not opened)]
