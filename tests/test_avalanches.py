@@ -147,19 +147,20 @@ def test_the_events_ensemble_writes_its_statistics_and_resumes(tmp_path, capsys)
 
 def test_a_killed_events_run_goes_on_from_its_last_event(tmp_path, monkeypatch):
     """A realization's AQS run saves its state after each event: killed after its second event
-    (here: interrupted as the generator resumes), it goes on from there to the same events, to
-    the bit, as a run never stopped; the file of another start is refused."""
+    (here: interrupted as the generator resumes), the realization run again goes on from there
+    (its jamming from its trajectory) to the same events, to the bit, as a run never stopped,
+    and removes the saved run; the saved run of another start is refused."""
     import athermal.studies.avalanches as avalanches
-    from athermal import ContactModel, jam, random_packing
+    from athermal import ContactModel, random_packing
     from athermal.protocols.events import PlasticEvent
+    from athermal.studies.experiments import JamSpec
+    from athermal.studies.realization import EnsembleSpec, run_realization
 
-    harmonic = ContactModel(2.0)
-    jammed = jam(random_packing(32, 0.8, seed=1), harmonic)
-    start = jammed.packing.at_phi(jammed.phi_c + 0.02)
-    spec = EventsSpec(delta_phi=0.02, strain=0.05, transient=0.0, step=1e-3)
-    whole = avalanches.shear_events(start, harmonic, spec)
-    assert len(whole.events) >= 3
-    saved = tmp_path / "run.events.json"
+    events = EventsSpec(delta_phi=0.02, strain=0.05, transient=0.0, step=1e-3)
+    spec = EnsembleSpec("events", jam=JamSpec(n=32), events=events)
+    (tmp_path / "whole").mkdir()
+    whole = run_realization(spec, 0, 11, str(tmp_path / "whole")).events
+    assert whole is not None and len(whole.events) >= 3
     original = avalanches.plastic_events
 
     def killed(*args, **kwargs):
@@ -170,16 +171,22 @@ def test_a_killed_events_run_goes_on_from_its_last_event(tmp_path, monkeypatch):
             if seen == 2:
                 raise KeyboardInterrupt
 
+    out = tmp_path / "killed"
+    out.mkdir()
     monkeypatch.setattr(avalanches, "plastic_events", killed)
     with pytest.raises(KeyboardInterrupt):
-        avalanches.shear_events(start, harmonic, spec, saved, identity=7.0)
+        run_realization(spec, 0, 11, str(out))
+    saved = out / "realization-0000.events.json"
     assert len(json.loads(saved.read_text())["events"]) == 2
     monkeypatch.setattr(avalanches, "plastic_events", original)
-    resumed = avalanches.shear_events(start, harmonic, spec, saved, identity=7.0)
-    assert resumed.events == whole.events
+    kept = saved.read_text()
+    resumed = run_realization(spec, 0, 11, str(out)).events
+    assert resumed is not None and resumed.events == whole.events
     assert (resumed.states, resumed.strain) == (whole.states, whole.strain)
+    assert not saved.exists()
+    saved.write_text(kept)
     with pytest.raises(InputError, match="saved by another run"):
-        avalanches.shear_events(start.at_phi(jammed.phi_c + 0.03), harmonic, spec, saved, 7.0)
+        avalanches.shear_events(random_packing(32, 0.85, seed=2), ContactModel(), events, saved)
 
 
 def test_the_cycles_ensemble_reports_the_limit_cycles(tmp_path, capsys):
