@@ -322,7 +322,7 @@ def stability(
         return Stability(True, None, None, 0.0)
     pinned = h
     if frozen is None:
-        keep = _unpinned(dofs.size, dim, packing.cell.walls)
+        keep = unpinned(dofs.size, dim, packing.cell.walls)
         pinned = h[keep][:, keep]
     shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
     test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
@@ -424,7 +424,7 @@ def pinned_solve(
     live = np.flatnonzero(~rattler)
     if live.size <= 1:
         return y, 0.0, "none"
-    dofs = (live[:, None] * dim + np.arange(dim)).ravel()[_unpinned(live.size * dim, dim, walls)]
+    dofs = (live[:, None] * dim + np.arange(dim)).ravel()[unpinned(live.size * dim, dim, walls)]
     b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
     h = hessian(contacts, n)[dofs][:, dofs].tocsr()
     y[dofs], residual, solver = _solve(h, b, iterative)
@@ -440,7 +440,7 @@ def _untilting(packing: Packing, d: NDArray[np.float64], name: str) -> NDArray[n
     return d
 
 
-def _unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:
+def unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:
     """The rows ``(size - t,)`` of ``size`` flat coordinates left when the first particle is
     pinned along the ``t`` periodic axes (those not in ``walls``)."""
     periodic = [a for a in range(dim) if a not in walls]

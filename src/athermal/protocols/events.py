@@ -55,7 +55,12 @@ from .._portable import coarse
 from .._records import Value, as_row
 from .._validate import positive_scalar
 from ..analysis.modes import lowest_eigenpairs
-from ..analysis.moduli import DENSE_EIGEN_DOFS, nonrattler_contacts, nonrattler_hessian
+from ..analysis.moduli import (
+    DENSE_EIGEN_DOFS,
+    nonrattler_contacts,
+    nonrattler_hessian,
+    unpinned,
+)
 from ..errors import ConvergenceError, InputError
 from ..linalg import cholesky
 from ..model.contact import ContactModel, Contacts
@@ -251,8 +256,7 @@ def _removal(
     h, dofs, translations = _free_hessian(packing, contacts, rattler, frozen)
     rows = np.arange(dofs.size)
     if translations:  # dofs holds the first live particle's coordinates first
-        periodic = [a for a in range(dim) if a not in packing.cell.walls]
-        rows = np.setdiff1d(rows, periodic)
+        rows = unpinned(dofs.size, dim, packing.cell.walls)
     b = np.zeros(packing.n * dim)
     pairs = contacts.i.size
     if which < pairs:
@@ -405,14 +409,14 @@ class _Shear:
         lo: BranchState,
         hi: BranchState,
         below: BranchState | None = None,
-        cleared: frozenset[Key] = frozenset(),
+        cleared: Key | None = None,
     ) -> tuple[float, Key] | None:
         """Where the first contact of ``lo``'s network that is open in ``hi`` (a state on the
         same branch) opened, and that contact (:func:`_key`): extrapolated from ``below`` and
         ``lo`` (:meth:`opening`) where that falls between ``lo`` and ``hi``, else its overlap
         interpolated linearly between ``lo`` and ``hi`` (an overlap's slope changes where
         another contact opens, so the states on one side predict it better); None when none
-        is open but those ``cleared`` (their openings cannot end the branch), or when an
+        is open but the one ``cleared`` (its opening cannot end the branch), or when an
         opening cannot end a branch at once (the law's stiffness vanishes at zero overlap: its
         Hessian is continuous there)."""
         if not self.openings:
@@ -420,7 +424,7 @@ class _Shear:
         tracked = self.tracked(lo)
         at, after = tracked.overlaps_in(lo.packing), tracked.overlaps_in(hi.packing)
         opened = np.array(
-            [c for c in np.flatnonzero(after <= 0.0).tolist() if _key(tracked, c) not in cleared],
+            [c for c in np.flatnonzero(after <= 0.0).tolist() if _key(tracked, c) != cleared],
             dtype=np.intp,
         )
         if not opened.size:
@@ -707,13 +711,13 @@ def _locate(
     predicted: float | None = None  # the last trial's predicted opening
     missed = False  # whether the last step across a predicted opening opened nothing
     trials = 0  # since the last progress: a state above left behind, or an opening crossed
-    cleared: set[Key] = set()  # the contact whose opening, the next ahead of lo, cannot end
+    cleared: Key | None = None  # the contact whose opening, the next ahead of lo, cannot end
     # the branch (one: an opening changes the removals of the others)
     tested: dict[Key, tuple[float, float]] = {}  # each one's last strain tested and removal
     while trials < MAX_TRIALS:
         trials += 1
         if branch[-1] is not lo:  # an opening of another contact changes the removals
-            cleared = set()
+            cleared = None
         lo, top = branch[-1], above[-1]
         width = direction * (top.state.strain - lo.strain)
         reached = direction * (top.state.strain - top.origin)
@@ -725,7 +729,7 @@ def _locate(
         if top.off:
             opens = run.opening(lo, below)
         else:
-            found = run.crossing(lo, top.state, below, frozenset(cleared))
+            found = run.crossing(lo, top.state, below, cleared)
             if found is None:  # no contact of lo's opens before it: it is on the branch
                 branch.append(top.state)
                 above.pop()
@@ -734,8 +738,8 @@ def _locate(
                     return None
                 continue
             opens, key = found
-            if not cleared and _harmless(run, lo, key, opens, direction, tested):
-                cleared.add(key)  # the next one is tested past this opening
+            if cleared is None and _harmless(run, lo, key, opens, direction, tested):
+                cleared = key  # the next one is tested past this opening
                 trials = 0
                 continue
         shift = None if opens is None or predicted is None else abs(opens - predicted)
@@ -750,7 +754,7 @@ def _locate(
         if ahead == width:  # reached again from within the bracket
             above.pop()
             gaps, trials = [], 0
-        opened = run.crossing(lo, state, cleared=frozenset(cleared)) is not None
+        opened = run.crossing(lo, state, cleared=cleared) is not None
         if on and (ahead <= tol or not opened):
             branch.append(state)
             missed = kind == "across" and not opened
