@@ -9,6 +9,7 @@ import pytest
 
 from athermal import ContactModel, jam, random_packing
 from athermal.analysis.moduli import stability
+from athermal.analysis.network import NetworkHessian
 from athermal.errors import InputError
 from athermal.model.contact import hessian
 from athermal.protocols.events import (
@@ -16,7 +17,6 @@ from athermal.protocols.events import (
     CycleEnd,
     LimitCycle,
     PlasticEvent,
-    _removal,
     _Shear,
     cyclic_shear,
     limit_cycle,
@@ -276,6 +276,7 @@ def test_a_contact_opens_without_ending_the_branch_when_its_removal_is_below_one
     pairs = contacts.i.size
     walls = 0 if contacts.walls is None else contacts.walls.particle.size
     assert not plane or walls > 0
+    network = NetworkHessian(state.packing, contacts, state.rattler, run.frozen)
     signs = []
     for c in range(pairs + walls):
         b = np.zeros(n * dim)
@@ -288,7 +289,7 @@ def test_a_contact_opens_without_ending_the_branch_when_its_removal_is_below_one
             b[contacts.walls.particle[w] * dim + contacts.walls.axis[w]] = 1.0
             k = contacts.walls.stiffness[w]
         values = np.linalg.eigvalsh(h - k * np.outer(b[dofs], b[dofs]))
-        q = _removal(state.packing, contacts, state.rattler, run.frozen, c)
+        q = network.removal(c)
         lowest = values[translations]
         if abs(q - 1.0) > 1e-8:
             assert (q < 1.0) == (lowest > 1e-10 * values[-1]), (c, q, lowest)

@@ -24,8 +24,8 @@ once. :func:`plastic_events` follows the branches and locates each end in strain
   the opening is crossed by a step no wider than ``tol``: every loop wider than ``tol`` is
   seen (``docs/decisions.md``, "Events a long step misses"). An opening whose contact's removal
   leaves the Hessian positive definite cannot end the branch (``k b^T H^-1 b < 1`` at zero
-  force, :func:`_removal`, extrapolated to the opening from the trials short of it) and is
-  crossed without narrowing;
+  force, :meth:`~athermal.analysis.network.NetworkHessian.removal`, extrapolated to the opening
+  from the states short of it) and is crossed without narrowing;
 * the bracket shrinks by trials short of the predicted end (``lambda_min^2`` extrapolated to
   zero, or the next contact to open, its overlap extrapolated from the states before) and then
   just past it, or by bisection where no end is predicted inside it or the predictions fail,
@@ -48,21 +48,14 @@ from dataclasses import dataclass, field, replace
 from typing import Protocol
 
 import numpy as np
-import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from .._portable import coarse
 from .._records import Value, as_row
 from .._validate import positive_scalar
-from ..analysis.modes import lowest_eigenpairs
-from ..analysis.moduli import (
-    DENSE_EIGEN_DOFS,
-    nonrattler_contacts,
-    nonrattler_hessian,
-    unpinned,
-)
+from ..analysis.moduli import nonrattler_contacts
+from ..analysis.network import NetworkHessian
 from ..errors import ConvergenceError, InputError
-from ..linalg import cholesky
 from ..model.contact import ContactModel, Contacts
 from ..model.objective import Objective
 from ..model.packing import Packing
@@ -86,6 +79,9 @@ APPROACH = 0.5
 branch."""
 MAX_TRIALS = 100
 """Trials at most to locate one event, or one opening of a contact, without progress."""
+NETWORKS = 4
+"""The network Hessians (and their factors) kept: of the last states, where the openings ahead
+are tested (:meth:`_Shear.removal`)."""
 STALE = 4.0
 """The state past the end of a branch is reached again from the bracket's lower end once the
 bracket is this many times narrower than the step that reached it: a long step's relaxation may
@@ -183,99 +179,11 @@ def soft_mode(
     """The lowest nonzero eigenvalue of the Hessian of ``packing``'s non-rattlers (the
     translations along its periodic axes skipped; with ``frozen``, those particles held), its
     unit mode ``(N, d)`` (zero on rattlers, the sign fixed by its largest component) and the
-    rattler mask ``(N,)``; infinity and a zero mode when every particle is a rattler."""
+    rattler mask ``(N,)``; infinity and a zero mode when every particle is a rattler
+    (:meth:`~athermal.analysis.network.NetworkHessian.soft_mode`)."""
     contacts, rattler = nonrattler_contacts(packing, model, frozen)
-    value, mode = _soft_mode(packing, contacts, rattler, frozen)
+    value, mode = NetworkHessian(packing, contacts, rattler, frozen).soft_mode()
     return value, mode, rattler
-
-
-def _soft_mode(
-    packing: Packing,
-    contacts: Contacts,
-    rattler: NDArray[np.bool_],
-    frozen: NDArray[np.bool_] | None,
-) -> tuple[float, NDArray[np.float64]]:
-    """:func:`soft_mode`'s eigenvalue and mode from the network's ``contacts`` and ``rattler``
-    mask."""
-    dim = packing.dim
-    h, dofs, translations = _free_hessian(packing, contacts, rattler, frozen)
-    if dofs.size <= translations:  # no contact network (unjammed): nothing is stiff
-        return float("inf"), np.zeros((packing.n, dim))
-    values, vectors = _lowest(h, translations + 1)
-    if translations:
-        axes = [a for a in range(dim) if a not in packing.cell.walls]
-        along = np.zeros((dofs.size, len(axes)))
-        for k, a in enumerate(axes):
-            along[dofs % dim == a, k] = 1.0
-        along /= np.linalg.norm(along, axis=0)
-        overlap = np.linalg.norm(along.T @ vectors, axis=0)
-        keep = np.flatnonzero(overlap < 0.5)
-        values, vectors = values[keep], vectors[:, keep]
-    mode = np.zeros((packing.n, dim))
-    mode.reshape(-1)[dofs] = vectors[:, 0]
-    mode /= np.linalg.norm(mode)
-    flat = mode.reshape(-1)
-    if flat[np.argmax(np.abs(flat))] < 0.0:
-        mode = -mode
-    return float(values[0]), mode
-
-
-def _free_hessian(
-    packing: Packing,
-    contacts: Contacts,
-    rattler: NDArray[np.bool_],
-    frozen: NDArray[np.bool_] | None,
-) -> tuple[sp.csr_matrix, NDArray[np.intp], int]:
-    """The Hessian of the network's ``contacts`` over the coordinates of the particles that are
-    neither rattlers nor ``frozen``, their flat indices among the ``N d`` coordinates, and the
-    number of its zero modes that are translations (the periodic axes; none where particles
-    are held)."""
-    dim = packing.dim
-    h, dofs = nonrattler_hessian(contacts, rattler, dim)
-    if frozen is None:
-        return h, dofs, packing.cell.periodic_axes
-    free = np.flatnonzero(~frozen[dofs // dim])  # the held particles pin the rest
-    return h[free][:, free].tocsr(), dofs[free], 0
-
-
-def _removal(
-    packing: Packing,
-    contacts: Contacts,
-    rattler: NDArray[np.bool_],
-    frozen: NDArray[np.bool_] | None,
-    which: int,
-) -> float:
-    """``k b^T H^-1 b`` for the contact ``which`` of the network's ``contacts`` (pairs, then
-    wall contacts): ``b`` the gradient of its overlap, ``k`` the law's stiffness at zero
-    overlap, ``H`` the Hessian of the free particles that are no rattlers (the first pinned
-    along the periodic axes, which takes out the translations; ``b`` is orthogonal to them).
-    At zero force the contact's term of ``H`` is ``k b b^T``, and ``H - k b b^T`` is positive
-    definite if and only if this is below 1 (``H`` positive definite); infinity where ``H`` is
-    not."""
-    dim = packing.dim
-    h, dofs, translations = _free_hessian(packing, contacts, rattler, frozen)
-    rows = np.arange(dofs.size)
-    if translations:  # dofs holds the first live particle's coordinates first
-        rows = unpinned(dofs.size, dim, packing.cell.walls)
-    b = np.zeros(packing.n * dim)
-    pairs = contacts.i.size
-    if which < pairs:
-        normal = contacts.normal[which]
-        b[contacts.i[which] * dim + np.arange(dim)] += normal
-        b[contacts.j[which] * dim + np.arange(dim)] -= normal
-        k = contacts.stiffness[which]
-    else:
-        assert contacts.walls is not None
-        wall = which - pairs
-        b[contacts.walls.particle[wall] * dim + contacts.walls.axis[wall]] = 1.0
-        k = contacts.walls.stiffness[wall]
-    factor = cholesky(h[rows][:, rows].tocsr())
-    if factor is None:
-        return float("inf")
-    column = b[dofs][rows]
-    y = factor.solve(column[:, None])[:, 0]
-    stiffness = float(contacts.law.stiffness(np.zeros(1), k)[0])
-    return stiffness * float(np.sum(column * y))
 
 
 @dataclass(frozen=True, eq=False)
@@ -289,15 +197,6 @@ class Checkpoint:
     strain: float
     events: int
     ends: tuple[Packing, ...] = field(default=(), repr=False)
-
-
-def _lowest(h: sp.csr_matrix, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The ``k`` lowest eigenpairs of ``h``: dense up to a few hundred rows, else ARPACK in
-    shift-invert mode (:func:`~athermal.analysis.modes.lowest_eigenpairs`)."""
-    if h.shape[0] <= min(DENSE_EIGEN_DOFS, 400) or k >= h.shape[0] - 1:
-        values, vectors = np.linalg.eigh(h.toarray())
-        return values[:k], vectors[:, :k]
-    return lowest_eigenpairs(h, k)
 
 
 class _Shear:
@@ -319,6 +218,9 @@ class _Shear:
         self.openings = opens_at_once(model)
         self.relaxations = 0
         self.events = 0
+        self._networks: dict[int, tuple[BranchState, NetworkHessian]] = {}
+        """The network Hessians of the last :data:`NETWORKS` states, by the states' ids (each
+        kept with its state, so that the id is not reused)."""
 
     @classmethod
     def of(
@@ -359,8 +261,9 @@ class _Shear:
         """The :class:`BranchState` of the relaxed ``packing`` at ``strain``."""
         obs, tau = step_stress(packing, self.model, self.mode, self.layers)
         contacts, rattler = nonrattler_contacts(packing, self.model, self.frozen)
-        value, mode = _soft_mode(packing, contacts, rattler, self.frozen)
-        return BranchState(
+        network = NetworkHessian(packing, contacts, rattler, self.frozen)
+        value, mode = network.soft_mode()
+        state = BranchState(
             strain,
             packing,
             tau,
@@ -372,6 +275,18 @@ class _Shear:
             contacts,
             iterations,
         )
+        self._networks[id(state)] = (state, network)
+        while len(self._networks) > NETWORKS:
+            del self._networks[next(iter(self._networks))]
+        return state
+
+    def network(self, state: BranchState) -> NetworkHessian:
+        """The Hessian of ``state``'s network (kept for the last :data:`NETWORKS` states,
+        built again for an earlier one)."""
+        kept = self._networks.get(id(state))
+        if kept is not None and kept[0] is state:
+            return kept[1]
+        return NetworkHessian(state.packing, state.contacts, state.rattler, self.frozen)
 
     def advance(self, base: BranchState, strain: float) -> tuple[BranchState, bool]:
         """The minimum reached from ``base`` strained to ``strain``, and whether it lies on
@@ -438,12 +353,13 @@ class _Shear:
         return lo.strain + float(fraction[first]) * width, _key(tracked, int(opened[first]))
 
     def removal(self, state: BranchState, key: Key) -> float:
-        """``k b^T H^-1 b`` at ``state`` for its network's contact ``key`` (:func:`_removal`, to
-        24 significant bits: it decides the path), infinity where ``state`` lacks it."""
+        """``k b^T H^-1 b`` at ``state`` for its network's contact ``key``
+        (:meth:`~athermal.analysis.network.NetworkHessian.removal`, to 24 significant bits: it
+        decides the path), infinity where ``state`` lacks it."""
         which = _index(state.contacts, key)
         if which is None:
             return float("inf")
-        return coarse(_removal(state.packing, state.contacts, state.rattler, self.frozen, which))
+        return coarse(self.network(state).removal(which))
 
     def opening(self, lo: BranchState, below: BranchState | None) -> float | None:
         """Where the first contact of ``lo``'s network opens ahead of ``lo``, its overlap
@@ -738,7 +654,7 @@ def _locate(
                     return None
                 continue
             opens, key = found
-            if cleared is None and _harmless(run, lo, key, opens, direction, tested):
+            if cleared is None and _harmless(run, lo, below, key, opens, direction, tested):
                 cleared = key  # the next one is tested past this opening
                 trials = 0
                 continue
@@ -773,6 +689,7 @@ def _locate(
 def _harmless(
     run: _Shear,
     lo: BranchState,
+    below: BranchState | None,
     key: Key,
     opens: float,
     direction: float,
@@ -781,16 +698,18 @@ def _harmless(
     """Whether the contact ``key`` of ``lo``'s network, predicted to open at the strain
     ``opens``, cannot end the branch there: its removal (:meth:`_Shear.removal`) is below 1 at
     ``lo`` and extrapolated to ``opens`` from the last state where it was evaluated
-    (``tested``, updated), linearly, no farther ahead than the two states lie apart, and only
-    where it rises. Between the two states and the opening no contact of the network opens
-    (``key`` opens first), so the removal changes smoothly there, or falls where a contact
-    closes."""
+    (``tested``, updated), or else from ``below`` (the state before ``lo`` on its branch),
+    linearly, no farther ahead than the two states lie apart, and only where it rises. Between
+    the two states and the opening no contact of the network opens (``key`` opens first), so
+    the removal changes smoothly there, or falls where a contact closes."""
     previous = tested.get(key)
     if previous is not None and previous[0] == lo.strain:
         return False
     value = run.removal(lo, key)
     tested[key] = (lo.strain, value)
-    if previous is None or not value < 1.0:
+    if previous is None and below is not None:
+        previous = (below.strain, run.removal(below, key))
+    if previous is None or not (value < 1.0 and np.isfinite(previous[1])):
         return False
     strain, before = previous
     span, left = direction * (lo.strain - strain), direction * (opens - lo.strain)
