@@ -463,12 +463,13 @@ def _drops(ax: Axes, sizes: Mapping[str, Sequence[float]], xlabel: str) -> None:
     (:func:`~athermal.analysis.avalanches.power_law_tail`) dashed and its exponent labelled."""
     from ..analysis.avalanches import log_binned, power_law_tail
 
-    for label, values in sizes.items():
+    for k, (label, values) in enumerate(sizes.items()):
         centres, density, _ = log_binned(values)
         seen = density > 0
         fit = power_law_tail(values)
         text = label if fit is None else rf"{label}: $\tau$ = {fit.exponent:.2f} ± {fit.stderr:.2f}"
-        (line,) = ax.loglog(centres[seen], density[seen], "o", markersize=3, label=text)
+        marker = "os^Dv"[(k // 10) % 5]  # a new marker each time the ten colours come round
+        (line,) = ax.loglog(centres[seen], density[seen], marker, markersize=3, label=text)
         if fit is not None:
             s = np.logspace(np.log10(fit.s_min), np.log10(max(values)), 50)
             ax.loglog(s, fit.density(s), "--", color=line.get_color(), linewidth=1.0)
@@ -478,7 +479,7 @@ def _drops(ax: Axes, sizes: Mapping[str, Sequence[float]], xlabel: str) -> None:
     ax.set_xlabel(xlabel)
     ax.set_ylabel("probability density")
     if sizes:
-        ax.legend(fontsize="small")
+        ax.legend(fontsize="small", loc="lower left")  # below the falling densities
 
 
 def events_figure(
