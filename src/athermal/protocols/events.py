@@ -707,9 +707,11 @@ def _harmless(
         return False
     value = run.removal(lo, key)
     tested[key] = (lo.strain, value)
-    if previous is None and below is not None:
+    if not value < 1.0:
+        return False
+    if previous is None and below is not None:  # only where it matters: a factor at below
         previous = (below.strain, run.removal(below, key))
-    if previous is None or not (value < 1.0 and np.isfinite(previous[1])):
+    if previous is None or not np.isfinite(previous[1]):
         return False
     strain, before = previous
     span, left = direction * (lo.strain - strain), direction * (opens - lo.strain)
