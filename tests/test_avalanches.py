@@ -145,48 +145,95 @@ def test_the_events_ensemble_writes_its_statistics_and_resumes(tmp_path, capsys)
     assert again["computed"] == [] and again["summary"]["avalanches"] == stats
 
 
+def _killed(original, kind, after):
+    """``original`` (a generator function of the shear) interrupted once it yielded ``after``
+    items of ``kind``, as a process killed there."""
+
+    def killed(*args, **kwargs):
+        seen = 0
+        for item in original(*args, **kwargs):
+            yield item
+            seen += isinstance(item, kind)
+            if seen == after:
+                raise KeyboardInterrupt
+
+    return killed
+
+
 def test_a_killed_events_run_goes_on_from_its_last_event(tmp_path, monkeypatch):
-    """A realization's AQS run saves its state after each event: killed after its second event
-    (here: interrupted as the generator resumes), the realization run again goes on from there
-    (its jamming from its trajectory) to the same events, to the bit, as a run never stopped,
-    and removes the saved run; the saved run of another start is refused."""
-    import athermal.studies.avalanches as avalanches
+    """A realization's AQS run writes its trajectory and tables as it goes: killed after its
+    second event, the realization run again goes on from there (its jamming from its
+    trajectory) to the same events, to the bit, as a run never stopped; the files of another
+    start are refused."""
+    import athermal.studies.plasticity as plasticity
     from athermal import ContactModel, random_packing
     from athermal.protocols.events import PlasticEvent
+    from athermal.studies.avalanches import shear_events
     from athermal.studies.experiments import JamSpec
     from athermal.studies.realization import EnsembleSpec, run_realization
+    from athermal.studies.tables import read_table
 
     events = EventsSpec(delta_phi=0.02, strain=0.05, transient=0.0, step=1e-3)
     spec = EnsembleSpec("events", jam=JamSpec(n=32), events=events)
     (tmp_path / "whole").mkdir()
     whole = run_realization(spec, 0, 11, str(tmp_path / "whole")).events
     assert whole is not None and len(whole.events) >= 3
-    original = avalanches.plastic_events
-
-    def killed(*args, **kwargs):
-        seen = 0
-        for item in original(*args, **kwargs):
-            yield item
-            seen += isinstance(item, PlasticEvent)
-            if seen == 2:
-                raise KeyboardInterrupt
-
     out = tmp_path / "killed"
     out.mkdir()
-    monkeypatch.setattr(avalanches, "plastic_events", killed)
+    original = plasticity.plastic_events
+    monkeypatch.setattr(plasticity, "plastic_events", _killed(original, PlasticEvent, 2))
     with pytest.raises(KeyboardInterrupt):
         run_realization(spec, 0, 11, str(out))
-    saved = out / "realization-0000.events.json"
-    assert len(json.loads(saved.read_text())["events"]) == 2
-    monkeypatch.setattr(avalanches, "plastic_events", original)
-    kept = saved.read_text()
+    assert len(read_table(out / "realization-0000.shear.events.csv")) == 2
+    monkeypatch.setattr(plasticity, "plastic_events", original)
     resumed = run_realization(spec, 0, 11, str(out)).events
     assert resumed is not None and resumed.events == whole.events
     assert (resumed.states, resumed.strain) == (whole.states, whole.strain)
-    assert not saved.exists()
-    saved.write_text(kept)
-    with pytest.raises(InputError, match="saved by another run"):
-        avalanches.shear_events(random_packing(32, 0.85, seed=2), ContactModel(), events, saved)
+    assert resumed.seconds > 0.0
+    again = run_realization(spec, 0, 11, str(tmp_path / "whole")).events  # a finished run
+    assert again is not None and (again.events, again.states) == (whole.events, whole.states)
+    other = random_packing(32, 0.85, seed=2)
+    with pytest.raises(InputError, match="holds another run"):
+        shear_events(other, ContactModel(), events, out / "realization-0000.shear.gsd")
+
+
+def test_a_killed_cycles_run_goes_on_from_its_last_cycle(tmp_path, monkeypatch):
+    """Cyclic shear in an ensemble, killed after the first cycle's end at its second amplitude,
+    goes on from there to the limit cycles of a run never stopped."""
+    import athermal.studies.plasticity as plasticity
+    from athermal.protocols.events import CycleEnd
+    from athermal.studies.experiments import JamSpec
+    from athermal.studies.realization import EnsembleSpec, run_realization
+
+    events = EventsSpec(delta_phi=0.05, step=1e-3, amplitudes=(0.002, 0.05), cycles=3)
+    spec = EnsembleSpec("cycles", jam=JamSpec(n=32), events=events)
+    (tmp_path / "whole").mkdir()
+    whole = run_realization(spec, 0, 5, str(tmp_path / "whole")).cycles
+    out = tmp_path / "killed"
+    out.mkdir()
+    original = plasticity.cyclic_shear
+    calls = []
+
+    def second_killed(*args, **kwargs):
+        calls.append(kwargs["amplitude"])
+        if len(calls) == 2:
+            return _killed(original, CycleEnd, 1)(*args, **kwargs)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(plasticity, "cyclic_shear", second_killed)
+    with pytest.raises(KeyboardInterrupt):
+        run_realization(spec, 0, 5, str(out))
+    monkeypatch.setattr(plasticity, "cyclic_shear", original)
+    resumed = run_realization(spec, 0, 5, str(out)).cycles
+    assert whole is not None and resumed is not None
+    assert [{k: v for k, v in r.items() if k != "seconds"} for r in resumed.rows] == [
+        {k: v for k, v in r.items() if k != "seconds"} for r in whole.rows
+    ]
+    assert whole.rows[1]["cycles_run"] >= 2
+    again = run_realization(spec, 0, 5, str(tmp_path / "whole")).cycles  # finished runs
+    assert again is not None and [r["cycles_run"] for r in again.rows] == [
+        r["cycles_run"] for r in whole.rows
+    ]
 
 
 def test_the_cycles_ensemble_reports_the_limit_cycles(tmp_path, capsys):

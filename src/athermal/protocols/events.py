@@ -889,7 +889,8 @@ def cyclic_shear(
     ``same``, as :func:`plastic_events` compares states) closes a limit cycle
     (:func:`limit_cycle`); with ``stop`` the run ends there, else after ``cycles`` cycles.
     From a ``checkpoint`` (at a cycle's end) the run goes on with the next cycle, the ends
-    before compared as ever."""
+    before compared as ever (with ``stop``, not when the checkpoint's cycle closed a limit
+    cycle)."""
     amplitude = check_cycles(amplitude, cycles)
     largest = check_steps(step, max_step, tol, amplitude, opens_at_once(model))
     run = _Shear.of(start, model, mode, amplitude, minimizer, wall_layer, same)
@@ -902,6 +903,9 @@ def cyclic_shear(
         branch = [run.first(checkpoint.packing, 0.0)]
         ends.append(branch[0])
         run.events = checkpoint.events
+        last = len(ends) - 1
+        if stop and any(run.same(ends[-1].packing, ends[last - p]) for p in range(1, last + 1)):
+            return  # the checkpoint's cycle closed the limit cycle: the run ended there
     for cycle in range(len(ends), int(cycles) + 1):
         before = run.events
         for target in (amplitude, -amplitude, 0.0):

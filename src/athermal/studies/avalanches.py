@@ -11,8 +11,6 @@ and :func:`~athermal.protocols.events.cyclic_shear` do.
 
 from __future__ import annotations
 
-import json
-import time
 from dataclasses import asdict, dataclass, field
 from itertools import pairwise
 from pathlib import Path
@@ -23,25 +21,13 @@ import numpy as np
 from .._validate import choice, positive_scalar
 from ..analysis.avalanches import log_binned, power_law_tail
 from ..analysis.fitting import sample_stats
-from ..atomic import write_text
-from ..errors import FileFormatError, InputError
-from ..model.cell import Cell
+from ..errors import InputError
 from ..model.contact import ContactModel
 from ..model.packing import Packing
-from ..protocols.events import (
-    EVENT_TOL,
-    Checkpoint,
-    CycleEnd,
-    PlasticEvent,
-    check_cycles,
-    check_steps,
-    cyclic_shear,
-    limit_cycle,
-    plastic_events,
-)
+from ..protocols.events import EVENT_TOL, check_cycles, check_steps
 from ..protocols.shear import SHEAR_MODES, ShearMode
 from ..relaxation import Minimizer
-from .checkpoint import fingerprint
+from .plasticity import PlasticitySpec, run_plasticity
 
 EVENT_COLUMNS = ("strain", "tau_before", "stress_drop", "energy_drop", "moved", "saddle_node")
 """What a realization keeps of each event."""
@@ -86,6 +72,24 @@ class EventsSpec:
         half = amplitude / 2.0
         return min(self.step, half), None if self.max_step is None else min(self.max_step, half)
 
+    def plasticity(self, amplitude: float | None = None) -> PlasticitySpec:
+        """The run of one realization: the shear to ``strain``, or with ``amplitude`` its cycles
+        there (:meth:`cycle_steps`)."""
+        if amplitude is None:
+            return PlasticitySpec(
+                self.mode, self.strain, self.step, self.max_step, self.tol, minimizer=self.minimizer
+            )
+        step, largest = self.cycle_steps(amplitude)
+        return PlasticitySpec(
+            self.mode,
+            step=step,
+            max_step=largest,
+            tol=self.tol,
+            amplitude=amplitude,
+            cycles=self.cycles,
+            minimizer=self.minimizer,
+        )
+
 
 @dataclass(frozen=True)
 class EventsRecord:
@@ -119,112 +123,42 @@ def start_of(packing: Packing, phi_c: float, spec: EventsSpec) -> Packing:
 
 
 def shear_events(
-    start: Packing,
-    model: ContactModel,
-    spec: EventsSpec,
-    saved: Path | None = None,
-    identity: float = 0.0,
+    start: Packing, model: ContactModel, spec: EventsSpec, output: Path
 ) -> EventsRecord:
-    """The :class:`EventsRecord` of ``start`` sheared as ``spec`` says. With ``saved`` (a JSON
-    file), the state just after each event and the record so far are written there
-    (atomically, with the run's ``identity`` and ``start``'s fingerprint), and a run that finds
-    the file goes on from its last event, to the same events as a run never stopped; a file of
-    another run is refused (:class:`~athermal.errors.InputError`)."""
-    t0 = time.perf_counter()
-    so_far = None if saved is None else _saved(saved, start, identity)
-    states, events, reached, seconds = 0, [], 0.0, 0.0
-    checkpoint = None
-    if so_far is not None:
-        states, events = so_far["states"], so_far["events"]
-        reached, seconds = so_far["strain"], so_far["seconds"]
-        cell = Cell(np.array(so_far["h"]), start.cell.walls)
-        after = Packing(np.array(so_far["positions"]), start.radii, cell)
-        checkpoint = Checkpoint(after, reached, len(events))
-    for item in plastic_events(
-        start,
-        model,
-        mode=spec.mode,
-        strain=spec.strain,
-        step=spec.step,
-        max_step=spec.max_step,
-        tol=spec.tol,
-        minimizer=spec.minimizer,
-        checkpoint=checkpoint,
-    ):
-        if isinstance(item, PlasticEvent):
-            row = item.row()
-            events.append({k: float(row[k]) for k in EVENT_COLUMNS})
-            if saved is not None:  # the state after it is counted on resuming, not yielded
-                record = {
-                    "identity": identity,
-                    "start": fingerprint(start),
-                    "strain": item.after.strain,
-                    "positions": item.after.packing.positions.tolist(),
-                    "h": item.after.packing.cell.h.tolist(),
-                    "states": states + 1,
-                    "events": events,
-                    "seconds": seconds + time.perf_counter() - t0,
-                }
-                write_text(saved, json.dumps(record) + "\n")
-        else:
-            states, reached = states + 1, item.strain
+    """The :class:`EventsRecord` of ``start`` sheared as ``spec`` says, the run's files written
+    next to ``output`` (:func:`~athermal.studies.plasticity.run_plasticity`: the trajectory with
+    the states just before and after each event, the tables of states and events). A run
+    interrupted there goes on from its last event, to the same events as a run never stopped;
+    the files of another run are refused (:class:`~athermal.errors.InputError`)."""
+    run = run_plasticity(start, model, spec.plasticity(), output, resume=True)
     diameter = 2.0 * float(np.mean(start.radii))
     energy = model.law.energy_unit(float(model.kmat.max()), diameter)
     return EventsRecord(
         spec.delta_phi,
-        reached,
-        states,
-        tuple(events),
-        seconds + time.perf_counter() - t0,
+        float(run.states[-1]["strain"]),
+        len(run.states),
+        tuple({k: float(e[k]) for k in EVENT_COLUMNS} for e in run.events),
+        run.seconds,
         energy,
         energy / diameter**start.dim,
     )
 
 
-def _saved(path: Path, start: Packing, identity: float) -> dict[str, Any] | None:
-    """The record that :func:`shear_events` saved at ``path`` for the run ``identity`` from
-    ``start``, or None when there is none; one of another run is refused."""
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        return None
-    try:
-        record: dict[str, Any] = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise FileFormatError(f"{path}: not a saved AQS run ({exc.msg})") from None
-    if record.get("identity") != identity or record.get("start") != fingerprint(start):
-        raise InputError(f"{path}: saved by another run (other settings or start)")
-    return record
-
-
-def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec) -> CyclesRecord:
-    """The :class:`CyclesRecord` of ``start`` sheared in cycles at each amplitude of ``spec``
-    (:meth:`EventsSpec.cycle_steps`)."""
+def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec, stem: Path) -> CyclesRecord:
+    """The :class:`CyclesRecord` of ``start`` sheared in cycles at each amplitude ``A`` of
+    ``spec`` (:meth:`EventsSpec.plasticity`), each run's files written next to
+    ``<stem>.A<A>.gsd`` and an interrupted one gone on from its last cycle's end
+    (:func:`~athermal.studies.plasticity.run_plasticity`)."""
     rows = []
     for amplitude in spec.amplitudes:
-        t0 = time.perf_counter()
-        step, largest = spec.cycle_steps(amplitude)
-        ends = [
-            item
-            for item in cyclic_shear(
-                start,
-                model,
-                amplitude=amplitude,
-                cycles=spec.cycles,
-                mode=spec.mode,
-                step=step,
-                max_step=largest,
-                tol=spec.tol,
-                minimizer=spec.minimizer,
-            )
-            if isinstance(item, CycleEnd)
-        ]
+        output = stem.with_name(f"{stem.name}.A{amplitude:g}.gsd")
+        run = run_plasticity(start, model, spec.plasticity(amplitude), output, resume=True)
         rows.append(
             {
                 "amplitude": amplitude,
-                **limit_cycle(ends).row(),
-                "events": sum(e.events for e in ends),
-                "seconds": time.perf_counter() - t0,
+                **run.summary()["limit_cycle"],
+                "events": sum(int(c["events"]) for c in run.cycles),
+                "seconds": run.seconds,
             }
         )
     return CyclesRecord(spec.delta_phi, tuple(rows))

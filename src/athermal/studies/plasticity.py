@@ -10,17 +10,19 @@ otherwise) and every cycle's end (``cycle``), with the state's numbers (``lowest
 an event: the critical mode); ``<output>.csv`` the branch states (the
 stress-strain curve); ``<output>.events.csv`` the events; ``<output>.cycles.csv`` the cycles'
 ends. Tables are rewritten atomically after each event and cycle and at the end, frames
-appended. Each frame's log also holds the run's identity ``run`` (its spec and start) and the
-rows of ``states`` and ``events`` up to it: a run resumed (``resume``) goes on from its last
-event's frame (cyclic shear: its last cycle's end) whose rows reached the tables.
+appended. Each frame's log also holds the run's identity ``run`` (its spec and start), the
+rows of ``states`` and ``events`` up to it and the ``seconds`` so far: a run resumed
+(``resume``) goes on from its last event's frame (cyclic shear: its last cycle's end) whose rows
+reached the tables.
 """
 
 from __future__ import annotations
 
 import math
 import statistics
+import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -80,12 +82,14 @@ class _CycleRow:
 @dataclass(frozen=True, eq=False)
 class PlasticityRun:
     """What a run found, as its tables hold it: the rows of its states, events and cycles'
-    ends (those of a resumed run's first part read back), and the files it wrote."""
+    ends (those of a resumed run's first part read back), the files it wrote, and the seconds
+    it took (a resumed run's first part up to its last event or cycle's end included)."""
 
     states: list[dict[str, Value]]
     events: list[dict[str, Value]]
     cycles: list[dict[str, Value]]
     files: dict[str, str]
+    seconds: float = 0.0
 
     def summary(self) -> dict[str, Any]:
         """The run in numbers: events, their drops (mean, largest), the strain between
@@ -218,7 +222,8 @@ def _read_back(target: Path, files: dict[str, str], identity: float, cyclic: boo
         len(events),
         tuple(f.packing for f in ends) if cyclic else (),
     )
-    return _Done(checkpoint, PlasticityRun(states, events, cycles, dict(files)))
+    seconds = float(log["seconds"]) if "seconds" in log else 0.0
+    return _Done(checkpoint, PlasticityRun(states, events, cycles, dict(files), seconds))
 
 
 def _rows(path: str | None) -> list[dict[str, Value]]:
@@ -257,10 +262,14 @@ def _run(
         )
     )
     run = PlasticityRun([], [], [], files) if done is None else done.run
+    t0 = time.perf_counter()
+
+    def seconds() -> float:
+        return run.seconds + time.perf_counter() - t0
 
     def frame(state: BranchState, states: int, **marks: Value) -> None:
         log: dict[str, Value] = {"event_before": -1, "event_after": -1, "cycle": -1}
-        log.update(marks, run=identity, states=states, events=len(run.events))
+        log.update(marks, run=identity, states=states, events=len(run.events), seconds=seconds())
         append_gsd(
             target,
             state.packing,
@@ -299,7 +308,7 @@ def _run(
     tables()
     if not run.events:
         files.pop("events")
-    return run
+    return replace(run, seconds=seconds())
 
 
 def _infinite(name: str, value: float) -> float:

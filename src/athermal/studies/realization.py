@@ -246,9 +246,9 @@ def write_json(path: Path, data: dict[str, Any]) -> None:
 def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -> Realization:
     """Run realization ``index`` (its ``seed``) of ``spec`` into ``directory``; return its result.
 
-    The jamming trajectory is a checkpoint: a retried realization continues it; so is the AQS
-    run of ``events`` from its last event (``realization-NNNN.events.json``, removed once the
-    realization's result is written).
+    The jamming trajectory is a checkpoint: a retried realization continues it; so are the AQS
+    runs (``realization-NNNN.shear.gsd`` of ``events``, ``realization-NNNN.A<A>.gsd`` of
+    ``cycles`` at each amplitude, and their tables), from their last event or cycle's end.
     """
     t0 = time.perf_counter()
     stem = Path(directory) / f"realization-{index:04d}"
@@ -283,10 +283,10 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
     elif spec.protocol in ("events", "cycles"):
         start = start_of(jammed.packing, jammed.phi_c, spec.events)
         if spec.protocol == "events":
-            saved = Path(f"{stem}.events.json")
-            sections["events"] = shear_events(start, model, spec.events, saved, identity)
+            output = Path(f"{stem}.shear.gsd")
+            sections["events"] = shear_events(start, model, spec.events, output)
         else:
-            sections["cycles"] = shear_cycles(start, model, spec.events)
+            sections["cycles"] = shear_cycles(start, model, spec.events, stem)
     sections["forces"] = ForceRecord.of(force_statistics(jammed.packing, model))
     result = Realization(
         index=index,
@@ -308,5 +308,4 @@ def run_realization(spec: EnsembleSpec, index: int, seed: int, directory: str) -
         **sections,
     )
     write_json(Path(f"{stem}.json"), result.to_json())
-    Path(f"{stem}.events.json").unlink(missing_ok=True)  # its record is in the result
     return result
