@@ -903,21 +903,24 @@ def cyclic_shear(
         branch = [run.first(checkpoint.packing, 0.0)]
         ends.append(branch[0])
         run.events = checkpoint.events
-        last = len(ends) - 1
-        if stop and any(run.same(ends[-1].packing, ends[last - p]) for p in range(1, last + 1)):
+        if stop and _repeats(run, ends[-1], ends[:-1]) is not None:
             return  # the checkpoint's cycle closed the limit cycle: the run ended there
     for cycle in range(len(ends), int(cycles) + 1):
         before = run.events
         for target in (amplitude, -amplitude, 0.0):
             yield from _follow(run, branch, target, step, largest, tol)
         end = branch[-1]
-        repeats = next(
-            (p for p in range(1, cycle + 1) if run.same(end.packing, ends[cycle - p])), None
-        )
+        repeats = _repeats(run, end, ends)
         ends.append(end)
         yield CycleEnd(cycle, end, run.events - before, repeats)
         if stop and repeats is not None:
             return
+
+
+def _repeats(run: _Shear, end: BranchState, earlier: Sequence[BranchState]) -> int | None:
+    """How many cycles back ``end`` (a cycle's end) repeats one of the ``earlier`` ends (the
+    same minimum, :meth:`_Shear.same`): the nearest, or None."""
+    return next((p for p in range(1, len(earlier) + 1) if run.same(end.packing, earlier[-p])), None)
 
 
 class Ended(Protocol):

@@ -151,7 +151,7 @@ def shear_cycles(start: Packing, model: ContactModel, spec: EventsSpec, stem: Pa
     (:func:`~athermal.studies.plasticity.run_plasticity`)."""
     rows = []
     for amplitude in spec.amplitudes:
-        output = stem.with_name(f"{stem.name}.A{amplitude:g}.gsd")
+        output = Path(f"{stem}.A{amplitude:g}.gsd")
         run = run_plasticity(start, model, spec.plasticity(amplitude), output, resume=True)
         rows.append(
             {
