@@ -3,6 +3,7 @@ one at a minimum, a saddle's negative mode, dense against shift-invert, D(omega)
 bootstrap error on spectra with a known edge, and `athermal modes`."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -11,14 +12,14 @@ from athermal.analysis.modes import (
     density_of_states,
     plateau_edge,
     plateau_frequency,
-    stiffness_matrix,
     vibrational_modes,
 )
+from athermal.analysis.moduli import nonrattler_contacts, stiffness_matrix
 from athermal.cli import main
 from athermal.errors import InputError
 from athermal.io import write_gsd
 from athermal.model.cell import Cell
-from athermal.model.contact import ContactModel
+from athermal.model.contact import ContactModel, hessian, hessian_floor
 from athermal.model.objective import Objective
 from athermal.model.packing import Packing, random_packing
 from athermal.relaxation import minimize_objective
@@ -113,6 +114,39 @@ def test_a_saddle_has_a_negative_mode():
     )  # compressed square lattice: f = 0.01, l = 0.25
     modes = vibrational_modes(square, ContactModel(2.0))
     assert modes.negative_modes > 0 and modes.eigenvalues[0] == pytest.approx(-0.16)
+
+
+def test_shift_invert_gives_the_lowest_of_a_saddle_whose_negative_modes_spread():
+    """Shift-invert about -tolerance finds the eigenvalues nearest it: at a saddle, the least
+    negative ones. Below every eigenvalue (the contacts' floor) it finds the lowest."""
+    g = (np.arange(10) + 0.5) / 10
+    grid = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
+    jitter = np.random.default_rng(3).uniform(-5e-4, 5e-4, grid.shape)
+    square = Packing(grid + jitter, np.full(100, 0.055), Cell.box([1.0, 1.0]))
+    model = ContactModel(2.0)
+    dense = vibrational_modes(square, model)
+    assert dense.negative_modes > 20  # down to ~ -f/l (I - n n^T) summed over a particle
+    lowest = vibrational_modes(square, model, 6)
+    scale = np.abs(dense.eigenvalues).max()
+    np.testing.assert_allclose(lowest.eigenvalues, dense.eigenvalues[:6], atol=1e-10 * scale)
+    contacts, _ = nonrattler_contacts(square, model)
+    assert hessian_floor(contacts, square.n) <= dense.eigenvalues[0]
+
+
+def test_the_hessian_floor_lies_below_every_eigenvalue(packing_2d):
+    """Compressed (the pre-stress lowers the transverse terms) and pulled apart (a spring in
+    tension: a negative overlap, as the certified bisection's networks hold)."""
+    packing, model = packing_2d
+    contacts, rattler = nonrattler_contacts(packing, model)
+    h, _ = stiffness_matrix(packing, model)[:2]
+    floor = hessian_floor(contacts, packing.n)
+    assert floor < 0.0 and floor <= np.linalg.eigvalsh(h.toarray())[0]
+    pulled = replace(contacts, overlap=-contacts.overlap)  # every spring in tension
+    assert hessian_floor(pulled, packing.n) <= 0.0
+    live = np.flatnonzero(~rattler)
+    dofs = (live[:, None] * 2 + np.arange(2)).ravel()
+    tense = hessian(pulled, packing.n)[dofs][:, dofs].toarray()
+    assert hessian_floor(pulled, packing.n) <= np.linalg.eigvalsh(tense)[0] + 1e-12
 
 
 def test_the_density_of_states_is_normalised_and_omega_star_of_a_gap_is_twice_its_edge():

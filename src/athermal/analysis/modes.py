@@ -30,10 +30,10 @@ from numpy.typing import NDArray
 
 from ..atomic import replacing
 from ..errors import InputError
-from ..linalg import arpack_start
-from ..model.contact import ContactModel
+from ..linalg import arpack_start, cholesky
+from ..model.contact import ContactModel, hessian_floor
 from ..model.packing import Packing
-from .moduli import STABILITY_TOL, stiffness_matrix
+from .moduli import STABILITY_TOL, nonrattler_contacts, nonrattler_hessian
 
 DENSE_MODES_DOFS = 12_288
 """Largest stiffness matrix (``N' d`` rows, N = 4096 spheres) whose full spectrum is computed
@@ -99,16 +99,39 @@ def zero_tolerance(h: sp.spmatrix) -> float:
     return STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
 
 
-def lowest_eigenpairs(h: sp.spmatrix, k: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+def lowest_eigenpairs(
+    h: sp.spmatrix, k: int, floor: float
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
-    symmetric ``h``: ARPACK in shift-invert mode about ``-zero_tolerance(h)`` (so the matrix it
-    factors is positive definite at a minimum), from a fixed start vector
-    (:func:`~athermal.linalg.arpack_start`)."""
+    symmetric ``h``, none of whose eigenvalues lies below ``floor``
+    (:func:`~athermal.model.contact.hessian_floor` of its contacts).
+
+    ARPACK in shift-invert mode about ``sigma``, from a fixed start vector
+    (:func:`~athermal.linalg.arpack_start`): the eigenvalues nearest ``sigma`` are the lowest
+    only where none lies below it, so ``sigma = -zero_tolerance(h)`` where ``h - sigma I`` is
+    positive definite (a minimum: the shift that separates its soft modes best), else ``floor -
+    zero_tolerance(h)``, below every eigenvalue (a saddle's negative ones included).
+    ``h - sigma I`` is factored by CHOLMOD (:func:`~athermal.linalg.cholesky`), or by SuperLU
+    where that fails at the floor (round-off).
+    """
+    tolerance = zero_tolerance(h)
+    identity = sp.identity(h.shape[0], format="csr")
+    for sigma in dict.fromkeys((-tolerance, min(floor, 0.0) - tolerance)):
+        factor = cholesky((h - sigma * identity).tocsr())
+        if factor is not None:
+            break
+    inverse = None
+    if factor is not None:
+        solve = factor.solve
+        inverse = spla.LinearOperator(
+            h.shape, matvec=lambda v: solve(v.reshape(-1, 1)).ravel(), dtype=np.float64
+        )
     values, vecs = spla.eigsh(
         h.tocsc(),
         k=k,
-        sigma=-zero_tolerance(h),
+        sigma=sigma,
         which="LM",
+        OPinv=inverse,
         tol=1e-12,
         v0=arpack_start(h.shape[0]),
     )
@@ -122,12 +145,14 @@ def vibrational_modes(
     """The lowest ``k`` eigenpairs of the stiffness matrix of ``packing``, or all of them
     (``k`` None: dense, up to :data:`DENSE_MODES_DOFS` rows).
 
-    The lowest ``k`` come from ARPACK in shift-invert mode about ``-tolerance`` (so the matrix
-    it factors is positive definite at a minimum), from a fixed start vector (reproducible).
+    The lowest ``k`` come from ARPACK in shift-invert mode (:func:`lowest_eigenpairs`: about
+    ``-tolerance`` at a minimum, below the contacts' floor at a saddle), from a fixed start
+    vector (reproducible).
     ``vectors`` keeps the eigenvectors of that many of the lowest modes that are not zero modes
     (None: of every mode computed); participation ratios are computed for all.
     """
-    h, dofs, rattler = stiffness_matrix(packing, model)
+    contacts, rattler = nonrattler_contacts(packing, model)
+    h, dofs = nonrattler_hessian(contacts, rattler, packing.dim)
     size = h.shape[0]
     n_live = size // packing.dim
     if n_live < 2:
@@ -143,7 +168,7 @@ def vibrational_modes(
     else:
         if int(k) != k or not 1 <= k < size - 1:
             raise InputError(f"k: need an integer in [1, {size - 2}], got {k!r}")
-        values, vecs = lowest_eigenpairs(h, int(k))
+        values, vecs = lowest_eigenpairs(h, int(k), hessian_floor(contacts, packing.n))
     per_particle = (vecs**2).reshape(n_live, packing.dim, -1).sum(axis=1)  # (N', M)
     participation = per_particle.sum(axis=0) ** 2 / (n_live * (per_particle**2).sum(axis=0))
     if vectors is None:

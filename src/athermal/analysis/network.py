@@ -17,7 +17,7 @@ import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
 from ..linalg import Factor, arpack_start, cholesky
-from ..model.contact import Contacts
+from ..model.contact import Contacts, hessian_floor
 from ..model.packing import Packing
 from .modes import lowest_eigenpairs
 from .moduli import nonrattler_hessian, unpinned
@@ -126,7 +126,8 @@ class NetworkHessian:
             values, vectors = np.linalg.eigh(self.h.toarray())
             values, vectors = values[:k], vectors[:, :k]
         else:
-            values, vectors = lowest_eigenpairs(self.h, k)
+            floor = hessian_floor(self.contacts, self.packing.n)
+            values, vectors = lowest_eigenpairs(self.h, k, floor)
         if self.translations:
             overlap = np.linalg.norm(self._translations().T @ vectors, axis=0)
             keep = np.flatnonzero(overlap < 0.5)

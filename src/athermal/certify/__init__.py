@@ -38,7 +38,7 @@ from ..analysis.modes import lowest_eigenpairs, zero_tolerance
 from ..analysis.moduli import nonrattler_hessian, pinned_solve, relaxing_displacement
 from ..analysis.observables import isostatic_contacts, rattlers
 from ..errors import ConvergenceError, InputError
-from ..model.contact import ContactModel, Contacts
+from ..model.contact import ContactModel, Contacts, hessian_floor
 from ..model.packing import Packing
 from ..relaxation import round_off_floor
 from .cage import free_place, free_places
@@ -260,7 +260,8 @@ def _lowest_eigenvalue(contacts: Contacts, rattler: NDArray[np.bool_], dim: int)
     """The smallest eigenvalue of the non-rattlers' Hessian beyond its ``d`` translations (NaN
     when there is none)."""
     h, _ = nonrattler_hessian(contacts, rattler, dim)
-    values, _ = lowest_eigenpairs(h, min(dim + 2, h.shape[0] - 2))
+    floor = hessian_floor(contacts, rattler.size)
+    values, _ = lowest_eigenpairs(h, min(dim + 2, h.shape[0] - 2), floor)
     values = values[np.abs(values) > zero_tolerance(h)]
     return float(values[0]) if values.size else float("nan")
 

@@ -14,7 +14,7 @@ from ..analysis.modes import lowest_eigenpairs, zero_tolerance
 from ..analysis.moduli import nonrattler_hessian, pinned_solve
 from ..analysis.observables import rattlers
 from ..errors import ConvergenceError, InputError
-from ..model.contact import ContactModel, Contacts
+from ..model.contact import ContactModel, Contacts, hessian_floor
 from ..model.objective import Objective
 from ..model.packing import Packing
 from ..protocols.jamming import FINAL_RTOL, JAMMING_MINIMIZER, energy_threshold
@@ -247,7 +247,8 @@ def _unstable_mode(
     """The eigenvector ``shape`` ``(N, d)`` of the lowest eigenvalue of the non-rattlers'
     Hessian (pre-stress included) when that eigenvalue is negative; None otherwise."""
     h, dofs = nonrattler_hessian(contacts, rattler, shape[1])
-    values, vectors = lowest_eigenpairs(h, min(shape[1] + 2, h.shape[0] - 2))
+    floor = hessian_floor(contacts, shape[0])
+    values, vectors = lowest_eigenpairs(h, min(shape[1] + 2, h.shape[0] - 2), floor)
     if not values[0] < -zero_tolerance(h):
         return None
     flat = np.zeros(shape[0] * shape[1])

@@ -290,6 +290,26 @@ def contact_blocks(contacts: Contacts) -> NDArray[np.float64]:
     return (contacts.normal_stiffness + pull)[:, None, None] * nn - pull[:, None, None] * np.eye(d)
 
 
+def hessian_floor(contacts: Contacts, n: int) -> float:
+    """A lower bound (<= 0) on the eigenvalues of the Hessian of ``contacts`` among ``n``
+    particles, and so of every principal submatrix of it (the non-rattlers', pinned or not).
+
+    A contact's block ``K = E'' n n^T - (f / l) (I - n n^T)`` is at least ``-m I`` with ``m =
+    max(0, f / l, -E'')``, so the Hessian is at least ``-L_m`` (x the identity in the ``d``
+    axes), ``L_m`` the graph Laplacian weighted by ``m``, whose largest eigenvalue is at most the
+    largest ``w_i + w_j`` over the contacts (Anderson & Morley), ``w`` a particle's summed
+    ``m``; a wall contact's entry ``E''`` adds ``max(0, -E'')`` to its particle's diagonal.
+    """
+    pull = contacts.force_magnitude / contacts.distance
+    m = np.maximum(np.maximum(pull, -contacts.normal_stiffness), 0.0)
+    w = np.bincount(contacts.i, m, n) + np.bincount(contacts.j, m, n)
+    bound = float(np.max(w[contacts.i] + w[contacts.j], initial=0.0))
+    if contacts.walls is not None:
+        wall = np.maximum(-contacts.walls.normal_stiffness, 0.0)
+        bound += float(np.max(np.bincount(contacts.walls.particle, wall, n), initial=0.0))
+    return -bound
+
+
 def assemble_blocks(
     i: NDArray[np.int64], j: NDArray[np.int64], blocks: NDArray[np.float64], n: int
 ) -> sp.csr_matrix:
