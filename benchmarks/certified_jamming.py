@@ -1,5 +1,5 @@
-"""Jamming points bracketed below float64's resolution: the float64 bracket of ``jam`` (epsilon
-1e-6), then ``bisect_jamming_point`` to epsilon 1e-12 in double-double,
+"""Jamming points bracketed below float64's resolution: the float64 bracket of ``jam --certify``
+(epsilon ``START_EPSILON``, 1e-7), then ``bisect_jamming_point`` to epsilon 1e-12 in double-double,
 per packing: where the certified point lies in the float64 bracket, the trials, the contacts
 shed and formed and the rattlers readmitted on the way, the certificate at the jammed bound,
 the time against the jamming run (wall time on one core, warm), and where the jamming point by
@@ -22,7 +22,7 @@ import time
 from typing import Any
 
 from athermal.certify import certify
-from athermal.certify.bisection import bisect_jamming_point
+from athermal.certify.bisection import START_EPSILON, bisect_jamming_point
 from athermal.errors import ConvergenceError, InputError
 from athermal.studies.experiments import JamSpec, jam_packing
 from benchmarks.machine import ROOT, pin, save
@@ -32,7 +32,7 @@ EPSILON = 1e-12
 
 def one(dim: int, n: int, seed: int) -> dict[str, Any]:
     """Jam one packing in float64, bracket its jamming point to :data:`EPSILON`; its row."""
-    spec = JamSpec(n=n, dim=dim, alpha=2.0)
+    spec = JamSpec(n=n, dim=dim, alpha=2.0, epsilon=START_EPSILON)
     t0 = time.perf_counter()
     jammed = jam_packing(spec, seed)
     t1 = time.perf_counter()
@@ -104,7 +104,8 @@ def report(rows: list[dict[str, Any]]) -> str:
         "`linear phi_c` (the certificate's `linear_phi_c`): the isotropic expansion at which the "
         "overlaps of the packing's network vanish, to first order. At the bound its place in the "
         "certified bracket (0: `phi_low`, 1: `phi_high`); from the float64 packing of `jam` "
-        "(epsilon 1e-6), its miss of the bracket over that packing's distance from it.",
+        f"(epsilon {START_EPSILON:g}), its miss of the bracket over that packing's distance "
+        "from it.",
         "",
         "| d | N | seed | bound: linear phi_c in bracket | bound: linearity | float64: linearity "
         "| float64: miss / distance |",

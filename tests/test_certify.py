@@ -19,7 +19,7 @@ from athermal.certify import (
     contact_network,
     toward_jamming,
 )
-from athermal.certify.bisection import _trial, bisect_jamming_point
+from athermal.certify.bisection import START_EPSILON, _trial, bisect_jamming_point
 from athermal.certify.extended import NearPairs
 from athermal.cli import main
 from athermal.errors import InputError
@@ -321,7 +321,9 @@ def test_jam_certify_bisects_below_float64_and_refuses_it_otherwise(tmp_path, ca
     assert main([*args, "--epsilon", "1e-12", "--certify"]) == 0
     result = json.loads(capsys.readouterr().out)
     assert result["phi_high"] - result["phi_low"] <= 1e-12
-    assert result["bisected_in_double_double"]["float64_phi_high"] >= result["phi_high"]
+    march = result["bisected_in_double_double"]
+    assert march["float64_phi_high"] >= result["phi_high"] >= march["float64_phi_low"]
+    assert march["float64_phi_high"] - march["float64_phi_low"] <= START_EPSILON  # float64 first
     assert result["pressure"] == result["certificate"]["pressure"] < 1e-11
     frame = at.read_gsd(out)
     assert frame.packing.phi == result["phi_high"] and frame.position_lo is not None

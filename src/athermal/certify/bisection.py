@@ -30,6 +30,11 @@ from . import (
 )
 from .extended import NearPairs, displace
 
+START_EPSILON = 1e-7
+"""The float64 bracket of the jammed packing :func:`bisect_jamming_point` starts from (``jam
+--certify`` jams to it first): a hundred times float64's resolution (at ten times, a float64
+verdict of jammed was one contact short of isostatic), so that the march in double-double covers
+at most ~1e-7 (``docs/decisions.md``, "Where the time of a 3D certified jamming goes")."""
 FIRST_STEP = 1e-9
 """The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
 LARGEST_STEP = 1e-8

@@ -20,12 +20,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import engines
+from ..certify.bisection import START_EPSILON
 from ..errors import InputError
 from ..io import Frame, count_frames, read_gsd
 from ..model.contact import ContactModel, find_contacts
 from ..model.packing import Packing
 from ..protocols import (
-    EPSILON,
     JAMMING_SCHEME,
     RESOLUTION,
     compression_steps,
@@ -158,7 +158,7 @@ def jam(args: argparse.Namespace) -> None:
         **sizes_from(args),
         phi_init=phi_init,
         dphi=args.dphi,
-        epsilon=args.epsilon if args.epsilon >= RESOLUTION else EPSILON,  # then in double-double
+        epsilon=args.epsilon if args.epsilon >= RESOLUTION else START_EPSILON,  # then double-double
         protocol=args.bisection,
         minimizer=minimizer_from(args),
         walls=args.walls,
