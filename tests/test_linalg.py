@@ -13,17 +13,19 @@ def laplacian_1d(n, shift):
     return sp.diags([main, -np.ones(n - 1), -np.ones(n - 1)], [0, -1, 1]).tocsr()
 
 
-@pytest.mark.parametrize("cholespy", [True, False])
-def test_cholesky_solves_spd_matrices_and_refuses_indefinite_ones(monkeypatch, cholespy):
-    if not cholespy:  # the fallback: SuperLU without pivoting, pivots tested
+@pytest.mark.parametrize(("cholespy", "cholmod"), [(True, True), (False, True), (True, False)])
+def test_cholesky_solves_spd_matrices_and_refuses_indefinite_ones(monkeypatch, cholespy, cholmod):
+    """cholespy missing, or ``cholmod=False`` (failures expected: CHOLMOD's would keep their
+    memory), the fallback: SuperLU without pivoting, pivots tested."""
+    if not cholespy:
         monkeypatch.setattr(linalg, "available", lambda module: module != "cholespy")
     spd = laplacian_1d(50, 0.01)
-    factor = linalg.cholesky(spd)
+    factor = linalg.cholesky(spd, cholmod=cholmod)
     assert factor is not None
-    assert factor.backend == ("cholespy" if cholespy else "splu")
+    assert factor.backend == ("cholespy" if cholespy and cholmod else "splu")
     b = np.random.default_rng(0).normal(size=(50, 2))
     np.testing.assert_allclose(spd @ factor.solve(b), b, atol=1e-10)
-    assert linalg.cholesky(laplacian_1d(50, -0.5)) is None  # lowest eigenvalue ~ -0.5
+    assert linalg.cholesky(laplacian_1d(50, -0.5), cholmod=cholmod) is None  # lowest ~ -0.5
 
 
 def laplacian_2d(side, shift):

@@ -10,11 +10,12 @@ import pytest
 
 from athermal.analysis.modes import (
     density_of_states,
+    lowest_eigenpairs,
     plateau_edge,
     plateau_frequency,
     vibrational_modes,
 )
-from athermal.analysis.moduli import nonrattler_contacts, stiffness_matrix
+from athermal.analysis.moduli import nonrattler_contacts, nonrattler_hessian, stiffness_matrix
 from athermal.cli import main
 from athermal.errors import InputError
 from athermal.io import write_gsd
@@ -129,8 +130,12 @@ def test_shift_invert_gives_the_lowest_of_a_saddle_whose_negative_modes_spread()
     lowest = vibrational_modes(square, model, 6)
     scale = np.abs(dense.eigenvalues).max()
     np.testing.assert_allclose(lowest.eigenvalues, dense.eigenvalues[:6], atol=1e-10 * scale)
-    contacts, _ = nonrattler_contacts(square, model)
-    assert hessian_floor(contacts, square.n) <= dense.eigenvalues[0]
+    contacts, rattler = nonrattler_contacts(square, model)
+    floor = hessian_floor(contacts, square.n)
+    assert floor <= dense.eigenvalues[0]
+    h, _ = nonrattler_hessian(contacts, rattler, 2)
+    straight, _ = lowest_eigenpairs(h, 6, floor, saddle=True)  # no try at -tolerance first
+    np.testing.assert_allclose(straight, dense.eigenvalues[:6], atol=1e-10 * scale)
 
 
 def test_the_hessian_floor_lies_below_every_eigenvalue(packing_2d):

@@ -100,7 +100,7 @@ def zero_tolerance(h: sp.spmatrix) -> float:
 
 
 def lowest_eigenpairs(
-    h: sp.spmatrix, k: int, floor: float
+    h: sp.spmatrix, k: int, floor: float, *, saddle: bool = False
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
     symmetric ``h``, none of whose eigenvalues lies below ``floor``
@@ -110,13 +110,16 @@ def lowest_eigenpairs(
     (:func:`~athermal.linalg.arpack_start`): the eigenvalues nearest ``sigma`` are the lowest
     only where none lies below it, so ``sigma = -zero_tolerance(h)`` where ``h - sigma I`` is
     positive definite (a minimum: the shift that separates its soft modes best), else ``floor -
-    zero_tolerance(h)``, below every eigenvalue (a saddle's negative ones included).
-    ``h - sigma I`` is factored by CHOLMOD (:func:`~athermal.linalg.cholesky`), or by SuperLU
-    where that fails at the floor (round-off).
+    zero_tolerance(h)``, below every eigenvalue (a saddle's negative ones included), straight
+    away where the caller knows ``h`` not positive definite (``saddle``: a factorization that
+    fails costs its time and, in CHOLMOD, its memory). ``h - sigma I`` is factored by CHOLMOD
+    (:func:`~athermal.linalg.cholesky`), or by SuperLU where that fails at the floor
+    (round-off).
     """
     tolerance = zero_tolerance(h)
     identity = sp.identity(h.shape[0], format="csr")
-    for sigma in dict.fromkeys((-tolerance, min(floor, 0.0) - tolerance)):
+    shifts = () if saddle else (-tolerance,)
+    for sigma in dict.fromkeys((*shifts, min(floor, 0.0) - tolerance)):
         factor = cholesky((h - sigma * identity).tocsr())
         if factor is not None:
             break

@@ -410,6 +410,7 @@ def pinned_solve(
     walls: tuple[int, ...] = (),
     *,
     iterative: bool = True,
+    cholmod: bool = True,
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``y = H^+ Xi`` ``(N d, m)`` for the ``m`` columns of ``xi`` ``(N, d, m)``, zero on the
     rattlers, with the largest relative residual and the solver used.
@@ -417,7 +418,8 @@ def pinned_solve(
     H is restricted to the non-rattlers with the first of them pinned along the periodic axes
     (those not in ``walls``, the walled axes of the cell), which takes out the translations,
     and factored once for all columns (:func:`_solve`; without MINRES unless ``iterative``: a
-    residual of infinity then says that H is not positive definite).
+    residual of infinity then says that H is not positive definite; by SuperLU unless
+    ``cholmod``, :func:`~athermal.linalg.cholesky`).
     """
     n, dim, m = xi.shape
     y = np.zeros((n * dim, m))
@@ -427,7 +429,7 @@ def pinned_solve(
     dofs = (live[:, None] * dim + np.arange(dim)).ravel()[unpinned(live.size * dim, dim, walls)]
     b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
     h = hessian(contacts, n)[dofs][:, dofs].tocsr()
-    y[dofs], residual, solver = _solve(h, b, iterative)
+    y[dofs], residual, solver = _solve(h, b, iterative, cholmod)
     return y, residual, solver
 
 
@@ -448,18 +450,19 @@ def unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:
 
 
 def _solve(
-    h: sp.csr_matrix, b: NDArray[np.float64], iterative: bool = True
+    h: sp.csr_matrix, b: NDArray[np.float64], iterative: bool = True, cholmod: bool = True
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """A solution ``y`` ``(n, m)`` of ``h y = b`` for symmetric ``h`` ``(n, n)``, the largest
     relative residual ``|h y - b| / |b|`` over the columns and the solver that gave it.
 
-    CHOLMOD first; when ``h`` is not positive definite, or the residual exceeds
+    A direct factor first (:func:`_cholesky_solve`, reported as ``"cholmod"``); when ``h`` is not
+    positive definite, or the residual exceeds
     ``RESIDUAL_TOL``, MINRES (from the direct answer, if any), which also solves consistent
     singular systems (``b`` in the range of ``h``). Not ``iterative``: CHOLMOD's answer as it
     is, or zeros, an infinite residual and ``"none"`` where ``h`` is not positive definite.
     """
     norms = np.linalg.norm(b, axis=0)
-    y = _cholesky_solve(h, b)
+    y = _cholesky_solve(h, b, cholmod)
     if y is None and not iterative:
         return np.zeros_like(b), np.inf, "none"
     if y is None:
@@ -473,9 +476,12 @@ def _solve(
     return y, _relative_residual(h, y, b, norms), "minres"
 
 
-def _cholesky_solve(h: sp.csr_matrix, b: NDArray[np.float64]) -> NDArray[np.float64] | None:
-    """``h^-1 b`` by CHOLMOD; None when ``h`` is not positive definite."""
-    factor = cholesky(h)
+def _cholesky_solve(
+    h: sp.csr_matrix, b: NDArray[np.float64], cholmod: bool = True
+) -> NDArray[np.float64] | None:
+    """``h^-1 b`` by CHOLMOD (SuperLU unless ``cholmod``); None when ``h`` is not positive
+    definite."""
+    factor = cholesky(h, cholmod=cholmod)
     return None if factor is None else factor.solve(b)
 
 

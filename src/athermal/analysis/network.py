@@ -126,8 +126,8 @@ class NetworkHessian:
             values, vectors = np.linalg.eigh(self.h.toarray())
             values, vectors = values[:k], vectors[:, :k]
         else:
-            floor = hessian_floor(self.contacts, self.packing.n)
-            values, vectors = lowest_eigenpairs(self.h, k, floor)
+            floor = hessian_floor(self.contacts, self.packing.n)  # here the factor failed:
+            values, vectors = lowest_eigenpairs(self.h, k, floor, saddle=True)  # not definite
         if self.translations:
             overlap = np.linalg.norm(self._translations().T @ vectors, axis=0)
             keep = np.flatnonzero(overlap < 0.5)

@@ -253,7 +253,7 @@ def _unstable_mode(
     Hessian (pre-stress included) when that eigenvalue is negative; None otherwise."""
     h, dofs = nonrattler_hessian(contacts, rattler, shape[1])
     floor = hessian_floor(contacts, shape[0])
-    values, vectors = lowest_eigenpairs(h, min(shape[1] + 2, h.shape[0] - 2), floor)
+    values, vectors = lowest_eigenpairs(h, 1, floor, saddle=True)
     if not values[0] < -zero_tolerance(h):
         return None
     flat = np.zeros(shape[0] * shape[1])
@@ -328,13 +328,16 @@ def _trial(
     its rattlers (a particle left with fewer than ``d + 1`` bonds by shed contacts joins them)
     and how often its network gave way and a closing gap held it (:func:`_blocking_pair`).
     With ``escape``, it stops (no verdict) once it has moved along the first unstable mode:
-    where a rearrangement starts, below float64's resolution."""
+    where a rearrangement starts, below float64's resolution. After its first Hessian that is
+    not positive definite it factors by SuperLU (a failed CHOLMOD factorization keeps its
+    memory: :func:`~athermal.linalg.cholesky`)."""
     n, dim = hi.shape
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     pairs.stiffness = np.where(live, stiffness, 0.0)
     sums = pairs.sums(hi, lo, radii, bonds)
     parted: NDArray[np.bool_] | None = None  # the bonds that parted last, until a solve
     definite, held = False, 0  # definite: the last factor was of the network as it is
+    cholmod = True  # until a factorization fails
     for _ in range(TRIAL_ITERATIONS):
         overlap = sums.overlap[0] + sums.overlap[1]
         formed = live & ~bonds & (overlap > 0.0)
@@ -349,7 +352,8 @@ def _trial(
             if not apart.any():
                 if (
                     not definite
-                    and pinned_solve(contacts, rattler, force, iterative=False)[1] == np.inf
+                    and pinned_solve(contacts, rattler, force, iterative=False, cholmod=cholmod)[1]
+                    == np.inf
                 ):
                     return None, bonds, rattler, held  # balanced on a saddle: no verdict
                 pairs.stiffness = stiffness
@@ -381,8 +385,11 @@ def _trial(
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
-        y, residual, solver = pinned_solve(contacts, rattler, force, iterative=False)
+        y, residual, solver = pinned_solve(
+            contacts, rattler, force, iterative=False, cholmod=cholmod
+        )
         if residual == np.inf:  # not positive definite: unstable, or singular
+            cholmod = False
             mode = _unstable_mode(contacts, rattler, hi.shape)
             if mode is not None:
                 blocking = _blocking_pair(pairs, hi, lo, mode, rattler, bonds, overlap, parted)
@@ -393,7 +400,7 @@ def _trial(
                 bonds[blocking] = True
                 sums = pairs.sums(hi, lo, radii, bonds)
                 continue
-            y, residual, solver = pinned_solve(contacts, rattler, force)  # singular, consistent
+            y, residual, solver = pinned_solve(contacts, rattler, force, cholmod=False)  # singular
         if not np.all(np.isfinite(y)) or residual > 1e-6:
             return None, bonds, rattler, held
         parted, definite = None, solver == "cholmod"
