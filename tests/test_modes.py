@@ -136,6 +136,8 @@ def test_shift_invert_gives_the_lowest_of_a_saddle_whose_negative_modes_spread()
     h, _ = nonrattler_hessian(contacts, rattler, 2)
     straight, _ = lowest_eigenpairs(h, 6, floor, saddle=True)  # no try at -tolerance first
     np.testing.assert_allclose(straight, dense.eigenvalues[:6], atol=1e-10 * scale)
+    loose, _ = lowest_eigenpairs(h, 6)  # below Gershgorin's bound of h
+    np.testing.assert_allclose(loose, dense.eigenvalues[:6], atol=1e-10 * scale)
 
 
 def test_the_hessian_floor_lies_below_every_eigenvalue(packing_2d):

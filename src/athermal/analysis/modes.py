@@ -100,11 +100,12 @@ def zero_tolerance(h: sp.spmatrix) -> float:
 
 
 def lowest_eigenpairs(
-    h: sp.spmatrix, k: int, floor: float, *, saddle: bool = False
+    h: sp.spmatrix, k: int, floor: float | None = None, *, saddle: bool = False
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
     symmetric ``h``, none of whose eigenvalues lies below ``floor``
-    (:func:`~athermal.model.contact.hessian_floor` of its contacts).
+    (:func:`~athermal.model.contact.hessian_floor` of its contacts; None: Gershgorin's bound,
+    the least diagonal entry less the absolute sum of its row's others, looser).
 
     ARPACK in shift-invert mode about ``sigma``, from a fixed start vector
     (:func:`~athermal.linalg.arpack_start`): the eigenvalues nearest ``sigma`` are the lowest
@@ -117,6 +118,10 @@ def lowest_eigenpairs(
     (round-off).
     """
     tolerance = zero_tolerance(h)
+    if floor is None:
+        diagonal = h.diagonal()
+        others = np.asarray(abs(h).sum(axis=1)).ravel() - np.abs(diagonal)
+        floor = float(np.min(diagonal - others))
     identity = sp.identity(h.shape[0], format="csr")
     shifts = () if saddle else (-tolerance,)
     for sigma in dict.fromkeys((*shifts, min(floor, 0.0) - tolerance)):

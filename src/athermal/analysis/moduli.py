@@ -456,10 +456,10 @@ def _solve(
     relative residual ``|h y - b| / |b|`` over the columns and the solver that gave it.
 
     A direct factor first (:func:`_cholesky_solve`, reported as ``"cholmod"``); when ``h`` is not
-    positive definite, or the residual exceeds
-    ``RESIDUAL_TOL``, MINRES (from the direct answer, if any), which also solves consistent
-    singular systems (``b`` in the range of ``h``). Not ``iterative``: CHOLMOD's answer as it
-    is, or zeros, an infinite residual and ``"none"`` where ``h`` is not positive definite.
+    positive definite, or the residual exceeds ``RESIDUAL_TOL``, MINRES (from the direct answer,
+    if any), which also solves consistent singular systems (``b`` in the range of ``h``). Not
+    ``iterative``: the direct answer as it is, or zeros, an infinite residual and ``"none"``
+    where ``h`` is not positive definite.
     """
     norms = np.linalg.norm(b, axis=0)
     y = _cholesky_solve(h, b, cholmod)
