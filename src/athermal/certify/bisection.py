@@ -328,16 +328,18 @@ def _trial(
     its rattlers (a particle left with fewer than ``d + 1`` bonds by shed contacts joins them)
     and how often its network gave way and a closing gap held it (:func:`_blocking_pair`).
     With ``escape``, it stops (no verdict) once it has moved along the first unstable mode:
-    where a rearrangement starts, below float64's resolution. After its first Hessian that is
-    not positive definite it factors by SuperLU (a failed CHOLMOD factorization keeps its
-    memory: :func:`~athermal.linalg.cholesky`)."""
+    where a rearrangement starts, below float64's resolution. Once its Hessian is not positive
+    definite, it looks for the unstable mode first (a shifted factorization that cannot fail)
+    until a Newton step is solved again, and its saddle check factors by SuperLU: a failed
+    CHOLMOD factorization costs its time and keeps its memory
+    (:func:`~athermal.linalg.cholesky`)."""
     n, dim = hi.shape
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     pairs.stiffness = np.where(live, stiffness, 0.0)
     sums = pairs.sums(hi, lo, radii, bonds)
     parted: NDArray[np.bool_] | None = None  # the bonds that parted last, until a solve
     definite, held = False, 0  # definite: the last factor was of the network as it is
-    cholmod = True  # until a factorization fails
+    stable = True  # the last factorization did not fail
     for _ in range(TRIAL_ITERATIONS):
         overlap = sums.overlap[0] + sums.overlap[1]
         formed = live & ~bonds & (overlap > 0.0)
@@ -352,7 +354,7 @@ def _trial(
             if not apart.any():
                 if (
                     not definite
-                    and pinned_solve(contacts, rattler, force, iterative=False, cholmod=cholmod)[1]
+                    and pinned_solve(contacts, rattler, force, iterative=False, cholmod=stable)[1]
                     == np.inf
                 ):
                     return None, bonds, rattler, held  # balanced on a saddle: no verdict
@@ -385,22 +387,23 @@ def _trial(
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
-        y, residual, solver = pinned_solve(
-            contacts, rattler, force, iterative=False, cholmod=cholmod
-        )
-        if residual == np.inf:  # not positive definite: unstable, or singular
-            cholmod = False
-            mode = _unstable_mode(contacts, rattler, hi.shape)
-            if mode is not None:
-                blocking = _blocking_pair(pairs, hi, lo, mode, rattler, bonds, overlap, parted)
-                if blocking is None or escape:  # it gives way further than a small move
-                    return None, bonds, rattler, held
-                held, parted, definite = held + 1, None, False
-                bonds = bonds.copy()
-                bonds[blocking] = True
-                sums = pairs.sums(hi, lo, radii, bonds)
-                continue
-            y, residual, solver = pinned_solve(contacts, rattler, force, cholmod=False)  # singular
+        mode = None if stable else _unstable_mode(contacts, rattler, hi.shape)
+        if mode is None:
+            y, residual, solver = pinned_solve(contacts, rattler, force, iterative=False)
+            stable = residual < np.inf
+            if not stable:  # not positive definite: unstable, or singular
+                mode = _unstable_mode(contacts, rattler, hi.shape)
+                if mode is None:  # singular, consistent
+                    y, residual, solver = pinned_solve(contacts, rattler, force, cholmod=False)
+        if mode is not None:
+            blocking = _blocking_pair(pairs, hi, lo, mode, rattler, bonds, overlap, parted)
+            if blocking is None or escape:  # it gives way further than a small move
+                return None, bonds, rattler, held
+            held, parted, definite = held + 1, None, False
+            bonds = bonds.copy()
+            bonds[blocking] = True
+            sums = pairs.sums(hi, lo, radii, bonds)
+            continue
         if not np.all(np.isfinite(y)) or residual > 1e-6:
             return None, bonds, rattler, held
         parted, definite = None, solver == "cholmod"
