@@ -1,6 +1,7 @@
 """Vibrational modes: the analytic spectrum of a triangular crystal, d zero modes and no negative
-one at a minimum, a saddle's negative mode, dense against shift-invert, D(omega), omega* and its
-bootstrap error on spectra with a known edge, and `athermal modes`."""
+one at a minimum, a saddle's negative mode, dense against shift-invert (at a saddle too, below
+the contacts' Hessian floor), D(omega), omega* and its bootstrap error on spectra with a known
+edge, and `athermal modes`."""
 
 import json
 from dataclasses import replace
