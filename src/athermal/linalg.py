@@ -270,8 +270,8 @@ def cholesky(matrix: sp.spmatrix, *, cholmod: bool = True) -> Factor | None:
     """A factor of the symmetric ``matrix`` when it is positive definite, else None: CHOLMOD,
     or (cholespy missing, or not ``cholmod``) SuperLU without pivoting, whose pivots are then
     those of ``L D L^T``. A CHOLMOD factorization that fails keeps its memory (cholespy frees
-    it only with a factor it returns: ~16 MB each at 6000 rows in 3D), so a caller that expects
-    failures one after another factors by SuperLU."""
+    it only with a factor it returns; ``docs/decisions.md``, "Three costs of the certified
+    march removed"), so a caller that expects failures one after another factors by SuperLU."""
     if cholmod and available("cholespy"):
         try:
             return CholeskyFactor(matrix)

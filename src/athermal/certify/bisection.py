@@ -32,9 +32,9 @@ from .extended import NearPairs, displace
 
 START_EPSILON = 1e-7
 """The float64 bracket of the jammed packing :func:`bisect_jamming_point` starts from (``jam
---certify`` jams to it first): a hundred times float64's resolution (at ten times, a float64
-verdict of jammed was one contact short of isostatic), so that the march in double-double covers
-at most ~1e-7 (``docs/decisions.md``, "Where the time of a 3D certified jamming goes")."""
+--certify`` jams to it first): a hundred times float64's resolution, so that the march in
+double-double covers at most ~1e-7 (``docs/decisions.md``, "Three costs of the certified march
+removed", on why not closer)."""
 FIRST_STEP = 1e-9
 """The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
 LARGEST_STEP = 1e-8
@@ -330,9 +330,8 @@ def _trial(
     With ``escape``, it stops (no verdict) once it has moved along the first unstable mode:
     where a rearrangement starts, below float64's resolution. Once its Hessian is not positive
     definite, it looks for the unstable mode first (a shifted factorization that cannot fail)
-    until a Newton step is solved again, and its saddle check factors by SuperLU: a failed
-    CHOLMOD factorization costs its time and keeps its memory
-    (:func:`~athermal.linalg.cholesky`)."""
+    until a Newton step is solved again: a failed CHOLMOD factorization costs its time and
+    keeps its memory (:func:`~athermal.linalg.cholesky`)."""
     n, dim = hi.shape
     live = ~(rattler[pairs.first] | rattler[pairs.second])
     pairs.stiffness = np.where(live, stiffness, 0.0)
@@ -354,9 +353,8 @@ def _trial(
             if not apart.any():
                 if (
                     not definite
-                    and pinned_solve(contacts, rattler, force, iterative=False, cholmod=stable)[1]
-                    == np.inf
-                ):
+                    and pinned_solve(contacts, rattler, force, iterative=False)[1] == np.inf
+                ):  # a failure ends the trial
                     return None, bonds, rattler, held  # balanced on a saddle: no verdict
                 pairs.stiffness = stiffness
                 try:
@@ -390,11 +388,14 @@ def _trial(
         mode = None if stable else _unstable_mode(contacts, rattler, hi.shape)
         if mode is None:
             y, residual, solver = pinned_solve(contacts, rattler, force, iterative=False)
-            stable = residual < np.inf
-            if not stable:  # not positive definite: unstable, or singular
-                mode = _unstable_mode(contacts, rattler, hi.shape)
+            if residual == np.inf:  # not positive definite: unstable, or singular
+                if stable:  # else its unstable mode was sought above, and there is none
+                    mode = _unstable_mode(contacts, rattler, hi.shape)
                 if mode is None:  # singular, consistent
                     y, residual, solver = pinned_solve(contacts, rattler, force, cholmod=False)
+                stable = False
+            else:
+                stable = True
         if mode is not None:
             blocking = _blocking_pair(pairs, hi, lo, mode, rattler, bonds, overlap, parted)
             if blocking is None or escape:  # it gives way further than a small move
