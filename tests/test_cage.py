@@ -6,7 +6,7 @@ import pytest
 
 import athermal as at
 from athermal.certify import GAP_REACH, free_rattlers
-from athermal.certify.cage import CLEARANCE, free_place, free_places, nearest_clear
+from athermal.certify.cage import CLEARANCE, free_place, free_places, nearest_clear, reached
 from athermal.certify.extended import NearPairs
 
 
@@ -75,6 +75,47 @@ def test_the_place_is_the_nearest_clear_point_of_a_brute_force_search(dim):
         assert np.linalg.norm(move) <= nearest + 1e-12
         checked += 1
     assert checked >= 20
+
+
+def every_candidate(offsets, reach):
+    """The candidates of every sphere, pair and triple, clear of every neighbour, in order."""
+    from itertools import combinations
+
+    from athermal.certify.cage import _circle, _radial, _three
+
+    dim = offsets.shape[1]
+    target = reach * (1.0 + CLEARANCE)
+    found = [_radial(offsets, target)]
+    for j, k in combinations(range(len(reach)), 2):
+        found.append(_circle(offsets[j], offsets[k], target[j], target[k], dim))
+    if dim == 3:
+        for j, k, m in combinations(range(len(reach)), 3):
+            found.append(_three(offsets[[j, k, m]], target[[j, k, m]]))
+    points = np.concatenate(found).reshape(-1, dim)
+    return [p for p in points if clear(p, offsets, reach)]
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_candidates_left_out_are_never_the_nearest(dim):
+    """Among a dozen neighbours, a few overlapping by ~1e-9 (a trial's rattlers), the place
+    from the spheres near the particle is the one from every sphere, pair and triple."""
+    rng = np.random.default_rng(3 + dim)
+    for _ in range(30):
+        m = 12
+        direction = rng.normal(size=(m, dim))
+        direction /= np.linalg.norm(direction, axis=1)[:, None]
+        reach = rng.uniform(0.8, 1.2, m)
+        gap = np.where(rng.uniform(size=m) < 0.3, -1e-9, rng.uniform(1e-9, 1e-2, m))
+        offsets = direction * (reach * (1.0 + gap))[:, None]
+        every = every_candidate(offsets, reach)
+        reachable = [p for p in every if reached(p, offsets, reach)]
+        want = min(reachable, key=lambda p: p @ p) if reachable else None
+        got = free_place(offsets, reach)
+        assert (got is None) == (want is None)
+        if want is not None:
+            assert np.array_equal(got, want)
+        nearest = nearest_clear(offsets, reach)
+        assert np.array_equal(nearest, min(every, key=lambda p: p @ p))
 
 
 def overlap_energy(first, second, offsets, reach, moves):

@@ -19,7 +19,12 @@ from athermal.certify import (
     contact_network,
     toward_jamming,
 )
-from athermal.certify.bisection import START_EPSILON, _trial, bisect_jamming_point
+from athermal.certify.bisection import (
+    START_EPSILON,
+    _Corrections,
+    _trial,
+    bisect_jamming_point,
+)
 from athermal.certify.extended import NearPairs
 from athermal.cli import main
 from athermal.errors import InputError
@@ -233,7 +238,8 @@ def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
     _, rattler = contact_network(pairs, hi, sums)
     bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     radii = packing.radii * (point.phi_low / point.phi_high) ** 0.5
-    verdict, _, _, _ = _trial(pairs, pairs.stiffness.copy(), hi, lo, radii, bonds, rattler)
+    stiffness = pairs.stiffness.copy()
+    verdict, _, _, _ = _trial(pairs, stiffness, hi, lo, radii, bonds, rattler, _Corrections())
     assert verdict is False
 
 

@@ -88,3 +88,22 @@ def test_incomplete_cholesky_shifts_a_matrix_whose_pivot_vanishes():
         linalg.IncompleteCholeskyFactor(laplacian_1d(5, -3.0))
     with pytest.raises(InputError, match="diagonal"):
         linalg.IncompleteCholeskyFactor(sp.csr_matrix(np.array([[1.0, 0.5], [0.5, 0.0]])))
+
+
+def test_cg_with_a_nearby_factor_solves_in_a_few_iterations_and_finds_indefiniteness():
+    """The factor of a nearby matrix (a small shift and one stiff bond apart) makes CG converge
+    in a few iterations; too few iterations give None, a direction of negative curvature
+    raises, and a zero right-hand side is solved by zero."""
+    near = laplacian_2d(20, 1e-3)
+    factor = linalg.cholesky(near)
+    bond = sp.coo_matrix(([5.0, -5.0, -5.0, 5.0], ([3, 3, 4, 4], [3, 4, 3, 4])), shape=near.shape)
+    matrix = (near * (1.0 + 1e-4) + bond).tocsr()
+    b = np.random.default_rng(1).normal(size=near.shape[0])
+    y, residual = linalg.factor_cg(matrix, b, factor, 1e-12, 8)
+    assert residual <= 1e-12
+    np.testing.assert_allclose(matrix @ y, b, rtol=0, atol=1e-11 * np.linalg.norm(b))
+    assert linalg.factor_cg(matrix, b, factor, 1e-12, 1) is None
+    with pytest.raises(linalg.NotPositiveDefinite):
+        linalg.factor_cg(laplacian_2d(20, -0.05), b, factor, 1e-12, 50)
+    zero, residual = linalg.factor_cg(matrix, np.zeros_like(b), factor, 1e-12, 8)
+    assert residual == 0.0 and not zero.any()

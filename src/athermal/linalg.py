@@ -8,7 +8,8 @@ preconditioners (:mod:`athermal.engines.precon`) and the moduli (:mod:`athermal.
 * :class:`AmgFactor`: a fixed number of smoothed-aggregation V-cycles from a zero start
   (pyamg), a fixed symmetric linear operator;
 * :class:`IncompleteCholeskyFactor`: the zero-fill incomplete Cholesky factor ``L L^T ~ A``
-  (compiled): no fill, so a fraction of the exact factor's build time and memory.
+  (compiled): no fill, so a fraction of the exact factor's build time and memory;
+* :func:`factor_cg`: conjugate gradients preconditioned by the factor of a nearby matrix.
 
 Each maps right-hand sides ``(n, k)`` to solutions ``(n, k)``. :func:`pin_rows` decouples the
 rows of coordinates held fixed, so that a solve never moves them.
@@ -29,6 +30,7 @@ import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
 from ._jit import _jit
+from ._portable import vdot, vnorm
 from ._validate import choice
 from .errors import InputError
 
@@ -282,6 +284,38 @@ def cholesky(matrix: sp.spmatrix, *, cholmod: bool = True) -> Factor | None:
     except RuntimeError:  # "Factor is exactly singular"
         return None
     return factor if factor.positive_pivots() else None
+
+
+def factor_cg(
+    matrix: sp.spmatrix, rhs: NDArray[np.float64], factor: Factor, rtol: float, maxiter: int
+) -> tuple[NDArray[np.float64], float] | None:
+    """``y`` ``(n,)`` of ``matrix y = rhs`` by conjugate gradients from zero, preconditioned by
+    ``factor`` (an exact factor of a nearby SPD matrix, so that the preconditioned spectrum
+    clusters at 1), to a recursive residual of ``rtol |rhs|``, and its relative residual
+    ``|matrix y - rhs| / |rhs|`` recomputed (round-off bounds it, as it bounds a direct
+    solve's); None when ``maxiter`` iterations do not reach ``rtol``. Raises
+    :class:`NotPositiveDefinite` when a search direction has no positive curvature. Its sums are
+    :mod:`~athermal._portable`'s, the same bits on every CPU."""
+    size = vnorm(rhs)
+    y = np.zeros_like(rhs)
+    if size == 0.0:
+        return y, 0.0
+    r = rhs.copy()
+    z = factor.solve(r[:, None])[:, 0]
+    p, rz = z.copy(), vdot(r, z)
+    for _ in range(maxiter):
+        q = matrix @ p
+        curvature = vdot(p, q)
+        if not curvature > 0.0:
+            raise NotPositiveDefinite("conjugate gradients met a direction of no curvature")
+        y += (rz / curvature) * p
+        r -= (rz / curvature) * q
+        if vnorm(r) <= rtol * size:
+            return y, vnorm(rhs - matrix @ y) / size
+        z = factor.solve(r[:, None])[:, 0]
+        rz, previous = vdot(r, z), rz
+        p = z + (rz / previous) * p
+    return None
 
 
 def pin_rows(matrix: sp.spmatrix, rows: NDArray[np.intp]) -> sp.csr_matrix:

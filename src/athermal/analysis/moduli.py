@@ -423,14 +423,23 @@ def pinned_solve(
     """
     n, dim, m = xi.shape
     y = np.zeros((n * dim, m))
-    live = np.flatnonzero(~rattler)
-    if live.size <= 1:
+    if np.count_nonzero(~rattler) <= 1:
         return y, 0.0, "none"
-    dofs = (live[:, None] * dim + np.arange(dim)).ravel()[unpinned(live.size * dim, dim, walls)]
+    h, dofs = pinned_hessian(contacts, rattler, dim, walls)
     b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
-    h = hessian(contacts, n)[dofs][:, dofs].tocsr()
     y[dofs], residual, solver = _solve(h, b, iterative, cholmod)
     return y, residual, solver
+
+
+def pinned_hessian(
+    contacts: Contacts, rattler: NDArray[np.bool_], dim: int, walls: tuple[int, ...] = ()
+) -> tuple[sp.csr_matrix, NDArray[np.intp]]:
+    """The Hessian :func:`pinned_solve` solves with: H on the non-rattlers, the first of them
+    pinned along the periodic axes (those not in ``walls``), and its rows' flat coordinates
+    ``dofs`` (of ``N d``)."""
+    h, dofs = nonrattler_hessian(contacts, rattler, dim)
+    keep = unpinned(dofs.size, dim, walls)
+    return h[keep][:, keep].tocsr(), dofs[keep]
 
 
 def _untilting(packing: Packing, d: NDArray[np.float64], name: str) -> NDArray[np.float64]:

@@ -316,15 +316,18 @@ def free_rattlers(
     radii = pairs.packing.radii if radii is None else radii
     reach = radii[pairs.first] + radii[pairs.second]
     free = rattler.copy()
+    ends = np.concatenate([pairs.first, pairs.second])
+    by_end = np.argsort(ends, kind="stable") % pairs.first.size  # each particle's pairs
+    start = np.concatenate([[0], np.cumsum(np.bincount(ends, minlength=hi.shape[0]))])
     for _ in range(RATTLER_PASSES):
         sums = pairs.sums(hi, lo, radii)
         hit = (sums.overlap[0] > 0.0) & (free[pairs.first] | free[pairs.second])
         if not hit.any():
             return sums, np.flatnonzero(rattler & ~free)
-        ends = np.concatenate([pairs.first[hit], pairs.second[hit]])
+        touched = np.concatenate([pairs.first[hit], pairs.second[hit]])
         stuck = []
-        for i in np.unique(ends[free[ends]]):
-            mine = np.flatnonzero((pairs.first == i) | (pairs.second == i))
+        for i in np.unique(touched[free[touched]]):
+            mine = np.unique(by_end[start[i] : start[i + 1]])  # a self-image pair once
             move = free_place(_offsets(pairs, hi, lo, mine, i), reach[mine])
             if move is None:
                 stuck.append(i)

@@ -7,13 +7,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import NDArray
 
-from .._portable import root, row_dots
+from .._portable import root, row_dots, vnorm
 from ..analysis.modes import lowest_eigenpairs, zero_tolerance
-from ..analysis.moduli import nonrattler_hessian, pinned_solve
+from ..analysis.moduli import nonrattler_hessian, pinned_hessian, pinned_solve
 from ..analysis.observables import rattlers
 from ..errors import ConvergenceError, InputError
+from ..linalg import Factor, NotPositiveDefinite, cholesky, factor_cg
 from ..model.contact import ContactModel, Contacts, hessian_floor
 from ..model.objective import Objective
 from ..model.packing import Packing
@@ -49,6 +51,11 @@ bond parted, is moved along its unstable mode to close the gap that holds it
 (:func:`_blocking_pair`): a small rearrangement, well within the pairs' :data:`GAP_REACH`."""
 TRIAL_BALANCE = 1e-14
 """A trial's verdict needs its network's forces balanced to this fraction of their mean."""
+CORRECTION_RTOL = 1e-12
+"""Relative residual of a Newton correction found by conjugate gradients (:class:`_Corrections`):
+a direct solve's, at the condition numbers of a network near jamming."""
+CORRECTION_ITERATIONS = 50
+"""Conjugate gradient iterations of a Newton correction at most before a fresh factorization."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,6 +144,7 @@ def bisect_jamming_point(
     phi0, radii0, dim = packing.phi, packing.radii, packing.dim
     high, low, step, trials, radii = phi0, -1.0, FIRST_STEP, 0, radii0
     readmitted, instabilities, rearranged, shed, formed = 0, 0, 0, 0, 0
+    corrections = _Corrections()
     while low < 0.0 or high - low > epsilon:
         if trials == max_trials:
             raise ConvergenceError(f"certify: no bracket of {epsilon:g} in {max_trials} trials")
@@ -145,14 +153,24 @@ def bisect_jamming_point(
         trial_hi, trial_lo = hi.copy(), lo.copy()
         trials += 1
         verdict, trial_bonds, trial_rattler, held = _trial(
-            pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler
+            pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler, corrections
         )
         if verdict is None and step >= epsilon / 4.0:
             step /= 4.0
             continue
         if verdict is None:  # at any step the network gives way: the packing rearranges
             trial_hi, trial_lo = hi.copy(), lo.copy()
-            _trial(pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler, escape=True)
+            _trial(
+                pairs,
+                stiffness,
+                trial_hi,
+                trial_lo,
+                trial_radii,
+                bonds,
+                rattler,
+                corrections,
+                escape=True,
+            )
             start_moved = Packing(trial_hi + trial_lo, trial_radii, packing.cell)
             relaxed = _rearranged(start_moved, model, phi)
             rearranged += 1
@@ -167,7 +185,14 @@ def bisect_jamming_point(
             start_bonds = live & (sums.overlap[0] > 0.0)
             full = moved.stiffness.copy()
             verdict, trial_bonds, trial_rattler, held = _trial(
-                moved, full, trial_hi, trial_lo, trial_radii, start_bonds, start_rattler
+                moved,
+                full,
+                trial_hi,
+                trial_lo,
+                trial_radii,
+                start_bonds,
+                start_rattler,
+                corrections,
             )
             moved.stiffness = full
             if verdict is None:
@@ -202,6 +227,56 @@ def bisect_jamming_point(
         instabilities,
         rearranged,
     )
+
+
+class _Corrections:
+    """The Newton corrections ``H^-1 force`` of one march's trials on the non-rattlers (the first
+    pinned, :func:`~athermal.analysis.moduli.pinned_hessian`): by conjugate gradients
+    preconditioned with the last factor of a trial network's Hessian on the same non-rattlers
+    (:func:`~athermal.linalg.factor_cg`; the networks of neighbouring trials differ by a few
+    bonds and a small pre-stress, so a few solves with the factor replace a factorization),
+    else, or when they do not reach :data:`CORRECTION_RTOL` in :data:`CORRECTION_ITERATIONS`, by
+    a fresh factor, kept for the corrections that follow."""
+
+    def __init__(self) -> None:
+        self._kept: tuple[NDArray[np.bool_], Factor] | None = None  # non-rattlers, factor
+
+    def solve(
+        self, contacts: Contacts, rattler: NDArray[np.bool_], force: NDArray[np.float64]
+    ) -> tuple[NDArray[np.float64], float, str]:
+        """``y`` ``(N d, 1)`` (zero on the rattlers) of ``force`` ``(N, d, 1)``, its relative
+        residual and how it was found: ``"cg"``, or ``"cholmod"`` (a fresh factor: the Hessian is
+        positive definite); zeros, an infinite residual and ``"none"`` when the Hessian is not
+        positive definite (a factor that fails, or a direction of no curvature)."""
+        h, dofs = pinned_hessian(contacts, rattler, force.shape[1])
+        b = np.ascontiguousarray(force.reshape(-1)[dofs])
+        y = np.zeros((force.size, 1))
+        if self._kept is not None and np.array_equal(self._kept[0], ~rattler):
+            try:
+                found = factor_cg(h, b, self._kept[1], CORRECTION_RTOL, CORRECTION_ITERATIONS)
+            except NotPositiveDefinite:
+                return y, np.inf, "none"
+            if found is not None:
+                y[dofs, 0] = found[0]
+                return y, found[1], "cg"
+        factor = self._factor(h, rattler)
+        if factor is None:
+            return y, np.inf, "none"
+        y[dofs] = factor.solve(b[:, None])
+        residual = vnorm(h @ y[dofs, 0] - b) / max(vnorm(b), np.finfo(float).tiny)
+        return y, residual, "cholmod"
+
+    def definite(self, contacts: Contacts, rattler: NDArray[np.bool_], dim: int) -> bool:
+        """Whether the Hessian is positive definite (a fresh factor, kept)."""
+        return self._factor(pinned_hessian(contacts, rattler, dim)[0], rattler) is not None
+
+    def _factor(self, h: sp.csr_matrix, rattler: NDArray[np.bool_]) -> Factor | None:
+        """The factor of ``h`` (the pinned Hessian of the non-rattlers of ``rattler``), kept;
+        None when ``h`` is not positive definite."""
+        factor = cholesky(h)
+        if factor is not None:
+            self._kept = ~rattler, factor
+        return factor
 
 
 def _clear(
@@ -319,6 +394,7 @@ def _trial(
     radii: NDArray[np.float64],
     bonds: NDArray[np.bool_],
     rattler: NDArray[np.bool_],
+    corrections: _Corrections,
     *,
     escape: bool = False,
 ) -> tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_], int]:
@@ -351,10 +427,7 @@ def _trial(
         if sums.largest_force() <= TRIAL_BALANCE * scale:
             apart = bonds & (overlap <= 0.0)
             if not apart.any():
-                if (
-                    not definite
-                    and pinned_solve(contacts, rattler, force, iterative=False)[1] == np.inf
-                ):  # a failure ends the trial
+                if not definite and not corrections.definite(contacts, rattler, dim):
                     return None, bonds, rattler, held  # balanced on a saddle: no verdict
                 pairs.stiffness = stiffness
                 try:
@@ -387,7 +460,7 @@ def _trial(
             continue
         mode = None if stable else _unstable_mode(contacts, rattler, hi.shape)
         if mode is None:
-            y, residual, solver = pinned_solve(contacts, rattler, force, iterative=False)
+            y, residual, solver = corrections.solve(contacts, rattler, force)
             if residual == np.inf:  # not positive definite: unstable, or singular
                 if stable:  # else its unstable mode was sought above, and there is none
                     mode = _unstable_mode(contacts, rattler, hi.shape)

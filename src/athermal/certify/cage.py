@@ -20,6 +20,7 @@ particle squeezed on a line sits on a saddle of that energy).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from itertools import combinations
 
 import numpy as np
@@ -46,7 +47,7 @@ def free_place(
     passing through a neighbour (:func:`reached`): zero when it is there already, None when the
     cage leaves no such place."""
     offsets, reach = np.asarray(offsets, np.float64), np.asarray(reach, np.float64)
-    inside = [p for p in _clear_places(offsets, reach) if reached(p, offsets, reach)]
+    inside = _clear_places(offsets, reach, lambda p: reached(p, offsets, reach))
     return min(inside, key=lambda p: vdot(p, p)) if inside else None
 
 
@@ -57,27 +58,43 @@ def nearest_clear(
     (and :data:`CLEARANCE`) from each neighbour at ``offsets`` ``(m, d)``, wherever it lies,
     through neighbours or not (None: no candidate is clear)."""
     points = _clear_places(np.asarray(offsets, np.float64), np.asarray(reach, np.float64))
-    return points[np.argmin(np.linalg.norm(points, axis=1))] if points.size else None
+    return min(points, key=lambda p: vdot(p, p)) if points else None
 
 
-def _clear_places(offsets: NDArray[np.float64], reach: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The candidates ``(c, d)`` (module docstring) that are clear of every neighbour; only the
-    origin when it is clear by :data:`CLEARANCE` already."""
+def _clear_places(
+    offsets: NDArray[np.float64],
+    reach: NDArray[np.float64],
+    keep: Callable[[NDArray[np.float64]], bool] = lambda p: True,
+) -> list[NDArray[np.float64]]:
+    """The candidates ``(d,)`` (module docstring) that are clear of every neighbour and that
+    ``keep`` keeps, in order: only the origin when it is clear by :data:`CLEARANCE` already.
+    Those where two or three spheres meet come only from spheres whose surface passes within
+    the nearest kept radial candidate of the origin: a candidate lies on each of its spheres,
+    so one from another sphere is farther, and the nearest candidate is never left out."""
     dim = offsets.shape[1]
     target = reach * (1.0 + CLEARANCE)
-    if np.all(np.linalg.norm(offsets, axis=1) >= target):
-        return np.zeros((1, dim))
-    candidates = [_radial(offsets, target)]
-    for j, k in combinations(range(offsets.shape[0]), 2):
+    length = np.linalg.norm(offsets, axis=1)
+    if np.all(length >= target):
+        return [np.zeros(dim)]
+    radial = _radial(offsets, target)
+    places = [p for p in radial[_clear(radial, offsets, reach)] if keep(p)]
+    bound = min((vnorm(p) for p in places), default=np.inf)
+    near = np.flatnonzero(np.abs(length - target) <= bound)
+    candidates = [np.empty((0, dim))]
+    for j, k in combinations(near, 2):
         candidates.append(_circle(offsets[j], offsets[k], target[j], target[k], dim))
     if dim == 3:
-        for j, k, m in combinations(range(offsets.shape[0]), 3):
+        for j, k, m in combinations(near, 3):
             candidates.append(_three(offsets[[j, k, m]], target[[j, k, m]]))
     points = np.concatenate(candidates).reshape(-1, dim)
-    clear = np.all(
-        np.linalg.norm(points[:, None, :] - offsets[None, :, :], axis=2) >= reach, axis=1
-    )
-    return points[clear]
+    return places + [p for p in points[_clear(points, offsets, reach)] if keep(p)]
+
+
+def _clear(
+    points: NDArray[np.float64], offsets: NDArray[np.float64], reach: NDArray[np.float64]
+) -> NDArray[np.bool_]:
+    """Which of ``points`` ``(c, d)`` are at least ``reach`` from every neighbour."""
+    return np.all(np.linalg.norm(points[:, None, :] - offsets[None, :, :], axis=2) >= reach, axis=1)
 
 
 def reached(
@@ -181,6 +198,7 @@ def free_places(
     scale = float(np.sqrt(reach.mean() * overlap.max()))  # a sideways step out of a squeeze
     fixed = second < 0
     other = np.where(fixed, 0, second)
+    ends = np.concatenate([first, other[~fixed]])  # the particles each pair pushes, in turn
 
     def energy(v: NDArray[np.float64]) -> tuple[float, NDArray[np.float64]]:
         u = v.reshape(movers, dim) * scale
@@ -188,10 +206,9 @@ def free_places(
         length = np.linalg.norm(sep, axis=1)
         over = np.maximum(target - length, 0.0) / scale
         push = (2.0 * over / length)[:, None] * sep  # d energy / d u_first, per pair
-        grad = np.zeros((movers, dim))
-        np.add.at(grad, first, push)
-        np.add.at(grad, other[~fixed], -push[~fixed])
-        return vdot(over, over), grad.reshape(-1)
+        terms = np.concatenate([push, -push[~fixed]])
+        grad = [np.bincount(ends, terms[:, a], movers) for a in range(dim)]
+        return vdot(over, over), np.stack(grad, axis=1, dtype=np.float64).reshape(-1)
 
     rng = np.random.default_rng(seed)
     best: tuple[float, NDArray[np.float64]] | None = None
