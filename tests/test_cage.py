@@ -90,7 +90,7 @@ def every_candidate(offsets, reach):
         found.append(_circle(offsets[j], offsets[k], target[j], target[k], dim))
     if dim == 3:
         for j, k, m in combinations(range(len(reach)), 3):
-            found.append(_three(offsets[[j, k, m]], target[[j, k, m]]))
+            found.append(_three(offsets[None, [j, k, m]], target[None, [j, k, m]]))
     points = np.concatenate(found).reshape(-1, dim)
     return [p for p in points if clear(p, offsets, reach)]
 

@@ -8,6 +8,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 
 from athermal.analysis.modes import (
     density_of_states,
@@ -286,3 +287,28 @@ def test_the_modes_command_writes_the_modes_and_the_figure(packing_2d, tmp_path,
         assert message in capsys.readouterr().err
     assert main(["modes", str(tmp_path / "p.gsd"), "-o", str(tmp_path / "m.txt")]) == 2
     assert ".npz" in capsys.readouterr().err
+
+
+def test_lobpcg_near_a_factor_finds_the_negative_mode_a_change_made():
+    """A stable network's Hessian less a rank-one term: one negative eigenvalue, found by LOBPCG
+    preconditioned with the stable Hessian's factor as the dense spectrum has it, its residual
+    within the tolerance; too few iterations give None."""
+    from athermal.analysis.modes import lowest_eigenpair_near
+    from athermal.linalg import cholesky
+
+    packing, model = relaxed(64, 0.9, 2, 1)
+    contacts, rattler = nonrattler_contacts(packing, model)
+    h0, _ = nonrattler_hessian(contacts, rattler, 2)
+    dense, modes = np.linalg.eigh(h0.toarray())  # two translations, then the lowest mode
+    v = modes[:, 2] + 0.1 * modes[:, 5]
+    v /= np.linalg.norm(v)
+    h = sp.csr_matrix(h0 - 2.0 * dense[2] * np.outer(v, v))
+    want = np.linalg.eigh(h.toarray())
+    assert want[0][0] < -0.5 * dense[2]
+    factor = cholesky((h0 + 1e-3 * dense[2] * sp.identity(h0.shape[0])).tocsr())
+    tolerance = 1e-9 * dense[-1]
+    value, vector = lowest_eigenpair_near(h, factor, tolerance, 100)
+    assert value == pytest.approx(want[0][0], abs=tolerance)
+    assert abs(vector @ want[1][:, 0]) == pytest.approx(1.0, abs=1e-6)
+    assert np.linalg.norm(h @ vector - value * vector) <= tolerance
+    assert lowest_eigenpair_near(h, factor, tolerance, 1) is None

@@ -19,6 +19,7 @@ jammed packings: ``docs/modes.md``).
 from __future__ import annotations
 
 import os
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -28,9 +29,10 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from numpy.typing import NDArray
 
+from .._portable import vdot, vnorm
 from ..atomic import replacing
 from ..errors import InputError
-from ..linalg import arpack_start, cholesky
+from ..linalg import Factor, arpack_start, cholesky
 from ..model.contact import ContactModel, hessian_floor
 from ..model.packing import Packing
 from .moduli import STABILITY_TOL, nonrattler_contacts, nonrattler_hessian
@@ -145,6 +147,34 @@ def lowest_eigenpairs(
     )
     order = np.argsort(values)
     return values[order], vecs[:, order]
+
+
+def lowest_eigenpair_near(
+    h: sp.spmatrix, factor: Factor, tolerance: float, maxiter: int
+) -> tuple[float, NDArray[np.float64]] | None:
+    """The lowest eigenvalue of the symmetric ``h`` and its unit eigenvector ``(M,)`` by LOBPCG
+    preconditioned with ``factor`` (the factor of a nearby positive definite matrix: the
+    preconditioned spectrum clusters at 1, and a negative eigenvalue stands apart), from a fixed
+    start vector (:func:`~athermal.linalg.arpack_start`), to a residual ``|h v - lambda v|`` of
+    ``tolerance``, which bounds the eigenvalue's error; None when ``maxiter`` iterations do not
+    reach it."""
+    solve = factor.solve
+    inverse = spla.LinearOperator(
+        h.shape, matvec=lambda v: solve(v.reshape(-1, 1)).ravel(), dtype=np.float64
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # not converged: told by the residual
+        _, vectors = spla.lobpcg(
+            h,
+            arpack_start(h.shape[0])[:, None],
+            M=inverse,
+            tol=tolerance,
+            maxiter=maxiter,
+            largest=False,
+        )
+    v = vectors[:, 0] / vnorm(vectors[:, 0])
+    value = vdot(v, h @ v)
+    return (value, v) if vnorm(h @ v - value * v) <= tolerance else None
 
 
 def vibrational_modes(

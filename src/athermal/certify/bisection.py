@@ -11,8 +11,8 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from .._portable import root, row_dots, vnorm
-from ..analysis.modes import lowest_eigenpairs, zero_tolerance
-from ..analysis.moduli import nonrattler_hessian, pinned_hessian, pinned_solve
+from ..analysis.modes import lowest_eigenpair_near, lowest_eigenpairs, zero_tolerance
+from ..analysis.moduli import pinned_hessian, pinned_solve
 from ..analysis.observables import rattlers
 from ..errors import ConvergenceError, InputError
 from ..linalg import Factor, NotPositiveDefinite, cholesky, factor_cg
@@ -56,6 +56,8 @@ CORRECTION_RTOL = 1e-12
 a direct solve's, at the condition numbers of a network near jamming."""
 CORRECTION_ITERATIONS = 50
 """Conjugate gradient iterations of a Newton correction at most before a fresh factorization."""
+MODE_ITERATIONS = 100
+"""LOBPCG iterations of an unstable mode at most before a shift-invert factorization."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,7 +241,7 @@ class _Corrections:
     a fresh factor, kept for the corrections that follow."""
 
     def __init__(self) -> None:
-        self._kept: tuple[NDArray[np.bool_], Factor] | None = None  # non-rattlers, factor
+        self._kept: tuple[NDArray[np.intp], Factor] | None = None  # its rows' dofs, factor
 
     def solve(
         self, contacts: Contacts, rattler: NDArray[np.bool_], force: NDArray[np.float64]
@@ -251,32 +253,68 @@ class _Corrections:
         h, dofs = pinned_hessian(contacts, rattler, force.shape[1])
         b = np.ascontiguousarray(force.reshape(-1)[dofs])
         y = np.zeros((force.size, 1))
-        if self._kept is not None and np.array_equal(self._kept[0], ~rattler):
+        near = self._near(dofs)
+        if near is not None:
             try:
-                found = factor_cg(h, b, self._kept[1], CORRECTION_RTOL, CORRECTION_ITERATIONS)
+                found = factor_cg(h, b, near, CORRECTION_RTOL, CORRECTION_ITERATIONS)
             except NotPositiveDefinite:
                 return y, np.inf, "none"
             if found is not None:
                 y[dofs, 0] = found[0]
                 return y, found[1], "cg"
-        factor = self._factor(h, rattler)
+        factor = self._factor(h, dofs)
         if factor is None:
             return y, np.inf, "none"
         y[dofs] = factor.solve(b[:, None])
         residual = vnorm(h @ y[dofs, 0] - b) / max(vnorm(b), np.finfo(float).tiny)
         return y, residual, "cholmod"
 
+    def unstable_mode(
+        self, contacts: Contacts, rattler: NDArray[np.bool_], shape: tuple[int, ...]
+    ) -> NDArray[np.float64] | None:
+        """The eigenvector ``shape`` ``(N, d)`` (zero on the rattlers) of the lowest eigenvalue
+        of the non-rattlers' Hessian (pre-stress included), the first of them pinned, when that
+        eigenvalue is negative (pinned, the Hessian has as many negative eigenvalues as free:
+        the translations lie in its null space); None otherwise. By LOBPCG preconditioned with
+        the kept factor where it is of these non-rattlers
+        (:func:`~athermal.analysis.modes.lowest_eigenpair_near`, to a residual of the zero
+        tolerance), else, or where that does not converge in :data:`MODE_ITERATIONS`, by
+        shift-invert below the contacts' floor
+        (:func:`~athermal.analysis.modes.lowest_eigenpairs`)."""
+        h, dofs = pinned_hessian(contacts, rattler, shape[1])
+        tolerance = zero_tolerance(h)
+        found = None
+        near = self._near(dofs)
+        if near is not None:
+            found = lowest_eigenpair_near(h, near, tolerance, MODE_ITERATIONS)
+        if found is None:
+            values, vectors = lowest_eigenpairs(
+                h, 1, hessian_floor(contacts, shape[0]), saddle=True
+            )
+            found = float(values[0]), vectors[:, 0]
+        if not found[0] < -tolerance:
+            return None
+        flat = np.zeros(shape[0] * shape[1])
+        flat[dofs] = found[1]
+        return flat.reshape(shape)
+
     def definite(self, contacts: Contacts, rattler: NDArray[np.bool_], dim: int) -> bool:
         """Whether the Hessian is positive definite (a fresh factor, kept)."""
-        return self._factor(pinned_hessian(contacts, rattler, dim)[0], rattler) is not None
+        return self._factor(*pinned_hessian(contacts, rattler, dim)) is not None
 
-    def _factor(self, h: sp.csr_matrix, rattler: NDArray[np.bool_]) -> Factor | None:
-        """The factor of ``h`` (the pinned Hessian of the non-rattlers of ``rattler``), kept;
-        None when ``h`` is not positive definite."""
+    def _factor(self, h: sp.csr_matrix, dofs: NDArray[np.intp]) -> Factor | None:
+        """The factor of ``h`` (a pinned Hessian, its rows those of ``dofs``), kept; None when
+        ``h`` is not positive definite."""
         factor = cholesky(h)
         if factor is not None:
-            self._kept = ~rattler, factor
+            self._kept = dofs, factor
         return factor
+
+    def _near(self, dofs: NDArray[np.intp]) -> Factor | None:
+        """The kept factor where it is of a pinned Hessian on the rows ``dofs``, else None."""
+        if self._kept is None or not np.array_equal(self._kept[0], dofs):
+            return None
+        return self._kept[1]
 
 
 def _clear(
@@ -319,21 +357,6 @@ def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | No
             f"found no minimum ({exc})"
         ) from exc
     return None if result.energy <= floor else result.packing
-
-
-def _unstable_mode(
-    contacts: Contacts, rattler: NDArray[np.bool_], shape: tuple[int, ...]
-) -> NDArray[np.float64] | None:
-    """The eigenvector ``shape`` ``(N, d)`` of the lowest eigenvalue of the non-rattlers'
-    Hessian (pre-stress included) when that eigenvalue is negative; None otherwise."""
-    h, dofs = nonrattler_hessian(contacts, rattler, shape[1])
-    floor = hessian_floor(contacts, shape[0])
-    values, vectors = lowest_eigenpairs(h, 1, floor, saddle=True)
-    if not values[0] < -zero_tolerance(h):
-        return None
-    flat = np.zeros(shape[0] * shape[1])
-    flat[dofs] = vectors[:, 0]
-    return flat.reshape(shape)
 
 
 def _blocking_pair(
@@ -458,12 +481,12 @@ def _trial(
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
-        mode = None if stable else _unstable_mode(contacts, rattler, hi.shape)
+        mode = None if stable else corrections.unstable_mode(contacts, rattler, hi.shape)
         if mode is None:
             y, residual, solver = corrections.solve(contacts, rattler, force)
             if residual == np.inf:  # not positive definite: unstable, or singular
                 if stable:  # else its unstable mode was sought above, and there is none
-                    mode = _unstable_mode(contacts, rattler, hi.shape)
+                    mode = corrections.unstable_mode(contacts, rattler, hi.shape)
                 if mode is None:  # singular, consistent
                     y, residual, solver = pinned_solve(contacts, rattler, force, cholmod=False)
                 stable = False

@@ -26,7 +26,7 @@ from itertools import combinations
 import numpy as np
 from numpy.typing import NDArray
 
-from .._portable import row_dots, transform, vdot, vnorm
+from .._portable import row_dots, vdot, vnorm
 from ..minimize import minimize
 
 CLEARANCE = 1e-14
@@ -68,26 +68,39 @@ def _clear_places(
 ) -> list[NDArray[np.float64]]:
     """The candidates ``(d,)`` (module docstring) that are clear of every neighbour and that
     ``keep`` keeps, in order: only the origin when it is clear by :data:`CLEARANCE` already.
-    Those where two or three spheres meet come only from spheres whose surface passes within
-    the nearest kept radial candidate of the origin: a candidate lies on each of its spheres,
-    so one from another sphere is farther, and the nearest candidate is never left out."""
+    Those where two spheres meet come only from spheres whose surface passes within the nearest
+    kept radial candidate of the origin, and those where three meet from spheres within the
+    nearest kept candidate of one or two: a candidate lies on each of its spheres, so one from
+    another sphere is farther, and the nearest candidate is never left out."""
     dim = offsets.shape[1]
     target = reach * (1.0 + CLEARANCE)
     length = np.linalg.norm(offsets, axis=1)
     if np.all(length >= target):
         return [np.zeros(dim)]
-    radial = _radial(offsets, target)
-    places = [p for p in radial[_clear(radial, offsets, reach)] if keep(p)]
+    surface = np.abs(length - target)  # how near each sphere passes to the origin
+    places = _kept(_radial(offsets, target), offsets, reach, keep)
     bound = min((vnorm(p) for p in places), default=np.inf)
-    near = np.flatnonzero(np.abs(length - target) <= bound)
-    candidates = [np.empty((0, dim))]
-    for j, k in combinations(near, 2):
-        candidates.append(_circle(offsets[j], offsets[k], target[j], target[k], dim))
+    near = np.flatnonzero(surface <= bound)
+    two = [
+        _circle(offsets[j], offsets[k], target[j], target[k], dim) for j, k in combinations(near, 2)
+    ]
+    places += _kept(np.concatenate([np.empty((0, dim)), *two]), offsets, reach, keep)
     if dim == 3:
-        for j, k, m in combinations(near, 3):
-            candidates.append(_three(offsets[[j, k, m]], target[[j, k, m]]))
-    points = np.concatenate(candidates).reshape(-1, dim)
-    return places + [p for p in points[_clear(points, offsets, reach)] if keep(p)]
+        bound = min((vnorm(p) for p in places), default=np.inf)
+        near = np.flatnonzero(surface <= bound)
+        triples = np.array(list(combinations(near, 3)), dtype=np.intp).reshape(-1, 3)
+        places += _kept(_three(offsets[triples], target[triples]), offsets, reach, keep)
+    return places
+
+
+def _kept(
+    points: NDArray[np.float64],
+    offsets: NDArray[np.float64],
+    reach: NDArray[np.float64],
+    keep: Callable[[NDArray[np.float64]], bool],
+) -> list[NDArray[np.float64]]:
+    """The ``points`` ``(c, d)`` at least ``reach`` from every neighbour that ``keep`` keeps."""
+    return [p for p in points[_clear(points, offsets, reach)] if keep(p)]
 
 
 def _clear(
@@ -149,30 +162,27 @@ def _circle(
 
 
 def _three(centres: NDArray[np.float64], radii: NDArray[np.float64]) -> NDArray[np.float64]:
-    """The (up to two) points where three spheres meet."""
-    a = centres[1:] - centres[0]
-    rhs = 0.5 * (
-        np.sum(centres[1:] ** 2, axis=1)
-        - np.sum(centres[0] ** 2)
-        - (radii[1:] - radii[0]) * (radii[1:] + radii[0])
-    )
-    normal = np.cross(a[0], a[1])
-    nn = vdot(normal, normal)
-    if nn == 0.0:
-        return np.empty((0, 3))
+    """The points where three spheres meet, for ``T`` triples of centres ``(T, 3, 3)`` and
+    radii ``(T, 3)``: up to two a triple, in the triples' order ``(c, 3)``."""
+    c0, c1, c2 = centres[:, 0], centres[:, 1], centres[:, 2]
+    a0, a1 = c1 - c0, c2 - c0
+    squared = row_dots(c0, c0)
+    r0, r1, r2 = radii[:, 0], radii[:, 1], radii[:, 2]
+    rhs0 = 0.5 * (row_dots(c1, c1) - squared - (r1 - r0) * (r1 + r0))
+    rhs1 = 0.5 * (row_dots(c2, c2) - squared - (r2 - r0) * (r2 + r0))
+    normal = np.cross(a0, a1)
+    nn = row_dots(normal, normal)
     # on the line where the three planes a x = rhs meet: the least-norm x = a^T (a a^T)^-1 rhs
-    (g00, g01), (g10, g11) = transform(a, a)
-    det = g00 * g11 - g01 * g10
-    y = np.array([g11 * rhs[0] - g01 * rhs[1], g00 * rhs[1] - g10 * rhs[0]]) / det
-    base = transform(y[None, :], a.T)[0]
-    rel = base - centres[0]
-    rel = rel - vdot(rel, normal) / nn * normal  # the line's point nearest to the first centre
-    s_sq = (radii[0] ** 2 - vdot(rel, rel)) / nn
-    if s_sq < 0.0:
-        return np.empty((0, 3))
-    s = np.sqrt(s_sq)
-    point = centres[0] + rel
-    return np.array([point + s * normal, point - s * normal])
+    g00, g01, g11 = row_dots(a0, a0), row_dots(a0, a1), row_dots(a1, a1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        det = g00 * g11 - g01 * g01
+        y0, y1 = (g11 * rhs0 - g01 * rhs1) / det, (g00 * rhs1 - g01 * rhs0) / det
+        rel = (y0[:, None] * a0 + y1[:, None] * a1) - c0
+        rel = rel - (row_dots(rel, normal) / nn)[:, None] * normal  # nearest the first centre
+        s_sq = (r0 * r0 - row_dots(rel, rel)) / nn
+    meet = (nn != 0.0) & (s_sq >= 0.0)
+    point, normal = (c0 + rel)[meet], normal[meet] * np.sqrt(s_sq[meet])[:, None]
+    return np.stack([point + normal, point - normal], axis=1).reshape(-1, 3)
 
 
 def free_places(
