@@ -371,3 +371,57 @@ def test_packings_that_shed_contacts_or_rearrange_are_bracketed(name):
     _, rattler = contact_network(pairs, point.jammed.packing.positions, sums)
     overlap = sums.overlap[0] + sums.overlap[1]
     assert not np.any((overlap > 0.0) & (rattler[pairs.first] | rattler[pairs.second]))
+
+
+def test_a_march_resumed_from_any_checkpoint_ends_where_an_uninterrupted_one_does():
+    """A march that rearranges (its near pairs then those of the relaxed packing), resumed from
+    its states just before and just after the rearrangement, brackets the same point with the
+    same certified positions, bit for bit."""
+    packing, _, _ = stored("n1024_seed108")
+    model = at.ContactModel(2.0)
+    states = []
+    whole = bisect_jamming_point(packing, model, 1e-12, on_checkpoint=states.append)
+    assert whole.rearrangements > 0 and len(states) >= 2
+    assert [s.counts[0] for s in states] == [8 * (k + 1) for k in range(len(states))]
+    after = next(s for s in states if s.counts[5] > 0)
+    before = [s for s in states if s.counts[5] == 0][-1]
+    for state in (before, after):
+        again = bisect_jamming_point(packing, model, 1e-12, resume=state)
+        assert (again.phi_low, again.phi_high) == (whole.phi_low, whole.phi_high)
+        assert again.march() == whole.march()
+        np.testing.assert_array_equal(
+            again.jammed.packing.positions, whole.jammed.packing.positions
+        )
+        np.testing.assert_array_equal(again.jammed.position_lo, whole.jammed.position_lo)
+
+
+def test_jam_certify_killed_in_its_march_resumes_to_the_same_packing(tmp_path, capsys, monkeypatch):
+    """The march's state is written beside the trajectory every 8 trials; a run stopped after
+    the first (Ctrl-C: exit 130) continues with ``--resume`` to the packing an uninterrupted run
+    writes, and removes the file."""
+    import athermal.studies.jammed as jammed
+
+    args = ["jam", "--n", "256", "--seed", "3", "--certify", "--epsilon", "1e-12"]
+    args += ["--picture", "none", "--json", "--quiet"]
+    assert main([*args, "-o", str(tmp_path / "whole.gsd")]) == 0
+    whole = json.loads(capsys.readouterr().out)
+    saved = jammed.save_march
+
+    def stop(path, state, key):
+        saved(path, state, key)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(jammed, "save_march", stop)
+    assert main([*args, "-o", str(tmp_path / "cut.gsd")]) == 130
+    march = tmp_path / "cut.steps.march.npz"
+    assert march.is_file()
+    monkeypatch.setattr(jammed, "save_march", saved)
+    capsys.readouterr()
+    assert main([*args, "-o", str(tmp_path / "cut.gsd"), "--resume"]) == 0
+    resumed = json.loads(capsys.readouterr().out)
+    assert not march.exists()
+    assert resumed["phi_high"] == whole["phi_high"] and resumed["phi_low"] == whole["phi_low"]
+    assert resumed["bisected_in_double_double"] == whole["bisected_in_double_double"]
+    one, two = at.read_gsd(tmp_path / "whole.gsd"), at.read_gsd(tmp_path / "cut.gsd")
+    np.testing.assert_array_equal(one.packing.positions, two.packing.positions)
+    np.testing.assert_array_equal(one.position_lo, two.position_lo)

@@ -62,12 +62,20 @@ def test_the_freud_example_reads_a_file(tmp_path):
 
 
 def test_a_jamming_point_is_certified_and_its_exponents_fitted(tmp_path):
-    one, read, below, linear, many = blocks(HOWTO / "certify.md")
+    one, read, below, hard, linear, many = blocks(HOWTO / "certify.md")
     paste(one, tmp_path)
     balance = re.search(r"force balance (\S+) of", paste(read, tmp_path)).group(1)
     assert float(balance) <= 1e-20
     width = re.search(r"\(bracket (\S+)\)", paste(below, tmp_path)).group(1)
     assert float(width) <= 1e-12
+    out = paste(hard, tmp_path)  # as hard spheres: isostatic, tiny overlaps, rattlers clear
+    assert re.search(r"contacts \(0 beyond isostatic\)", out)
+    low, high = (float(v) for v in re.search(r"\[(\S+), (\S+)\]", out).groups())
+    assert 0.0 < high - low <= 1e-12
+    overlaps = re.search(r"contacts overlap (\S+) to (\S+)", out).groups()
+    assert 0.0 < float(overlaps[0]) <= float(overlaps[1]) < 1e-12
+    gap, clear = re.search(r"smallest gap (\S+), rattlers' (\S+)", out).groups()
+    assert float(gap) > 0.0 and float(clear) > 0.0
     out = paste(linear, tmp_path)
     low, high = (float(v) for v in re.search(r"\[(\S+), (\S+)\]", out).groups())
     phi_c = float(re.search(r"phi_c = (\S+) ", out).group(1))

@@ -292,7 +292,8 @@ def test_the_modes_command_writes_the_modes_and_the_figure(packing_2d, tmp_path,
 def test_lobpcg_near_a_factor_finds_the_negative_mode_a_change_made():
     """A stable network's Hessian less a rank-one term: one negative eigenvalue, found by LOBPCG
     preconditioned with the stable Hessian's factor as the dense spectrum has it, its residual
-    within the tolerance; too few iterations give None."""
+    within the tolerance (too few iterations give None), and so with the factor of the
+    Hessian with one particle pinned, the translations held out."""
     from athermal.analysis.modes import lowest_eigenpair_near
     from athermal.linalg import cholesky
 
@@ -312,3 +313,11 @@ def test_lobpcg_near_a_factor_finds_the_negative_mode_a_change_made():
     assert abs(vector @ want[1][:, 0]) == pytest.approx(1.0, abs=1e-6)
     assert np.linalg.norm(h @ vector - value * vector) <= tolerance
     assert lowest_eigenpair_near(h, factor, tolerance, 1) is None
+    # the factor of the Hessian with its first particle pinned, the translations held out
+    rows = np.arange(2, h0.shape[0])
+    pinned = cholesky(h0[rows][:, rows].tocsr())
+    translations = np.zeros((h0.shape[0], 2))
+    translations[np.arange(h0.shape[0]), np.arange(h0.shape[0]) % 2] = np.sqrt(2 / h0.shape[0])
+    value, vector = lowest_eigenpair_near(h, pinned, tolerance, 100, rows=rows, null=translations)
+    assert value == pytest.approx(want[0][0], abs=tolerance)
+    assert abs(vector @ want[1][:, 0]) == pytest.approx(1.0, abs=1e-6)

@@ -150,24 +150,38 @@ def lowest_eigenpairs(
 
 
 def lowest_eigenpair_near(
-    h: sp.spmatrix, factor: Factor, tolerance: float, maxiter: int
+    h: sp.spmatrix,
+    factor: Factor,
+    tolerance: float,
+    maxiter: int,
+    *,
+    rows: NDArray[np.intp] | None = None,
+    null: NDArray[np.float64] | None = None,
 ) -> tuple[float, NDArray[np.float64]] | None:
     """The lowest eigenvalue of the symmetric ``h`` and its unit eigenvector ``(M,)`` by LOBPCG
-    preconditioned with ``factor`` (the factor of a nearby positive definite matrix: the
-    preconditioned spectrum clusters at 1, and a negative eigenvalue stands apart), from a fixed
-    start vector (:func:`~athermal.linalg.arpack_start`), to a residual ``|h v - lambda v|`` of
-    ``tolerance``, which bounds the eigenvalue's error; None when ``maxiter`` iterations do not
-    reach it."""
-    solve = factor.solve
-    inverse = spla.LinearOperator(
-        h.shape, matvec=lambda v: solve(v.reshape(-1, 1)).ravel(), dtype=np.float64
-    )
+    preconditioned with ``factor`` (the factor of a nearby positive definite matrix on ``h``'s
+    ``rows``, all when None, its solves zero on the others: the preconditioned spectrum
+    clusters at 1, and a negative eigenvalue stands apart), orthogonal to the columns of
+    ``null`` ``(M, k)`` (orthonormal, in ``h``'s null space: a packing's translations), from a
+    fixed start vector (:func:`~athermal.linalg.arpack_start`), to a residual ``|h v - lambda
+    v|`` of ``tolerance``, which bounds the eigenvalue's error; None when ``maxiter``
+    iterations do not reach it."""
+    size = h.shape[0]
+    rows = np.arange(size) if rows is None else rows
+
+    def solve(v: NDArray[np.float64]) -> NDArray[np.float64]:
+        out = np.zeros(size)
+        out[rows] = factor.solve(v.reshape(-1, 1)[rows])[:, 0]
+        return out
+
+    inverse = spla.LinearOperator(h.shape, matvec=solve, dtype=np.float64)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # not converged: told by the residual
         _, vectors = spla.lobpcg(
             h,
-            arpack_start(h.shape[0])[:, None],
+            arpack_start(size)[:, None],
             M=inverse,
+            Y=null,
             tol=tolerance,
             maxiter=maxiter,
             largest=False,

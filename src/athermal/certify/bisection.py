@@ -4,6 +4,7 @@ every verdict is taken in double-double on the packing's contact network
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -12,7 +13,7 @@ from numpy.typing import NDArray
 
 from .._portable import root, row_dots, vnorm
 from ..analysis.modes import lowest_eigenpair_near, lowest_eigenpairs, zero_tolerance
-from ..analysis.moduli import pinned_hessian, pinned_solve
+from ..analysis.moduli import nonrattler_hessian, pinned_hessian, pinned_solve, unpinned
 from ..analysis.observables import rattlers
 from ..errors import ConvergenceError, InputError
 from ..linalg import Factor, NotPositiveDefinite, cholesky, factor_cg
@@ -58,6 +59,42 @@ CORRECTION_ITERATIONS = 50
 """Conjugate gradient iterations of a Newton correction at most before a fresh factorization."""
 MODE_ITERATIONS = 100
 """LOBPCG iterations of an unstable mode at most before a shift-invert factorization."""
+CHECKPOINT_TRIALS = 8
+"""The march hands its state to ``on_checkpoint`` every this many trials, and starts its linear
+algebra afresh there (:class:`_Corrections`), so that a march resumed from that state takes the
+path of one that was not stopped, bit for bit."""
+
+
+@dataclass(frozen=True, eq=False)
+class MarchState:
+    """:func:`bisect_jamming_point`'s march between two trials: what a resumed march starts from.
+
+    Attributes
+    ----------
+    source_positions, source_radii : ``(N, d)``, ``(N,)`` the packing whose near pairs the march
+        uses (the certified start, or the packing relaxed where the march last rearranged).
+    first, bonds : ``(P,)`` the bonds of the march's first network and of the last jammed one,
+        over those pairs.
+    rattler : ``(N,)`` the rattlers of the last jammed trial.
+    hi, lo : ``(N, d)`` its positions, ``hi + lo``.
+    radii : ``(N,)`` its radii.
+    high, low, step : the bracket (``low`` -1: none yet) and the next step down.
+    counts : trials, contacts shed, contacts formed, rattlers readmitted, instabilities,
+        rearrangements so far.
+    """
+
+    source_positions: NDArray[np.float64]
+    source_radii: NDArray[np.float64]
+    first: NDArray[np.bool_]
+    bonds: NDArray[np.bool_]
+    rattler: NDArray[np.bool_]
+    hi: NDArray[np.float64]
+    lo: NDArray[np.float64]
+    radii: NDArray[np.float64]
+    high: float
+    low: float
+    step: float
+    counts: tuple[int, int, int, int, int, int]
 
 
 @dataclass(frozen=True, eq=False)
@@ -88,7 +125,13 @@ class CertifiedJamming:
 
 
 def bisect_jamming_point(
-    packing: Packing, model: ContactModel, epsilon: float, *, max_trials: int = MAX_TRIALS
+    packing: Packing,
+    model: ContactModel,
+    epsilon: float,
+    *,
+    max_trials: int = MAX_TRIALS,
+    resume: MarchState | None = None,
+    on_checkpoint: Callable[[MarchState], None] | None = None,
 ) -> CertifiedJamming:
     """Bracket the jamming point of a jammed ``packing`` (``jam``'s output) to ``epsilon`` in
     packing fraction, each verdict taken in double-double on its contact network.
@@ -130,24 +173,57 @@ def bisect_jamming_point(
     raises for the start and the jammed bound. The returned certificate states the force
     balance reached: at a pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean
     contact force.
+
+    Every :data:`CHECKPOINT_TRIALS` trials the march's state goes to ``on_checkpoint``; the
+    march of the same ``packing`` and ``epsilon`` given that state as ``resume`` continues from
+    it to the bracket an uninterrupted march reaches, bit for bit.
     """
     if model.law.half_steps() != 2:
         raise InputError("alpha: the certified bisection takes harmonic contacts (alpha = 2)")
     if not 1e-15 <= epsilon <= 1e-6:
         raise InputError(f"epsilon: must lie in [1e-15, 1e-6], got {epsilon}")
-    start = certify(packing, model)
-    pairs = NearPairs(start.packing, model, GAP_REACH)
-    sums = pairs.sums(start.packing.positions, start.position_lo)
-    _, rattler = contact_network(pairs, start.packing.positions, sums)
-    stiffness = pairs.stiffness
-    bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
-    first = bonds.copy()
-    hi, lo = start.packing.positions.copy(), start.position_lo.copy()
     phi0, radii0, dim = packing.phi, packing.radii, packing.dim
-    high, low, step, trials, radii = phi0, -1.0, FIRST_STEP, 0, radii0
-    readmitted, instabilities, rearranged, shed, formed = 0, 0, 0, 0, 0
-    corrections = _Corrections()
+    if resume is None:
+        start = certify(packing, model)
+        source = start.packing
+        pairs = NearPairs(source, model, GAP_REACH)
+        sums = pairs.sums(source.positions, start.position_lo)
+        _, rattler = contact_network(pairs, source.positions, sums)
+        bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
+        first = bonds.copy()
+        hi, lo = source.positions.copy(), start.position_lo.copy()
+        high, low, step, radii = phi0, -1.0, FIRST_STEP, radii0
+        trials, shed, formed, readmitted, instabilities, rearranged = 0, 0, 0, 0, 0, 0
+    else:
+        source = Packing(resume.source_positions, resume.source_radii, packing.cell)
+        pairs = NearPairs(source, model, GAP_REACH)
+        first, bonds, rattler = resume.first, resume.bonds, resume.rattler
+        hi, lo, radii = resume.hi.copy(), resume.lo.copy(), resume.radii
+        high, low, step = resume.high, resume.low, resume.step
+        trials, shed, formed, readmitted, instabilities, rearranged = resume.counts
+    stiffness = pairs.stiffness
+    corrections, saved = _Corrections(), trials
     while low < 0.0 or high - low > epsilon:
+        if trials % CHECKPOINT_TRIALS == 0 and trials != saved:
+            corrections, saved = _Corrections(), trials
+            if on_checkpoint is not None:
+                counts = (trials, shed, formed, readmitted, instabilities, rearranged)
+                on_checkpoint(
+                    MarchState(
+                        source.positions.copy(),
+                        source.radii.copy(),
+                        first.copy(),
+                        bonds.copy(),
+                        rattler.copy(),
+                        hi.copy(),
+                        lo.copy(),
+                        radii.copy(),
+                        high,
+                        low,
+                        step,
+                        counts,
+                    )
+                )
         if trials == max_trials:
             raise ConvergenceError(f"certify: no bracket of {epsilon:g} in {max_trials} trials")
         phi = high - step if low < 0.0 else max(0.5 * (low + high), high - step)
@@ -206,6 +282,7 @@ def bisect_jamming_point(
                 shed += int(np.sum(first & ~bonds))
                 formed += int(np.sum(bonds & ~first))
                 pairs, stiffness, first, rattler = moved, full, start_bonds, start_rattler
+                source = relaxed
                 low = -1.0
         if verdict:
             readmitted += int(np.sum(rattler & ~trial_rattler))
@@ -273,28 +350,32 @@ class _Corrections:
         self, contacts: Contacts, rattler: NDArray[np.bool_], shape: tuple[int, ...]
     ) -> NDArray[np.float64] | None:
         """The eigenvector ``shape`` ``(N, d)`` (zero on the rattlers) of the lowest eigenvalue
-        of the non-rattlers' Hessian (pre-stress included), the first of them pinned, when that
-        eigenvalue is negative (pinned, the Hessian has as many negative eigenvalues as free:
-        the translations lie in its null space); None otherwise. By LOBPCG preconditioned with
-        the kept factor where it is of these non-rattlers
-        (:func:`~athermal.analysis.modes.lowest_eigenpair_near`, to a residual of the zero
-        tolerance), else, or where that does not converge in :data:`MODE_ITERATIONS`, by
-        shift-invert below the contacts' floor
+        of the non-rattlers' Hessian (pre-stress included) beyond its translations, when that
+        eigenvalue is negative; None otherwise. By LOBPCG preconditioned with the kept factor
+        where it is of these non-rattlers (:func:`~athermal.analysis.modes.
+        lowest_eigenpair_near`, to a residual of the zero tolerance), else, or where that does
+        not converge in :data:`MODE_ITERATIONS`, by shift-invert below the contacts' floor
         (:func:`~athermal.analysis.modes.lowest_eigenpairs`)."""
-        h, dofs = pinned_hessian(contacts, rattler, shape[1])
+        n, dim = shape
+        h, dofs = nonrattler_hessian(contacts, rattler, dim)
         tolerance = zero_tolerance(h)
+        kept = unpinned(dofs.size, dim, ())
+        near = self._near(dofs[kept])
         found = None
-        near = self._near(dofs)
         if near is not None:
-            found = lowest_eigenpair_near(h, near, tolerance, MODE_ITERATIONS)
-        if found is None:
-            values, vectors = lowest_eigenpairs(
-                h, 1, hessian_floor(contacts, shape[0]), saddle=True
+            translations = np.zeros((dofs.size, dim))
+            translations[np.arange(dofs.size), np.arange(dofs.size) % dim] = np.sqrt(
+                dim / dofs.size
             )
+            found = lowest_eigenpair_near(
+                h, near, tolerance, MODE_ITERATIONS, rows=kept, null=translations
+            )
+        if found is None:
+            values, vectors = lowest_eigenpairs(h, 1, hessian_floor(contacts, n), saddle=True)
             found = float(values[0]), vectors[:, 0]
         if not found[0] < -tolerance:
             return None
-        flat = np.zeros(shape[0] * shape[1])
+        flat = np.zeros(n * dim)
         flat[dofs] = found[1]
         return flat.reshape(shape)
 

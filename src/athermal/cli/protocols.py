@@ -196,6 +196,8 @@ def jam(args: argparse.Namespace) -> None:
         pressure_rtol=args.pressure_rtol,
         minimizer=spec.minimizer,
         certifying=args.certify,
+        march=Path(trajectory_path).with_suffix(".march.npz"),
+        resume=args.resume,
     )
     kept.write(args.output, model, args.seed)
     obs, final, certified = kept.observables, kept.packing, kept.certified

@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 from collections.abc import Mapping
+from dataclasses import fields
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -20,6 +21,8 @@ from numpy.typing import NDArray
 
 from .._records import as_numbers, columns_as_text, from_numbers, number_names
 from ..analysis.observables import measure
+from ..atomic import replacing
+from ..certify.bisection import MarchState
 from ..errors import FileFormatError, InputError
 from ..io import Frame, append_gsd, claim, count_frames, read_gsd, write_gsd
 from ..model.contact import ContactModel
@@ -49,6 +52,47 @@ def fingerprint(packing: Packing) -> str:
     if packing.cell.walls:  # (a periodic start's digest as before)
         digest.update(bytes(packing.cell.walls))
     return digest.hexdigest()
+
+
+def save_march(path: str | os.PathLike[str], state: MarchState, key: str) -> None:
+    """Write a double-double march's ``state`` (:func:`~athermal.certify.bisection.
+    bisect_jamming_point`'s ``on_checkpoint``) to ``path`` (``.npz``) atomically, under ``key``
+    (the identity of the march: :func:`march_key`)."""
+    arrays: dict[str, Any] = {f.name: np.asarray(getattr(state, f.name)) for f in fields(state)}
+    with replacing(path, what="cannot write the march's checkpoint") as temporary:
+        with open(temporary, "wb") as handle:
+            np.savez(handle, key=np.array(key), **arrays)
+
+
+def load_march(path: str | os.PathLike[str], key: str) -> MarchState | None:
+    """The march state :func:`save_march` wrote to ``path`` under ``key``; None when there is
+    none, or it is another march's."""
+    if not Path(path).is_file():
+        return None
+    with np.load(path) as data:
+        if str(data["key"]) != key:
+            return None
+        a = {name: np.array(data[name]) for name in data.files}
+    trials, shed, formed, readmitted, instabilities, rearranged = (int(c) for c in a["counts"])
+    return MarchState(
+        a["source_positions"],
+        a["source_radii"],
+        a["first"],
+        a["bonds"],
+        a["rattler"],
+        a["hi"],
+        a["lo"],
+        a["radii"],
+        float(a["high"]),
+        float(a["low"]),
+        float(a["step"]),
+        (trials, shed, formed, readmitted, instabilities, rearranged),
+    )
+
+
+def march_key(packing: Packing, model: ContactModel, epsilon: float) -> str:
+    """The identity of the march that brackets ``packing``'s jamming point to ``epsilon``."""
+    return f"{fingerprint(packing)} {model.alpha!r} {model.kmat.tolist()!r} {epsilon!r}"
 
 
 def step_log(step: Step) -> dict[str, float]:

@@ -4,7 +4,9 @@ file logs. ``athermal jam`` is this and its output."""
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 from numpy.typing import NDArray
@@ -24,6 +26,7 @@ from ..protocols.pressure import (
     warn_if_near_jamming,
 )
 from ..relaxation import Minimizer
+from .checkpoint import load_march, march_key, save_march
 
 
 @dataclass(frozen=True, eq=False)
@@ -124,12 +127,17 @@ def finish_jamming(
     pressure_rtol: float = PRESSURE_RTOL,
     minimizer: Minimizer | None = None,
     certifying: bool = False,
+    march: str | os.PathLike[str] | None = None,
+    resume: bool = False,
 ) -> Jammed:
     """Carry ``result`` to the packing kept: at ``pressure`` (relative accuracy
     ``pressure_rtol``, trials relaxed by ``minimizer``) when given; certified when
     ``certifying``, by a bisection in double-double down to ``epsilon`` when ``epsilon`` is
     below float64's verdict (:data:`~athermal.protocols.RESOLUTION`), else by :func:`certify`
-    of the jammed packing. A certification that fails is recorded in ``refused``."""
+    of the jammed packing. A certification that fails is recorded in ``refused``. The
+    bisection's march checkpoints to the file ``march`` (:func:`~athermal.studies.checkpoint.
+    save_march`), continues from it when ``resume`` (where it is this march's), and removes it
+    once done."""
     obs, packing, found = result.observables, result.packing, None
     if pressure is not None:
         found = pressure_search(
@@ -148,7 +156,16 @@ def finish_jamming(
         return outcome
     try:
         if epsilon < RESOLUTION:  # below float64's verdict: bisect in double-double
-            point = bisect_jamming_point(result.packing, model, epsilon)
+            key = march_key(result.packing, model, epsilon)
+            point = bisect_jamming_point(
+                result.packing,
+                model,
+                epsilon,
+                resume=load_march(march, key) if march is not None and resume else None,
+                on_checkpoint=None if march is None else lambda s: save_march(march, s, key),
+            )
+            if march is not None:
+                Path(march).unlink(missing_ok=True)
             bisected = {
                 "float64_phi_low": result.phi_low,
                 "float64_phi_high": result.phi_c,
