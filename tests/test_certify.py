@@ -21,7 +21,7 @@ from athermal.certify import (
 )
 from athermal.certify.bisection import (
     START_EPSILON,
-    _Corrections,
+    _KeptFactor,
     _trial,
     bisect_jamming_point,
 )
@@ -239,7 +239,7 @@ def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
     bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     radii = packing.radii * (point.phi_low / point.phi_high) ** 0.5
     stiffness = pairs.stiffness.copy()
-    verdict, _, _, _ = _trial(pairs, stiffness, hi, lo, radii, bonds, rattler, _Corrections())
+    verdict, _, _, _ = _trial(pairs, stiffness, hi, lo, radii, bonds, rattler, _KeptFactor())
     assert verdict is False
 
 

@@ -53,7 +53,7 @@ bond parted, is moved along its unstable mode to close the gap that holds it
 TRIAL_BALANCE = 1e-14
 """A trial's verdict needs its network's forces balanced to this fraction of their mean."""
 CORRECTION_RTOL = 1e-12
-"""Relative residual of a Newton correction found by conjugate gradients (:class:`_Corrections`):
+"""Relative residual of a Newton correction found by conjugate gradients (:class:`_KeptFactor`):
 a direct solve's, at the condition numbers of a network near jamming."""
 CORRECTION_ITERATIONS = 50
 """Conjugate gradient iterations of a Newton correction at most before a fresh factorization."""
@@ -61,7 +61,7 @@ MODE_ITERATIONS = 100
 """LOBPCG iterations of an unstable mode at most before a shift-invert factorization."""
 CHECKPOINT_TRIALS = 8
 """The march hands its state to ``on_checkpoint`` every this many trials, and starts its linear
-algebra afresh there (:class:`_Corrections`), so that a march resumed from that state takes the
+algebra afresh there (:class:`_KeptFactor`), so that a march resumed from that state takes the
 path of one that was not stopped, bit for bit."""
 
 
@@ -202,10 +202,10 @@ def bisect_jamming_point(
         high, low, step = resume.high, resume.low, resume.step
         trials, shed, formed, readmitted, instabilities, rearranged = resume.counts
     stiffness = pairs.stiffness
-    corrections, saved = _Corrections(), trials
+    kept, saved = _KeptFactor(), trials
     while low < 0.0 or high - low > epsilon:
         if trials % CHECKPOINT_TRIALS == 0 and trials != saved:
-            corrections, saved = _Corrections(), trials
+            kept, saved = _KeptFactor(), trials
             if on_checkpoint is not None:
                 counts = (trials, shed, formed, readmitted, instabilities, rearranged)
                 on_checkpoint(
@@ -231,7 +231,7 @@ def bisect_jamming_point(
         trial_hi, trial_lo = hi.copy(), lo.copy()
         trials += 1
         verdict, trial_bonds, trial_rattler, held = _trial(
-            pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler, corrections
+            pairs, stiffness, trial_hi, trial_lo, trial_radii, bonds, rattler, kept
         )
         if verdict is None and step >= epsilon / 4.0:
             step /= 4.0
@@ -246,7 +246,7 @@ def bisect_jamming_point(
                 trial_radii,
                 bonds,
                 rattler,
-                corrections,
+                kept,
                 escape=True,
             )
             start_moved = Packing(trial_hi + trial_lo, trial_radii, packing.cell)
@@ -270,7 +270,7 @@ def bisect_jamming_point(
                 trial_radii,
                 start_bonds,
                 start_rattler,
-                corrections,
+                kept,
             )
             moved.stiffness = full
             if verdict is None:
@@ -308,14 +308,15 @@ def bisect_jamming_point(
     )
 
 
-class _Corrections:
-    """The Newton corrections ``H^-1 force`` of one march's trials on the non-rattlers (the first
-    pinned, :func:`~athermal.analysis.moduli.pinned_hessian`): by conjugate gradients
-    preconditioned with the last factor of a trial network's Hessian on the same non-rattlers
-    (:func:`~athermal.linalg.factor_cg`; the networks of neighbouring trials differ by a few
-    bonds and a small pre-stress, so a few solves with the factor replace a factorization),
-    else, or when they do not reach :data:`CORRECTION_RTOL` in :data:`CORRECTION_ITERATIONS`, by
-    a fresh factor, kept for the corrections that follow."""
+class _KeptFactor:
+    """The linear algebra of one march's trials, with the last factor of a trial network's
+    Hessian kept (its first non-rattler pinned, :func:`~athermal.analysis.moduli.
+    pinned_hessian`): the networks of neighbouring trials differ by a few bonds and a small
+    pre-stress, so a few solves with it replace a factorization. Newton corrections
+    ``H^-1 force`` by conjugate gradients preconditioned with it (:func:`~athermal.linalg.
+    factor_cg`), else, or when they do not reach :data:`CORRECTION_RTOL` in
+    :data:`CORRECTION_ITERATIONS`, by a fresh factor, kept; unstable modes by LOBPCG
+    preconditioned with it; positive definiteness by a fresh factor, kept."""
 
     def __init__(self) -> None:
         self._kept: tuple[NDArray[np.intp], Factor] | None = None  # its rows' dofs, factor
@@ -359,8 +360,8 @@ class _Corrections:
         n, dim = shape
         h, dofs = nonrattler_hessian(contacts, rattler, dim)
         tolerance = zero_tolerance(h)
-        kept = unpinned(dofs.size, dim, ())
-        near = self._near(dofs[kept])
+        rows = unpinned(dofs.size, dim, ())
+        near = self._near(dofs[rows])
         found = None
         if near is not None:
             translations = np.zeros((dofs.size, dim))
@@ -368,7 +369,7 @@ class _Corrections:
                 dim / dofs.size
             )
             found = lowest_eigenpair_near(
-                h, near, tolerance, MODE_ITERATIONS, rows=kept, null=translations
+                h, near, tolerance, MODE_ITERATIONS, rows=rows, null=translations
             )
         if found is None:
             values, vectors = lowest_eigenpairs(h, 1, hessian_floor(contacts, n), saddle=True)
@@ -498,7 +499,7 @@ def _trial(
     radii: NDArray[np.float64],
     bonds: NDArray[np.bool_],
     rattler: NDArray[np.bool_],
-    corrections: _Corrections,
+    kept: _KeptFactor,
     *,
     escape: bool = False,
 ) -> tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_], int]:
@@ -531,7 +532,7 @@ def _trial(
         if sums.largest_force() <= TRIAL_BALANCE * scale:
             apart = bonds & (overlap <= 0.0)
             if not apart.any():
-                if not definite and not corrections.definite(contacts, rattler, dim):
+                if not definite and not kept.definite(contacts, rattler, dim):
                     return None, bonds, rattler, held  # balanced on a saddle: no verdict
                 pairs.stiffness = stiffness
                 try:
@@ -562,12 +563,12 @@ def _trial(
             pairs.stiffness = np.where(live, stiffness, 0.0)
             sums = pairs.sums(hi, lo, radii, bonds)
             continue
-        mode = None if stable else corrections.unstable_mode(contacts, rattler, hi.shape)
+        mode = None if stable else kept.unstable_mode(contacts, rattler, hi.shape)
         if mode is None:
-            y, residual, solver = corrections.solve(contacts, rattler, force)
+            y, residual, solver = kept.solve(contacts, rattler, force)
             if residual == np.inf:  # not positive definite: unstable, or singular
                 if stable:  # else its unstable mode was sought above, and there is none
-                    mode = corrections.unstable_mode(contacts, rattler, hi.shape)
+                    mode = kept.unstable_mode(contacts, rattler, hi.shape)
                 if mode is None:  # singular, consistent
                     y, residual, solver = pinned_solve(contacts, rattler, force, cholmod=False)
                 stable = False
