@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from athermal import read_gsd
-from benchmarks.machine import ROOT, cpu_model, pin, save
+from benchmarks.machine import ROOT, commit, cpu_model, pin, save
 
 EPSILON = 1e-12
 DIGITS = 40
@@ -103,6 +103,7 @@ def one(dim: int, n: int, seed: int, folder: Path) -> dict[str, Any]:
     child = json.loads(done.stderr.strip().splitlines()[-1])
     row: dict[str, Any] = {"dim": dim, "n": n, "seed": seed, "seconds": seconds}
     row["cpu"] = cpu_model()
+    row["commit"] = commit()
     row["peak_gb"] = child["peak_kb"] / 1e6
     if child["code"] != 0:
         row["refused"] = done.stderr.strip().splitlines()[0]
@@ -138,22 +139,22 @@ def report(rows: list[dict[str, Any]]) -> str:
         "decimal arithmetic, N_c - N_iso (contacts above isostatic), trials of the march.",
         "",
         "| d | N | seed | seconds | peak GB | width | balance / <f> | decimal | contacts | "
-        "N_c - N_iso | rattlers | pressure | trials | CPU |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|",
+        "N_c - N_iso | rattlers | pressure | trials | CPU | commit |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---|",
     ]
     for r in sorted(rows, key=lambda r: (r["dim"], r["n"], r["seed"])):
         head = f"| {r['dim']} | {r['n']} | {r['seed']} | {r['seconds']:.0f} | {r['peak_gb']:.2f}"
         if "refused" in r:
-            lines.append(f"{head} | refused: {r['refused']} |||||||| {r['cpu']} |")
+            lines.append(f"{head} | refused: {r['refused']} |||||||| {r['cpu']} | {r['commit']} |")
             continue
         lines.append(
             f"{head} | {r['width']:.1e} | {r['balance']:.1e} | {r['decimal_balance']:.1e} | "
             f"{r['contacts']} | {r['excess']} | {r['rattlers']} | {r['pressure']:.1e} | "
-            f"{r['trials']} | {r['cpu']} |"
+            f"{r['trials']} | {r['cpu']} | {r['commit']} |"
         )
     lines += [
         "| 3 | 16384 | CALiPPSO | 17970 | 293 | | 2.35e-13 (force mismatch) | | | 0 | | | | "
-        "its documentation |",
+        "its documentation | |",
     ]
     return "\n".join(lines)
 
