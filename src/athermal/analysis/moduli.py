@@ -451,6 +451,18 @@ def _untilting(packing: Packing, d: NDArray[np.float64], name: str) -> NDArray[n
     return d
 
 
+def unit_translations(
+    dofs: NDArray[np.intp], dim: int, walls: tuple[int, ...] = ()
+) -> NDArray[np.float64]:
+    """The unit translations ``(M, t)`` along the periodic axes (those not in ``walls``) over
+    the flat coordinates ``dofs`` ``(M,)`` (of ``N d``)."""
+    axes = [a for a in range(dim) if a not in walls]
+    along = np.zeros((dofs.size, len(axes)))
+    for k, a in enumerate(axes):
+        along[dofs % dim == a, k] = 1.0
+    return along / np.linalg.norm(along, axis=0)
+
+
 def unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:
     """The rows ``(size - t,)`` of ``size`` flat coordinates left when the first particle is
     pinned along the ``t`` periodic axes (those not in ``walls``)."""

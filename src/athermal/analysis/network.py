@@ -20,7 +20,7 @@ from ..linalg import Factor, arpack_start, cholesky
 from ..model.contact import Contacts, hessian_floor
 from ..model.packing import Packing
 from .modes import lowest_eigenpairs
-from .moduli import nonrattler_hessian, unpinned
+from .moduli import nonrattler_hessian, unit_translations, unpinned
 
 DENSE_SOFT_MODE_DOFS = 400
 """Largest free Hessian whose soft mode is found by a dense ``eigh``; above it ARPACK on
@@ -109,15 +109,6 @@ class NetworkHessian:
         stiffness = float(contacts.law.stiffness(np.zeros(1), k)[0])
         return stiffness * float(np.sum(column * y))
 
-    def _translations(self) -> NDArray[np.float64]:
-        """The unit translations ``(M, t)`` along the periodic axes, over the free rows."""
-        dim = self.packing.dim
-        axes = [a for a in range(dim) if a not in self.packing.cell.walls]
-        along = np.zeros((self.dofs.size, len(axes)))
-        for k, a in enumerate(axes):
-            along[self.dofs % dim == a, k] = 1.0
-        return along / np.linalg.norm(along, axis=0)
-
     def _lowest_whole(self) -> tuple[float, NDArray[np.float64]]:
         """The lowest eigenpair of ``h`` that is no translation: dense, or shift-invert ARPACK
         on ``h`` itself."""
@@ -129,7 +120,10 @@ class NetworkHessian:
             floor = hessian_floor(self.contacts, self.packing.n)  # here the factor failed:
             values, vectors = lowest_eigenpairs(self.h, k, floor, saddle=True)  # not definite
         if self.translations:
-            overlap = np.linalg.norm(self._translations().T @ vectors, axis=0)
+            overlap = np.linalg.norm(
+                unit_translations(self.dofs, self.packing.dim, self.packing.cell.walls).T @ vectors,
+                axis=0,
+            )
             keep = np.flatnonzero(overlap < 0.5)
             values, vectors = values[keep], vectors[:, keep]
         return float(values[0]), vectors[:, 0]
@@ -140,7 +134,11 @@ class NetworkHessian:
         projected onto the vectors without translation."""
         factor, rows, size = self.factor, self.rows, self.dofs.size
         assert factor is not None
-        along = self._translations() if self.translations else np.zeros((size, 0))
+        along = (
+            unit_translations(self.dofs, self.packing.dim, self.packing.cell.walls)
+            if self.translations
+            else np.zeros((size, 0))
+        )
 
         def project(u: NDArray[np.float64]) -> NDArray[np.float64]:
             return u - along @ (along.T @ u)

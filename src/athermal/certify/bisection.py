@@ -13,7 +13,13 @@ from numpy.typing import NDArray
 
 from .._portable import root, row_dots, vnorm
 from ..analysis.modes import lowest_eigenpair_near, lowest_eigenpairs, zero_tolerance
-from ..analysis.moduli import nonrattler_hessian, pinned_hessian, pinned_solve, unpinned
+from ..analysis.moduli import (
+    nonrattler_hessian,
+    pinned_hessian,
+    pinned_solve,
+    unit_translations,
+    unpinned,
+)
 from ..analysis.observables import rattlers
 from ..errors import ConvergenceError, InputError
 from ..linalg import Factor, NotPositiveDefinite, cholesky, factor_cg
@@ -364,13 +370,8 @@ class _KeptFactor:
         near = self._near(dofs[rows])
         found = None
         if near is not None:
-            translations = np.zeros((dofs.size, dim))
-            translations[np.arange(dofs.size), np.arange(dofs.size) % dim] = np.sqrt(
-                dim / dofs.size
-            )
-            found = lowest_eigenpair_near(
-                h, near, tolerance, MODE_ITERATIONS, rows=rows, null=translations
-            )
+            null = unit_translations(dofs, dim)
+            found = lowest_eigenpair_near(h, near, tolerance, MODE_ITERATIONS, rows=rows, null=null)
         if found is None:
             values, vectors = lowest_eigenpairs(h, 1, hessian_floor(contacts, n), saddle=True)
             found = float(values[0]), vectors[:, 0]
