@@ -1,23 +1,26 @@
 """The critical exponents of weak forces and small gaps at jamming, over certified packings.
 
 For each N, packings of seeds ``0 .. K-1`` are jammed
-(:func:`athermal.studies.experiments.jam_packing`:
-2D, bidisperse, alpha = 2, epsilon = 1e-6, ``ohern``) and certified
-(:func:`athermal.certify.certify`); each certified packing is kept as a GSD file in the cache
-directory (a rerun reuses it). Their forces and gaps are pooled
-(:func:`athermal.certify.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and
-``gamma`` fitted over the default windows and over a scan of others, so that the dependence on the
-window is shown beside the value. With ``--epsilon E`` below 1e-9 each jamming point is bracketed to
-E in double-double (``bisect_jamming_point``) and the certified packing at its
-jammed bound is taken. Run from the repository root::
+(:func:`athermal.studies.experiments.jam_packing`: ``--dim`` 2 or 3, bidisperse,
+alpha = 2, epsilon = 1e-6, ``ohern``) and certified (:func:`athermal.certify.certify`); each
+certified packing is kept as a GSD file in the cache directory (a rerun reuses it). Their
+forces and gaps are pooled (:func:`athermal.certify.criticality.weak_forces_and_gaps`) and
+``theta_e``, ``theta_l`` and ``gamma`` fitted over the default windows and over a scan of
+others, so that the dependence on the window is shown beside the value; ``gamma`` also a decade at
+a time along the gaps (:func:`~athermal.certify.criticality.local_exponents`), and
+every error also by resampling the packings
+(:func:`~athermal.certify.criticality.packing_bootstrap`). With ``--epsilon E`` below 1e-9
+each jamming point is bracketed to E in double-double (``bisect_jamming_point``) and the
+certified packing at its jammed bound is taken. Run from the repository root::
 
     python -m benchmarks.criticality --n 1024 --packings 120
     python -m benchmarks.criticality --n 1024 4096 --packings 120 30
     python -m benchmarks.criticality --n 1024 --packings 120 --epsilon 1e-12
+    python -m benchmarks.criticality --dim 3 --n 1024 4096 --packings 150 8 --epsilon 1e-12
 
-Results: ``benchmarks/results/criticality.md`` and ``.json``; the figures
-``docs/figures/criticality_n<N>.png`` (with ``--epsilon E``: ``criticality_epsE`` and
-``criticality_n<N>_epsE.png``).
+Results: ``benchmarks/results/criticality<tag>.md`` and ``.json``, the figures
+``docs/figures/criticality_n<N><tag>.png`` and ``gap_exponent<tag>.png``, where the tag is
+``_d3`` in 3D and ``_epsE`` with ``--epsilon E``.
 """
 
 from __future__ import annotations
@@ -37,27 +40,33 @@ from athermal.certify.criticality import (
     THETA_E,
     critical_exponents,
     fit_truncated_power_law,
+    local_exponents,
+    packing_bootstrap,
     weak_forces_and_gaps,
 )
 from athermal.errors import ConvergenceError, InputError
 from athermal.io import read_gsd, write_gsd
 from athermal.protocols import EPSILON, RESOLUTION
 from athermal.studies.experiments import JamSpec, jam_packing
-from athermal.studies.plot import criticality_figure, save
+from athermal.studies.plot import criticality_figure, gap_exponent_figure, save
 from benchmarks.machine import ROOT, pin
 from benchmarks.machine import save as save_results
 
 FORCE_SCAN = ((1e-3, 1e-1), (3e-3, 1e-1), (1e-2, 1e-1), (1e-3, 3e-2), (1e-4, 1e-1))
 GAP_SCAN = ((1e-5, 1e-2), (1e-4, 1e-2), (1e-3, 1e-2), (1e-4, 1e-3), (1e-3, 3e-2))
+LOCAL_WINDOW = (1e-6, 1e-1)
+"""The range of ``h`` over which the local gap exponent is fitted, a decade at a time."""
+BOOTSTRAP_DRAWS = 200
 
 
 def packings(
-    n: int, count: int, cache: Path, epsilon: float = EPSILON
+    n: int, count: int, cache: Path, epsilon: float = EPSILON, dim: int = 2
 ) -> tuple[list[Path], list[str]]:
-    """The certified packings of seeds ``0 .. count-1``, made where missing (bracketed to
-    ``epsilon`` in double-double below float64's resolution); the refusals."""
+    """The certified packings of ``n`` particles in ``dim`` dimensions of seeds
+    ``0 .. count-1``, made where missing (bracketed to ``epsilon`` in double-double below
+    float64's resolution); the refusals."""
     cache.mkdir(parents=True, exist_ok=True)
-    spec, files, refused = JamSpec(n=n), [], []
+    spec, files, refused = JamSpec(n=n, dim=dim), [], []
     for seed in range(count):
         path = cache / f"p{seed:04d}.gsd"
         if not path.exists():
@@ -89,8 +98,9 @@ def packings(
     return files, refused
 
 
-def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
-    """The exponents of one N at the default windows and over the scans."""
+def study(n: int, files: list[Path], figure: Path) -> tuple[dict[str, Any], list[Any]]:
+    """The exponents of one N at the default windows, over the scans and a decade at a
+    time along the gaps, with errors from resampling the packings; the samples."""
     samples, balances, below = [], [], []
     for path in files:
         frame = read_gsd(path)
@@ -103,10 +113,24 @@ def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
     f = np.concatenate([s.forces for s in samples])
     loc = np.concatenate([s.localized for s in samples])
     gaps = np.concatenate([s.gaps for s in samples])
+    near = np.concatenate([s.gap_localized for s in samples])
     scan = {
         "theta_e": [_fit(f[~loc], w, +1) for w in FORCE_SCAN],
         "theta_l": [_fit(f[loc], w, +1) for w in FORCE_SCAN],
         "gamma": [_fit(gaps, w, -1) for w in GAP_SCAN],
+        "gamma, gaps of no buckler": [_fit(gaps[~near], w, -1) for w in GAP_SCAN[:1]],
+    }
+    local = [
+        [*f.window, 1.0 - f.a, f.stderr, f.points] for f in local_exponents(gaps, LOCAL_WINDOW, 1)
+    ]
+    draws = BOOTSTRAP_DRAWS
+    resampled = {
+        "theta_e": packing_bootstrap(samples, lambda s: critical_exponents(s).theta_e, draws),
+        "gamma": packing_bootstrap(samples, lambda s: critical_exponents(s).gamma, draws),
+        "local": [
+            packing_bootstrap(samples, lambda s, w=(low, high): _pooled_gamma(s, w), draws)
+            for low, high, *_ in local
+        ],
     }
     return {
         "n": n,
@@ -121,8 +145,15 @@ def study(n: int, files: list[Path], figure: Path) -> dict[str, Any]:
         "gaps_below_1e-8": int(np.sum(gaps < 1e-8)),
         "phi_c_minus_linear": [min(below), max(below)],
         "scan": scan,
+        "local_gamma": [[*row, err] for row, err in zip(local, resampled["local"], strict=True)],
+        "bootstrap": {"theta_e": resampled["theta_e"], "gamma": resampled["gamma"]},
+        "non_rattlers": sum(s.n_live for s in samples),
         "figure": figure.name,
-    }
+    }, samples
+
+
+def _pooled_gamma(samples: Any, window: tuple[float, float]) -> float:
+    return 1.0 - fit_truncated_power_law(np.concatenate([s.gaps for s in samples]), window).a
 
 
 def _fit(values: Any, window: tuple[float, float], sign: int) -> list[float]:
@@ -130,10 +161,14 @@ def _fit(values: Any, window: tuple[float, float], sign: int) -> list[float]:
     return [*window, sign * (fit.a - 1.0), fit.stderr, fit.points]
 
 
-def report(results: list[dict[str, Any]], refused: list[str], epsilon: float = EPSILON) -> str:
-    """The markdown: per N the exponents at the default windows, then the window scans."""
+def report(
+    results: list[dict[str, Any]], refused: list[str], epsilon: float = EPSILON, dim: int = 2
+) -> str:
+    """The markdown: per N the exponents at the default windows, then the window scans and the
+    local gap exponent."""
     lines = [
-        "# Weak forces and small gaps at jamming (2D, bidisperse, alpha = 2, certified packings)",
+        f"# Weak forces and small gaps at jamming ({dim}D, bidisperse, alpha = 2, certified "
+        "packings)",
         "",
         f"Jamming points bracketed to epsilon = {epsilon:g}"
         + (" in double-double." if epsilon < RESOLUTION else " in float64."),
@@ -169,6 +204,41 @@ def report(results: list[dict[str, Any]], refused: list[str], epsilon: float = E
             f"| {r['n']} | {r['touching']} ({r['touching'] / r['packings']:.2f}) | "
             f"{r['gaps_below_1e-8']} | {low:.1e} ... {high:.1e} |"
         )
+    lines += [
+        "",
+        "Errors above: the Fisher information of the pooled fit. Resampling the packings "
+        f"({BOOTSTRAP_DRAWS} draws with replacement), which counts the values of one packing as "
+        "correlated:",
+        "",
+        "| N | theta_e | gamma |",
+        "|---:|---|---|",
+    ]
+    for r in results:
+        lines.append(
+            f"| {r['n']} | {r['theta_e'][0]:.3f} ± {r['bootstrap']['theta_e']:.3f} | "
+            f"{r['gamma'][0]:.3f} ± {r['bootstrap']['gamma']:.3f} |"
+        )
+    lines += [
+        "",
+        "## The gap exponent along the gaps",
+        "",
+        "gamma fitted over a decade at a time: value ± Fisher error / resampled error "
+        "(gaps in the window, per packing).",
+        "",
+        "| h | " + " | ".join(f"N = {r['n']}" for r in results) + " |",
+        "|---|" + "---|" * len(results),
+    ]
+    windows = sorted({(row[0], row[1]) for r in results for row in r["local_gamma"]})
+    for low, high in windows:
+        cells = []
+        for r in results:
+            row = next((x for x in r["local_gamma"] if (x[0], x[1]) == (low, high)), None)
+            cells.append(
+                "-"
+                if row is None
+                else f"{row[2]:.3f} ± {row[3]:.3f} / {row[5]:.3f} ({row[4] / r['packings']:.1f})"
+            )
+        lines.append(f"| {low:.1e} ... {high:.1e} | " + " | ".join(cells) + " |")
     lines += ["", "## The exponents against the window", ""]
     lines += ["| N | exponent | window | value ± stderr (points) |", "|---:|---|---|---|"]
     for r in results:
@@ -191,21 +261,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--output-dir", type=str, default=str(ROOT / "benchmarks" / "results"))
     parser.add_argument("--figure-dir", type=str, default=str(ROOT / "docs" / "figures"))
     parser.add_argument("--epsilon", type=float, default=EPSILON)
+    parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
     args = parser.parse_args(argv)
     pin()
     output = Path(args.output_dir)
     Path(args.figure_dir).mkdir(parents=True, exist_ok=True)
-    tag = "" if args.epsilon == EPSILON else f"_eps{args.epsilon:g}"
+    tag = ("" if args.dim == 2 else f"_d{args.dim}") + (
+        "" if args.epsilon == EPSILON else f"_eps{args.epsilon:g}"
+    )
     caches = args.cache or [
         str(ROOT / "benchmarks" / "cache" / f"criticality_n{n}{tag}") for n in args.n
     ]
-    results, refused = [], []
+    results, refused, series = [], [], {}
     for n, count, cache in zip(args.n, args.packings, caches, strict=True):
-        files, no = packings(n, count, Path(cache), args.epsilon)
+        files, no = packings(n, count, Path(cache), args.epsilon, args.dim)
         refused += [f"N {n}, {r}" for r in no]
-        results.append(study(n, files, Path(args.figure_dir) / f"criticality_n{n}{tag}.png"))
-    markdown = report(results, refused, args.epsilon) + "\n"
-    data = {"epsilon": args.epsilon, "results": results, "refused": refused}
+        found, samples = study(n, files, Path(args.figure_dir) / f"criticality_n{n}{tag}.png")
+        results.append(found)
+        series[f"N = {n} ({len(samples)} packings)"] = samples
+    figure = gap_exponent_figure(
+        series, LOCAL_WINDOW, per_decade=1, title=f"{args.dim}D: the local gap exponent"
+    )
+    save(figure, Path(args.figure_dir) / f"gap_exponent{tag}.png")
+    markdown = report(results, refused, args.epsilon, args.dim) + "\n"
+    data = {"epsilon": args.epsilon, "dim": args.dim, "results": results, "refused": refused}
     save_results(output, f"criticality{tag}", data, markdown)
     print(markdown)
     return 0

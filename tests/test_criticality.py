@@ -17,8 +17,11 @@ from athermal.certify import (
 )
 from athermal.certify.bisection import bisect_jamming_point
 from athermal.certify.criticality import (
+    WeakForcesAndGaps,
     critical_exponents,
     fit_truncated_power_law,
+    local_exponents,
+    packing_bootstrap,
     weak_forces_and_gaps,
 )
 from athermal.certify.extended import NearPairs
@@ -60,6 +63,72 @@ def test_the_errors_of_the_fit_are_its_spread():
         fits.append(fit_truncated_power_law(x, (1e-3, 1.0)))
     spread = np.std([f.a for f in fits])
     assert np.mean([f.stderr for f in fits]) == pytest.approx(spread, rel=0.15)
+
+
+def _piecewise(rng, size, a_low, a_high, knee, low, high):
+    """Values of the continuous density ``x^(a_low - 1)`` below ``knee`` and
+    ``knee^(a_low - a_high) x^(a_high - 1)`` above it, on ``[low, high]``."""
+    below = (knee**a_low - low**a_low) / a_low
+    above = knee ** (a_low - a_high) * (high**a_high - knee**a_high) / a_high
+    u = rng.uniform(size=size) * (below + above)
+    low_part = (low**a_low + a_low * u) ** (1.0 / a_low)
+    high_part = (knee**a_high + a_high * (u - below) * knee ** (a_high - a_low)) ** (1.0 / a_high)
+    return np.where(u < below, low_part, high_part)
+
+
+def test_local_exponents_follow_a_drift_that_one_window_averages():
+    rng = np.random.default_rng(4)
+    x = _piecewise(rng, 200000, 0.59, 1.0, 1e-3, 1e-6, 1e-1)
+    fits = local_exponents(x, (1e-8, 1e-1), per_decade=1)
+    assert [f.window[0] for f in fits] == pytest.approx([1e-6, 1e-5, 1e-4, 1e-3, 1e-2])  # none
+    for fit in fits:  # below 1e-6 (no values there)
+        expected = 0.59 if fit.window[1] <= 1e-3 else 1.0
+        assert abs(fit.a - expected) < 4.0 * fit.stderr
+    one = fit_truncated_power_law(x, (1e-6, 1e-1))
+    assert 0.62 < one.a < 0.97 and abs(one.a - 0.59) > 10 * one.stderr
+    half = local_exponents(x, (1e-6, 1e-1), per_decade=2)
+    assert len(half) == 10 and half[1].window == pytest.approx((10**-5.5, 1e-5))
+    with pytest.raises(InputError, match="per_decade"):
+        local_exponents(x, (1e-6, 1e-1), per_decade=0)
+    with pytest.raises(InputError, match="low < high"):
+        local_exponents(x, (1e-1, 1e-6))
+
+
+def _packings_of(gaps_each):
+    return [
+        WeakForcesAndGaps(
+            forces=np.ones(3),
+            localized=np.zeros(3, bool),
+            gaps=g,
+            gap_localized=np.zeros(g.size, bool),
+            n_live=g.size,
+            bucklers=0,
+            touching=0,
+            jamming_strain=0.0,
+        )
+        for g in gaps_each
+    ]
+
+
+def test_the_bootstrap_error_counts_packings_not_values():
+    rng = np.random.default_rng(5)
+    window = (1e-4, 1e-1)
+
+    def gamma(samples):
+        return 1.0 - fit_truncated_power_law(np.concatenate([s.gaps for s in samples]), window).a
+
+    def draw(size):
+        return _piecewise(rng, size, 0.59, 0.59, 1e-2, *window)
+
+    independent = _packings_of([draw(400) for _ in range(30)])
+    fisher = fit_truncated_power_law(np.concatenate([s.gaps for s in independent]), window)
+    assert packing_bootstrap(independent, gamma) == pytest.approx(fisher.stderr, rel=0.3)
+    # each packing holds 20 copies of 20 values: the Fisher error counts 400 values per packing
+    copied = _packings_of([np.tile(draw(20), 20) for _ in range(30)])
+    fisher = fit_truncated_power_law(np.concatenate([s.gaps for s in copied]), window)
+    assert packing_bootstrap(copied, gamma) > 2.5 * fisher.stderr
+    with pytest.raises(InputError, match="2 or more"):
+        packing_bootstrap(copied[:1], gamma)
 
 
 def test_values_that_follow_no_power_law_are_refused():
@@ -124,6 +193,10 @@ def test_the_samples_of_a_jammed_packing(certified):
     touching = at_jamming < -closing  # the pressure made more than half of the gap
     assert sample.touching == touching.sum() and sample.gaps.size == (~touching).sum()
     np.testing.assert_allclose(np.sort(sample.gaps), np.sort(at_jamming[~touching]), rtol=1e-12)
+    first, second = pairs.first[apart][~touching], pairs.second[apart][~touching]
+    np.testing.assert_allclose(sample.gaps, at_jamming[~touching], rtol=1e-12)  # same order
+    np.testing.assert_array_equal(sample.gap_localized, buckler[first] | buckler[second])
+    assert 0 < sample.gap_localized.sum() < sample.gaps.size
 
 
 def test_pooled_exponents_need_enough_values(certified):

@@ -305,3 +305,37 @@ def test_modes_figure_draws_what_decided_omega_star(tmp_path: Path) -> None:
     assert f"{edge.omega_star:.3g} $\\pm$ {edge.error:.2g}" in _legend_texts(fig)[0]
     assert f"{edge.modes_below} of 1000 modes below" in _legend_texts(fig)[1]
     _png(fig, tmp_path / "modes.png")
+
+
+def test_gap_exponent_figure_draws_each_local_fit(tmp_path: Path) -> None:
+    from athermal.certify.criticality import GAMMA, WeakForcesAndGaps, local_exponents
+
+    rng = np.random.default_rng(3)
+
+    def sample(size: int) -> WeakForcesAndGaps:
+        gaps = (1e-6**0.6 + rng.uniform(size=size) * (1e-1**0.6 - 1e-6**0.6)) ** (1 / 0.6)
+        return WeakForcesAndGaps(
+            forces=np.ones(3),
+            localized=np.zeros(3, bool),
+            gaps=gaps,
+            gap_localized=np.zeros(size, bool),
+            n_live=2 * size,
+            bucklers=0,
+            touching=0,
+            jamming_strain=0.0,
+        )
+
+    series = {"small": [sample(3000), sample(3000)], "large": [sample(20000)]}
+    fig = plot.gap_exponent_figure(series, (1e-6, 1e-1), per_decade=1)
+    count_ax, local_ax = fig.axes
+    for k, samples in enumerate(series.values()):
+        gaps = np.concatenate([s.gaps for s in samples])
+        fits = local_exponents(gaps, (1e-6, 1e-1), 1)
+        drawn = local_ax.containers[k].lines[0]  # the errorbar's line through its points
+        np.testing.assert_allclose(np.asarray(drawn.get_ydata(), float), [1 - f.a for f in fits])
+        y = count_ax.get_lines()[k].get_ydata()  # per non-rattler: half of each gap count
+        assert y[-1] == pytest.approx(gaps.size / sum(s.n_live for s in samples))
+    dotted = [line for line in local_ax.get_lines() if line.get_linestyle() == ":"]
+    assert len(dotted) == 1 and np.allclose(np.asarray(dotted[0].get_ydata(), float), GAMMA)
+    assert "small" in _legend_texts(fig)
+    _png(fig, tmp_path / "gaps.png")

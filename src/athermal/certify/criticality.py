@@ -29,7 +29,8 @@ states (:data:`FORCE_WINDOW`, :data:`GAP_WINDOW`).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import itertools
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -66,6 +67,7 @@ class WeakForcesAndGaps:
     localized : ``(M,)`` True where the contact touches a buckler.
     gaps : ``(G,)`` gaps ``h_c`` at the packing's jamming point (:func:`toward_jamming`)
         between non-rattlers that do not touch there, within reach.
+    gap_localized : ``(G,)`` True where a particle of the gap's pair is a buckler.
     n_live : non-rattlers.
     bucklers : non-rattlers with exactly ``d + 1`` contacts.
     touching : pairs of non-rattlers apart in the packing that touch at its jamming point: the
@@ -78,6 +80,7 @@ class WeakForcesAndGaps:
     forces: NDArray[np.float64]
     localized: NDArray[np.bool_]
     gaps: NDArray[np.float64]
+    gap_localized: NDArray[np.bool_]
     n_live: int
     bucklers: int
     touching: int
@@ -144,10 +147,12 @@ def weak_forces_and_gaps(
     closing = strain * rate[gap] / sigma[gap]  # h_c - h
     h_c = h + closing
     touching = h_c < -closing
+    near = buckler[pairs.first[gap]] | buckler[pairs.second[gap]]
     return WeakForcesAndGaps(
         forces=force / force.mean(),
         localized=buckler[i] | buckler[j],
         gaps=h_c[~touching],
+        gap_localized=near[~touching],
         n_live=int((~rattler).sum()),
         bucklers=int(buckler.sum()),
         touching=int(touching.sum()),
@@ -215,3 +220,54 @@ def critical_exponents(
         localized_contacts=int(localized.sum()),
         gaps=int(gaps.size),
     )
+
+
+def local_exponents(
+    values: NDArray[np.float64], window: tuple[float, float], per_decade: int = 2
+) -> list[TruncatedPowerLaw]:
+    """Truncated power-law fits (:func:`fit_truncated_power_law`) over consecutive windows of
+    ``1 / per_decade`` decade that tile ``window``: the local exponent of the distribution
+    along its values, where a single fit over ``window`` would average a drift away. Windows
+    holding fewer than 10 values, or following no power law, are left out."""
+    low, high = (float(w) for w in window)
+    if not 0.0 < low < high or int(per_decade) != per_decade or per_decade < 1:
+        raise InputError(
+            f"local exponents: need 0 < low < high and an integer per_decade >= 1, got "
+            f"{window}, {per_decade!r}"
+        )
+    count = max(1, round(np.log10(high / low) * per_decade))
+    edges = np.geomspace(low, high, count + 1)
+    fits = []
+    for a, b in itertools.pairwise(edges):
+        try:
+            fits.append(fit_truncated_power_law(values, (float(a), float(b))))
+        except InputError:
+            continue
+    return fits
+
+
+def packing_bootstrap(
+    samples: Sequence[WeakForcesAndGaps],
+    estimate: Callable[[Sequence[WeakForcesAndGaps]], float],
+    draws: int = 200,
+    seed: int = 0,
+) -> float:
+    """The standard deviation of ``estimate`` over ``draws`` resamplings of the packings with
+    replacement: an error that holds when the values of one packing are correlated (the
+    Fisher error of a pooled fit counts them as independent). Resamplings where ``estimate``
+    raises :class:`InputError` (too few values in its window) are left out."""
+    if len(samples) < 2 or draws < 2:
+        raise InputError(
+            f"bootstrap: need 2 or more packings and draws, got {len(samples)}, {draws}"
+        )
+    rng = np.random.default_rng(seed)
+    found = []
+    for _ in range(draws):
+        pick = rng.integers(0, len(samples), size=len(samples))
+        try:
+            found.append(estimate([samples[k] for k in pick]))
+        except InputError:
+            continue
+    if len(found) < 2:
+        raise InputError("bootstrap: the estimate failed on nearly every resampling")
+    return float(np.std(found, ddof=1))

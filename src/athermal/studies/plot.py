@@ -1,7 +1,8 @@
 """Figures of the paper with matplotlib: convergence, scaling laws, iteration counts, shear
-curves, ensemble histograms, force distributions, spectra and criticality (packings with their
-contact forces: :mod:`athermal.studies.picture`). Each function returns a
-:class:`matplotlib.figure.Figure` (no global pyplot state); :func:`save` writes one atomically.
+curves, ensemble histograms, force distributions, spectra, criticality and the gap exponent
+along the gaps (packings with their contact forces: :mod:`athermal.studies.picture`). Each
+function returns a :class:`matplotlib.figure.Figure` (no global pyplot state); :func:`save`
+writes one atomically.
 
 Units: the unit cell, stiffness ``k = 1``; energies ``k l^alpha``, stresses, pressures and
 moduli ``k l^(alpha-d)``, forces and gradients ``k l^(alpha-1)`` (``l`` a length).
@@ -455,6 +456,56 @@ def criticality_figure(
     for ax in (force_ax, gap_ax):
         ax.legend(fontsize="small", loc="upper left")
     fig.suptitle(title or f"{exponents.packings} packings, {live} non-rattlers")
+    return fig
+
+
+def gap_exponent_figure(
+    series: Mapping[str, Sequence[WeakForcesAndGaps]],
+    window: tuple[float, float],
+    *,
+    per_decade: int = 2,
+    title: str = "",
+) -> Figure:
+    """For each label's pooled packings, the cumulative distribution of the gaps per
+    non-rattler (left, log-log) and the local exponent ``gamma`` fitted over windows of
+    ``1 / per_decade`` decade across ``window``
+    (:func:`~athermal.certify.criticality.local_exponents`) with its standard error (right),
+    the mean-field ``gamma`` dotted."""
+    from ..certify.criticality import GAMMA, local_exponents
+
+    fig = new_figure(10.0, 4.2)
+    count_ax, local_ax = fig.subplots(1, 2)
+    for k, (label, samples) in enumerate(series.items()):
+        gaps = np.sort(np.concatenate([s.gaps for s in samples]))
+        live = sum(s.n_live for s in samples)
+        shown = np.unique(np.geomspace(1, gaps.size, 300).astype(int)) - 1
+        count = (np.arange(1, gaps.size + 1) / live)[shown]
+        (line,) = count_ax.loglog(gaps[shown], count, ".", markersize=3, label=label)
+        fits = local_exponents(gaps, window, per_decade)
+        centre = np.array([np.sqrt(f.window[0] * f.window[1]) for f in fits])
+        shift = 10.0 ** (0.03 * (k - (len(series) - 1) / 2))  # keep the error bars apart
+        local_ax.errorbar(
+            centre * shift,
+            [1.0 - f.a for f in fits],
+            yerr=[f.stderr for f in fits],
+            fmt="o-",
+            markersize=4,
+            capsize=2,
+            color=line.get_color(),
+            label=label,
+        )
+    for ax in (count_ax, local_ax):
+        ax.axvspan(*window, color="grey", alpha=0.06)
+    local_ax.set_xscale("log")
+    local_ax.axhline(GAMMA, color="black", linestyle=":", label=f"mean field {GAMMA}")
+    count_ax.set_xlabel(r"$h = r_{ij} / (r_i + r_j) - 1$")
+    count_ax.set_ylabel("gaps below, per non-rattler")
+    local_ax.set_xlabel(r"$h$ (centre of the window)")
+    local_ax.set_ylabel(rf"$\gamma$ over {1 / per_decade:g} decade")
+    for ax in (count_ax, local_ax):
+        ax.legend(fontsize="small", loc="upper left")
+    if title:
+        fig.suptitle(title)
     return fig
 
 
