@@ -161,14 +161,11 @@ def _fit(values: Any, window: tuple[float, float], sign: int) -> list[float]:
     return [*window, sign * (fit.a - 1.0), fit.stderr, fit.points]
 
 
-def report(
-    results: list[dict[str, Any]], refused: list[str], epsilon: float = EPSILON, dim: int = 2
-) -> str:
+def report(results: list[dict[str, Any]], refused: list[str], epsilon: float = EPSILON) -> str:
     """The markdown: per N the exponents at the default windows, then the window scans and the
     local gap exponent."""
     lines = [
-        f"# Weak forces and small gaps at jamming ({dim}D, bidisperse, alpha = 2, certified "
-        "packings)",
+        "# Weak forces and small gaps at jamming (bidisperse, alpha = 2, certified packings)",
         "",
         f"Jamming points bracketed to epsilon = {epsilon:g}"
         + (" in double-double." if epsilon < RESOLUTION else " in float64."),
@@ -176,15 +173,15 @@ def report(
         f"Default windows: f / <f> in {FORCE_WINDOW}, h in {GAP_WINDOW}. Mean field: theta_e "
         f"= {THETA_E}, gamma = {GAMMA}.",
         "",
-        "| N | packings | worst force balance / <f> | theta_e | theta_l | gamma | all forces "
+        "| d | N | packings | worst force balance / <f> | theta_e | theta_l | gamma | all forces "
         "together: theta | contacts of bucklers |",
-        "|---:|---:|---:|---|---|---|---|---:|",
+        "|---|---:|---:|---:|---|---|---|---|---:|",
     ]
     for r in results:
         fits = (r[k] for k in ("theta_e", "theta_l", "gamma"))
         cells = [f"{v:.3f} ± {e:.3f} ({p})" for v, e, p in fits]
         lines.append(
-            f"| {r['n']} | {r['packings']} | {r['relative_force_balance_max']:.1e} | "
+            f"| {r['dim']} | {r['n']} | {r['packings']} | {r['relative_force_balance_max']:.1e} | "
             + " | ".join(cells)
             + f" | {r['all_forces'][0]:.3f} ± {r['all_forces'][1]:.3f} ({r['all_forces'][2]:.0f})"
             + f" | {100 * r['localized_fraction']:.0f}% |"
@@ -194,14 +191,14 @@ def report(
         "Gaps are taken at each packing's jamming point (the packing expanded to it by its linear"
         " response); pairs that touch there (the pressure made their gap) are counted apart.",
         "",
-        "| N | pairs touching at phi_c (per packing) | gaps below 1e-8 at phi_c | phi_c - "
+        "| d | N | pairs touching at phi_c (per packing) | gaps below 1e-8 at phi_c | phi_c - "
         "linear-response phi_c |",
-        "|---:|---:|---:|---|",
+        "|---|---:|---:|---:|---|",
     ]
     for r in results:
         low, high = r["phi_c_minus_linear"]
         lines.append(
-            f"| {r['n']} | {r['touching']} ({r['touching'] / r['packings']:.2f}) | "
+            f"| {r['dim']} | {r['n']} | {r['touching']} ({r['touching'] / r['packings']:.2f}) | "
             f"{r['gaps_below_1e-8']} | {low:.1e} ... {high:.1e} |"
         )
     lines += [
@@ -210,12 +207,12 @@ def report(
         f"({BOOTSTRAP_DRAWS} draws with replacement), which counts the values of one packing as "
         "correlated:",
         "",
-        "| N | theta_e | gamma |",
-        "|---:|---|---|",
+        "| d | N | theta_e | gamma |",
+        "|---|---:|---|---|",
     ]
     for r in results:
         lines.append(
-            f"| {r['n']} | {r['theta_e'][0]:.3f} ± {r['bootstrap']['theta_e']:.3f} | "
+            f"| {r['dim']} | {r['n']} | {r['theta_e'][0]:.3f} ± {r['bootstrap']['theta_e']:.3f} | "
             f"{r['gamma'][0]:.3f} ± {r['bootstrap']['gamma']:.3f} |"
         )
     lines += [
@@ -225,7 +222,7 @@ def report(
         "gamma fitted over a decade at a time: value ± Fisher error / resampled error "
         "(gaps in the window, per packing).",
         "",
-        "| h | " + " | ".join(f"N = {r['n']}" for r in results) + " |",
+        "| h | " + " | ".join(f"{r['dim']}D, N = {r['n']}" for r in results) + " |",
         "|---|" + "---|" * len(results),
     ]
     windows = sorted({(row[0], row[1]) for r in results for row in r["local_gamma"]})
@@ -240,13 +237,16 @@ def report(
             )
         lines.append(f"| {low:.1e} ... {high:.1e} | " + " | ".join(cells) + " |")
     lines += ["", "## The exponents against the window", ""]
-    lines += ["| N | exponent | window | value ± stderr (points) |", "|---:|---|---|---|"]
+    lines += [
+        "| d | N | exponent | window | value ± stderr (points) |",
+        "|---|---:|---|---|---|",
+    ]
     for r in results:
         for name, rows in r["scan"].items():
             for low, high, value, err, points in rows:
                 lines.append(
-                    f"| {r['n']} | {name} | {low:g} ... {high:g} | {value:.3f} ± {err:.3f} "
-                    f"({points:.0f}) |"
+                    f"| {r['dim']} | {r['n']} | {name} | {low:g} ... {high:g} | "
+                    f"{value:.3f} ± {err:.3f} ({points:.0f}) |"
                 )
     if refused:
         lines += ["", "Refused by certify:", "", *[f"- {r}" for r in refused]]
@@ -257,34 +257,38 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--n", type=int, nargs="+", default=[1024])
     parser.add_argument("--packings", type=int, nargs="+", default=[120])
+    parser.add_argument("--dim", type=int, nargs="+", default=[2], help="one for all, or per N")
     parser.add_argument("--cache", type=str, nargs="+", default=None, help="one folder per N")
     parser.add_argument("--output-dir", type=str, default=str(ROOT / "benchmarks" / "results"))
     parser.add_argument("--figure-dir", type=str, default=str(ROOT / "docs" / "figures"))
     parser.add_argument("--epsilon", type=float, default=EPSILON)
-    parser.add_argument("--dim", type=int, choices=(2, 3), default=2)
     args = parser.parse_args(argv)
+    dims = args.dim * len(args.n) if len(args.dim) == 1 else args.dim
+    if len(dims) != len(args.n) or not set(dims) <= {2, 3}:
+        parser.error(f"--dim: 2 or 3, one for all or one per N, got {args.dim}")
     pin()
     output = Path(args.output_dir)
     Path(args.figure_dir).mkdir(parents=True, exist_ok=True)
-    tag = ("" if args.dim == 2 else f"_d{args.dim}") + (
-        "" if args.epsilon == EPSILON else f"_eps{args.epsilon:g}"
-    )
+    eps = "" if args.epsilon == EPSILON else f"_eps{args.epsilon:g}"
+    tags = [("" if d == 2 else f"_d{d}") + eps for d in dims]
+    tag = {(2,): "", (3,): "_d3"}.get(tuple(sorted(set(dims))), "_d2d3") + eps
     caches = args.cache or [
-        str(ROOT / "benchmarks" / "cache" / f"criticality_n{n}{tag}") for n in args.n
+        str(ROOT / "benchmarks" / "cache" / f"criticality_n{n}{t}")
+        for n, t in zip(args.n, tags, strict=True)
     ]
     results, refused, series = [], [], {}
-    for n, count, cache in zip(args.n, args.packings, caches, strict=True):
-        files, no = packings(n, count, Path(cache), args.epsilon, args.dim)
-        refused += [f"N {n}, {r}" for r in no]
-        found, samples = study(n, files, Path(args.figure_dir) / f"criticality_n{n}{tag}.png")
-        results.append(found)
-        series[f"N = {n} ({len(samples)} packings)"] = samples
+    for n, d, count, cache, t in zip(args.n, dims, args.packings, caches, tags, strict=True):
+        files, no = packings(n, count, Path(cache), args.epsilon, d)
+        refused += [f"{d}D N {n}, {r}" for r in no]
+        found, samples = study(n, files, Path(args.figure_dir) / f"criticality_n{n}{t}.png")
+        results.append({"dim": d, **found})
+        series[f"{d}D, N = {n} ({len(samples)} packings)"] = samples
     figure = gap_exponent_figure(
-        series, LOCAL_WINDOW, per_decade=1, title=f"{args.dim}D: the local gap exponent"
+        series, LOCAL_WINDOW, per_decade=1, title="The gap exponent a decade at a time"
     )
     save(figure, Path(args.figure_dir) / f"gap_exponent{tag}.png")
-    markdown = report(results, refused, args.epsilon, args.dim) + "\n"
-    data = {"epsilon": args.epsilon, "dim": args.dim, "results": results, "refused": refused}
+    markdown = report(results, refused, args.epsilon) + "\n"
+    data = {"epsilon": args.epsilon, "results": results, "refused": refused}
     save_results(output, f"criticality{tag}", data, markdown)
     print(markdown)
     return 0

@@ -327,15 +327,20 @@ def test_gap_exponent_figure_draws_each_local_fit(tmp_path: Path) -> None:
 
     series = {"small": [sample(3000), sample(3000)], "large": [sample(20000)]}
     fig = plot.gap_exponent_figure(series, (1e-6, 1e-1), per_decade=1)
-    count_ax, local_ax = fig.axes
+    count_ax, local_ax, size_ax = fig.axes
     for k, samples in enumerate(series.values()):
         gaps = np.concatenate([s.gaps for s in samples])
         fits = local_exponents(gaps, (1e-6, 1e-1), 1)
-        drawn = local_ax.containers[k].lines[0]  # the errorbar's line through its points
-        np.testing.assert_allclose(np.asarray(drawn.get_ydata(), float), [1 - f.a for f in fits])
+        for ax in (local_ax, size_ax):
+            drawn = ax.containers[k].lines[0]  # the errorbar's line through its points
+            y = np.asarray(drawn.get_ydata(), float)
+            np.testing.assert_allclose(y, [1 - f.a for f in fits])
+        held = np.asarray(size_ax.containers[k].lines[0].get_xdata(), float)
+        np.testing.assert_allclose(held, [f.points / len(samples) for f in fits])
         y = count_ax.get_lines()[k].get_ydata()  # per non-rattler: half of each gap count
         assert y[-1] == pytest.approx(gaps.size / sum(s.n_live for s in samples))
-    dotted = [line for line in local_ax.get_lines() if line.get_linestyle() == ":"]
-    assert len(dotted) == 1 and np.allclose(np.asarray(dotted[0].get_ydata(), float), GAMMA)
+    for ax in (local_ax, size_ax):
+        dotted = [line for line in ax.get_lines() if line.get_linestyle() == ":"]
+        assert len(dotted) == 1 and np.allclose(np.asarray(dotted[0].get_ydata(), float), GAMMA)
     assert "small" in _legend_texts(fig)
     _png(fig, tmp_path / "gaps.png")

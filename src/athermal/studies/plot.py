@@ -469,12 +469,14 @@ def gap_exponent_figure(
     """For each label's pooled packings, the cumulative distribution of the gaps per
     non-rattler (left, log-log) and the local exponent ``gamma`` fitted over windows of
     ``1 / per_decade`` decade across ``window``
-    (:func:`~athermal.certify.criticality.local_exponents`) with its standard error (right),
-    the mean-field ``gamma`` dotted."""
+    (:func:`~athermal.certify.criticality.local_exponents`) with its standard error, against
+    the window's centre (middle) and against the gaps a packing holds in the window (right:
+    where finite size cuts the law, curves of different N meet), the mean-field ``gamma``
+    dotted."""
     from ..certify.criticality import GAMMA, local_exponents
 
-    fig = new_figure(10.0, 4.2)
-    count_ax, local_ax = fig.subplots(1, 2)
+    fig = new_figure(14.0, 4.2)
+    count_ax, local_ax, size_ax = fig.subplots(1, 3)
     for k, (label, samples) in enumerate(series.items()):
         gaps = np.sort(np.concatenate([s.gaps for s in samples]))
         live = sum(s.n_live for s in samples)
@@ -484,26 +486,29 @@ def gap_exponent_figure(
         fits = local_exponents(gaps, window, per_decade)
         centre = np.array([np.sqrt(f.window[0] * f.window[1]) for f in fits])
         shift = 10.0 ** (0.03 * (k - (len(series) - 1) / 2))  # keep the error bars apart
-        local_ax.errorbar(
-            centre * shift,
-            [1.0 - f.a for f in fits],
-            yerr=[f.stderr for f in fits],
-            fmt="o-",
-            markersize=4,
-            capsize=2,
-            color=line.get_color(),
-            label=label,
-        )
-    for ax in (count_ax, local_ax):
-        ax.axvspan(*window, color="grey", alpha=0.06)
-    local_ax.set_xscale("log")
-    local_ax.axhline(GAMMA, color="black", linestyle=":", label=f"mean field {GAMMA}")
+        held = np.array([f.points for f in fits]) / len(samples)
+        for ax, x in ((local_ax, centre * shift), (size_ax, held)):
+            ax.errorbar(
+                x,
+                [1.0 - f.a for f in fits],
+                yerr=[f.stderr for f in fits],
+                fmt="o-",
+                markersize=4,
+                capsize=2,
+                color=line.get_color(),
+                label=label,
+            )
+    count_ax.axvspan(*window, color="grey", alpha=0.06)
+    for ax in (local_ax, size_ax):
+        ax.set_xscale("log")
+        ax.axhline(GAMMA, color="black", linestyle=":", label=f"mean field {GAMMA}")
+        ax.set_ylabel(rf"$\gamma$ over {1 / per_decade:g} decade")
     count_ax.set_xlabel(r"$h = r_{ij} / (r_i + r_j) - 1$")
     count_ax.set_ylabel("gaps below, per non-rattler")
     local_ax.set_xlabel(r"$h$ (centre of the window)")
-    local_ax.set_ylabel(rf"$\gamma$ over {1 / per_decade:g} decade")
-    for ax in (count_ax, local_ax):
-        ax.legend(fontsize="small", loc="upper left")
+    size_ax.set_xlabel("gaps in the window, per packing")
+    count_ax.legend(fontsize="small", loc="upper left")
+    size_ax.legend(fontsize="small", loc="lower right")
     if title:
         fig.suptitle(title)
     return fig
