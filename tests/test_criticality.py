@@ -222,6 +222,12 @@ def test_the_command_pools_files_and_refuses_bad_windows(certified, tmp_path, ca
     assert out["packings"] == out["certified"] == 2
     assert out["contacts"] == 2 * done.certificate.contacts
     assert out["theta_e"]["mean_field"] == 0.42311 and out["gamma"]["window"] == [1e-3, 0.1]
+    gaps = weak_forces_and_gaps(done.packing, model, done.position_lo).gaps
+    local = local_exponents(np.concatenate([gaps, gaps]), (1e-3, 0.1), per_decade=1)
+    assert local  # a decade at a time across the gap window, where 10 gaps or more lie
+    assert [g["window"] for g in out["gamma_local"]] == [list(f.window) for f in local]
+    assert [g["value"] for g in out["gamma_local"]] == pytest.approx([1 - f.a for f in local])
+    assert [g["per_packing"] for g in out["gamma_local"]] == [f.points / 2 for f in local]
     assert figure.stat().st_size > 0
     assert main(["criticality", *files, "--force-window", "1", "0.1"]) == 2
     assert "--force-window: need 0 < LOW < HIGH" in capsys.readouterr().err

@@ -15,7 +15,13 @@ from ..analysis.modes import plateau_edge, save_modes, vibrational_modes
 from ..analysis.moduli import linear_response
 from ..analysis.observables import measure
 from ..certify import LOG_PREFIX, certify
-from ..certify.criticality import GAMMA, THETA_E, critical_exponents, weak_forces_and_gaps
+from ..certify.criticality import (
+    GAMMA,
+    THETA_E,
+    critical_exponents,
+    local_exponents,
+    weak_forces_and_gaps,
+)
 from ..errors import InputError
 from ..io import count_frames, read_gsd, write_gsd
 from ..model.contact import ContactModel
@@ -236,6 +242,17 @@ def criticality(args: argparse.Namespace) -> None:
             "window": list(fit.window),
             "mean_field": mean_field,
         }
+    gaps = np.concatenate([s.gaps for s in samples])
+    out["gamma_local"] = [
+        {
+            "window": list(fit.window),
+            "value": 1.0 - fit.a,
+            "stderr": fit.stderr,
+            "points": fit.points,
+            "per_packing": fit.points / len(samples),
+        }
+        for fit in local_exponents(gaps, found.gap.window, per_decade=1)
+    ]
     if args.figure is not None:
         save(criticality_figure(samples, found), args.figure)
         out["figure"] = args.figure

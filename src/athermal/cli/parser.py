@@ -175,7 +175,8 @@ def _criticality_command(sub: argparse._SubParsersAction) -> None:
         "localized) and the others (extended), and fit their small-value power laws by maximum "
         "likelihood over a window: P(f) ~ f^theta, g(h) ~ h^-gamma, beside the mean-field "
         "theta_e = 0.42311 and gamma = 0.41269 (Charbonneau, Corwin, Parisi & Zamponi, PRL "
-        "114, 125504 (2015)).",
+        "114, 125504 (2015)); gamma also a decade at a time across the gap window "
+        "(gamma_local).",
     )
     cri.add_argument("inputs", nargs="+", help="GSD files of jammed packings (the last frame)")
     cri.add_argument(
