@@ -1,26 +1,28 @@
 """The critical exponents of weak forces and small gaps at jamming, over certified packings.
 
 For each N, packings of seeds ``0 .. K-1`` are jammed
-(:func:`athermal.studies.experiments.jam_packing`: ``--dim`` 2 or 3, bidisperse,
-alpha = 2, epsilon = 1e-6, ``ohern``) and certified (:func:`athermal.certify.certify`); each
-certified packing is kept as a GSD file in the cache directory (a rerun reuses it). Their
-forces and gaps are pooled (:func:`athermal.certify.criticality.weak_forces_and_gaps`) and
-``theta_e``, ``theta_l`` and ``gamma`` fitted over the default windows and over a scan of
-others, so that the dependence on the window is shown beside the value; ``gamma`` also a decade at
-a time along the gaps (:func:`~athermal.certify.criticality.local_exponents`), and
-every error also by resampling the packings
-(:func:`~athermal.certify.criticality.packing_bootstrap`). With ``--epsilon E`` below 1e-9
-each jamming point is bracketed to E in double-double (``bisect_jamming_point``) and the
-certified packing at its jammed bound is taken. Run from the repository root::
+(:func:`athermal.studies.experiments.jam_packing`: ``--dim`` 2 or 3, one for all N or one
+per N, bidisperse, alpha = 2, epsilon = 1e-6, ``ohern``) and certified
+(:func:`athermal.certify.certify`); each certified packing is kept as a GSD file in the cache
+directory (a rerun reuses it). Their forces and gaps are pooled
+(:func:`athermal.certify.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and
+``gamma`` fitted over the default windows and over a scan of others, so that the dependence
+on the window is shown beside the value; ``gamma`` also a decade at a time along the gaps
+(:func:`~athermal.certify.criticality.local_exponents`), and every error also by resampling
+the packings (:func:`~athermal.certify.criticality.packing_bootstrap`). With ``--epsilon E``
+below 1e-9 each jamming point is bracketed to E in double-double (``bisect_jamming_point``)
+and the certified packing at its jammed bound is taken. Run from the repository root::
 
     python -m benchmarks.criticality --n 1024 --packings 120
     python -m benchmarks.criticality --n 1024 4096 --packings 120 30
     python -m benchmarks.criticality --n 1024 --packings 120 --epsilon 1e-12
     python -m benchmarks.criticality --dim 3 --n 1024 4096 --packings 150 8 --epsilon 1e-12
+    python -m benchmarks.criticality --dim 2 3 --n 1024 1024 --packings 300 150 --epsilon 1e-12
 
 Results: ``benchmarks/results/criticality<tag>.md`` and ``.json``, the figures
 ``docs/figures/criticality_n<N><tag>.png`` and ``gap_exponent<tag>.png``, where the tag is
-``_d3`` in 3D and ``_epsE`` with ``--epsilon E``.
+``_d3`` when every N is 3D, ``_d2d3`` when both dimensions run, and ends in ``_epsE`` with
+``--epsilon E``.
 """
 
 from __future__ import annotations
