@@ -54,8 +54,8 @@ FORCE_WINDOW = (1e-3, 1e-1)
 GAP_WINDOW = (1e-5, 1e-2)
 """Default window of ``h`` for the gap exponent: far above the gaps' share of the pressure at
 epsilon = 1e-6, below the first neighbour shell. Finite size lowers the local exponent where a
-packing holds few gaps in a decade, which at N = 1024 in 2D is most of this window
-(``docs/criticality.md``): :func:`local_exponents` shows where."""
+packing holds few gaps in a decade (``docs/criticality.md`` measures where, by N and
+dimension); :func:`local_exponents` shows it for any packings."""
 
 
 @dataclass(frozen=True, eq=False)

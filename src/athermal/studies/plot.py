@@ -402,6 +402,16 @@ def modes_figure(spectra: Mapping[str, Modes], *, title: str = "", seed: int = 0
     return fig
 
 
+def _cumulative(
+    values: NDArray[np.float64], per: int
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.intp]]:
+    """``values`` sorted, the count at or below each over ``per``, and the indices of ~300 of
+    them spread evenly in log (the points a log-log plot draws)."""
+    x = np.sort(values)
+    count = np.arange(1, x.size + 1) / per
+    return x, count, np.unique(np.geomspace(1, x.size, 300).astype(int)) - 1
+
+
 def criticality_figure(
     samples: Sequence[WeakForcesAndGaps], exponents: CriticalExponents, *, title: str = ""
 ) -> Figure:
@@ -423,9 +433,7 @@ def criticality_figure(
         (gap_ax, gaps, exponents.gap, "gaps", 1.0 - GAMMA, "gamma"),
     )
     for ax, values, fit, label, mean_field, name in curves:
-        x = np.sort(values)
-        count = np.arange(1, x.size + 1) / live
-        shown = np.unique(np.geomspace(1, x.size, 300).astype(int)) - 1
+        x, count, shown = _cumulative(values, live)
         exponent = fit.a - 1.0 if name != "gamma" else 1.0 - fit.a
         symbol = {"theta_e": r"\theta_e", "gamma": r"\gamma", "": r"\theta_l"}[name]
         (line,) = ax.loglog(
@@ -470,19 +478,17 @@ def gap_exponent_figure(
     non-rattler (left, log-log) and the local exponent ``gamma`` fitted over windows of
     ``1 / per_decade`` decade across ``window``
     (:func:`~athermal.certify.criticality.local_exponents`) with its standard error, against
-    the window's centre (middle) and against the gaps a packing holds in the window (right:
-    where finite size cuts the law, curves of different N meet), the mean-field ``gamma``
-    dotted."""
+    the window's centre (middle) and against the gaps a packing holds in the window (right,
+    the variable of finite size: ``docs/criticality.md``), the mean-field ``gamma`` dotted."""
     from ..certify.criticality import GAMMA, local_exponents
 
     fig = new_figure(14.0, 4.2)
     count_ax, local_ax, size_ax = fig.subplots(1, 3)
     for k, (label, samples) in enumerate(series.items()):
-        gaps = np.sort(np.concatenate([s.gaps for s in samples]))
-        live = sum(s.n_live for s in samples)
-        shown = np.unique(np.geomspace(1, gaps.size, 300).astype(int)) - 1
-        count = (np.arange(1, gaps.size + 1) / live)[shown]
-        (line,) = count_ax.loglog(gaps[shown], count, ".", markersize=3, label=label)
+        gaps, count, shown = _cumulative(
+            np.concatenate([s.gaps for s in samples]), sum(s.n_live for s in samples)
+        )
+        (line,) = count_ax.loglog(gaps[shown], count[shown], ".", markersize=3, label=label)
         fits = local_exponents(gaps, window, per_decade)
         centre = np.array([np.sqrt(f.window[0] * f.window[1]) for f in fits])
         shift = 10.0 ** (0.03 * (k - (len(series) - 1) / 2))  # keep the error bars apart
