@@ -2,7 +2,9 @@
 
 For each N, packings of seeds ``0 .. K-1`` are jammed
 (:func:`athermal.studies.experiments.jam_packing`: ``--dim`` 2 or 3, one for all N or one
-per N, bidisperse, alpha = 2, epsilon = 1e-6, ``ohern``) and certified
+per N, bidisperse, alpha = 2, ``ohern``, to ``--epsilon`` or, below float64's resolution, to
+1e-7 as ``jam --certify`` does: ``float64_epsilon``; packings cached before 2026-12-07 were
+jammed to 1e-6 first, the same float64 trials stopped earlier) and certified
 (:func:`athermal.certify.certify`); each certified packing is kept as a GSD file in the cache
 directory (a rerun reuses it). Their forces and gaps are pooled
 (:func:`athermal.certify.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and
@@ -34,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from athermal.certify import certify
-from athermal.certify.bisection import bisect_jamming_point
+from athermal.certify.bisection import bisect_jamming_point, float64_epsilon
 from athermal.certify.criticality import (
     FORCE_WINDOW,
     GAMMA,
@@ -68,7 +70,7 @@ def packings(
     ``0 .. count-1``, made where missing (bracketed to ``epsilon`` in double-double below
     float64's resolution); the refusals."""
     cache.mkdir(parents=True, exist_ok=True)
-    spec, files, refused = JamSpec(n=n, dim=dim), [], []
+    spec, files, refused = JamSpec(n=n, dim=dim, epsilon=float64_epsilon(epsilon)), [], []
     for seed in range(count):
         path = cache / f"p{seed:04d}.gsd"
         if not path.exists():

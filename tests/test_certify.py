@@ -24,11 +24,13 @@ from athermal.certify.bisection import (
     _KeptFactor,
     _trial,
     bisect_jamming_point,
+    float64_epsilon,
 )
 from athermal.certify.extended import NearPairs
 from athermal.cli import main
 from athermal.errors import InputError
 from athermal.model.neighbors import build_neighbor_list
+from athermal.protocols import RESOLUTION
 from decimal_reference import decimal_sums
 
 DATA = Path(__file__).parent / "data"
@@ -425,3 +427,10 @@ def test_jam_certify_killed_in_its_march_resumes_to_the_same_packing(tmp_path, c
     one, two = at.read_gsd(tmp_path / "whole.gsd"), at.read_gsd(tmp_path / "cut.gsd")
     np.testing.assert_array_equal(one.packing.positions, two.packing.positions)
     np.testing.assert_array_equal(one.position_lo, two.position_lo)
+
+
+def test_float64_epsilon_is_the_march_start_below_resolution():
+    """float64 jams to the bracket asked where it takes the verdict, else to the march's start."""
+    assert float64_epsilon(1e-6) == 1e-6
+    assert float64_epsilon(RESOLUTION) == RESOLUTION
+    assert float64_epsilon(1e-12) == START_EPSILON

@@ -26,7 +26,7 @@ from ..linalg import Factor, NotPositiveDefinite, cholesky, factor_cg
 from ..model.contact import ContactModel, Contacts, hessian_floor
 from ..model.objective import Objective
 from ..model.packing import Packing
-from ..protocols.jamming import FINAL_RTOL, JAMMING_MINIMIZER, energy_threshold
+from ..protocols.jamming import FINAL_RTOL, JAMMING_MINIMIZER, RESOLUTION, energy_threshold
 from ..relaxation import Relaxer, energy_scale, force_tolerance
 from . import (
     GAP_REACH,
@@ -44,6 +44,15 @@ START_EPSILON = 1e-7
 --certify`` jams to it first): a hundred times float64's resolution, so that the march in
 double-double covers at most ~1e-7 (``docs/decisions.md``, "Three costs of the certified march
 removed", on why not closer)."""
+
+
+def float64_epsilon(epsilon: float) -> float:
+    """The bracket the float64 jam runs to for a jamming point wanted to ``epsilon``:
+    ``epsilon`` itself where float64 takes the verdict (at least :data:`~athermal.protocols.
+    RESOLUTION`), else :data:`START_EPSILON`, from which the double-double march goes on."""
+    return epsilon if epsilon >= RESOLUTION else START_EPSILON
+
+
 FIRST_STEP = 1e-9
 """The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
 LARGEST_STEP = 1e-8

@@ -20,14 +20,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import engines
-from ..certify.bisection import START_EPSILON
+from ..certify.bisection import float64_epsilon
 from ..errors import InputError
 from ..io import Frame, count_frames, read_gsd
 from ..model.contact import ContactModel, find_contacts
 from ..model.packing import Packing
 from ..protocols import (
     JAMMING_SCHEME,
-    RESOLUTION,
     compression_steps,
     log_spaced,
     scaling_exponents,
@@ -158,7 +157,7 @@ def jam(args: argparse.Namespace) -> None:
         **sizes_from(args),
         phi_init=phi_init,
         dphi=args.dphi,
-        epsilon=args.epsilon if args.epsilon >= RESOLUTION else START_EPSILON,  # then double-double
+        epsilon=float64_epsilon(args.epsilon),
         protocol=args.bisection,
         minimizer=minimizer_from(args),
         walls=args.walls,
