@@ -6,7 +6,7 @@ per N, bidisperse, alpha = 2, ``ohern``, to ``--epsilon`` or, below float64's re
 1e-7 as ``jam --certify`` does: ``float64_epsilon``; packings cached before 2026-12-07 were
 jammed to 1e-6 first, the same float64 trials stopped earlier) and certified
 (:func:`athermal.certify.certify`); each certified packing is kept as a GSD file in the cache
-directory (a rerun reuses it). Their forces and gaps are pooled
+directory, each refusal as a text file (a rerun reuses both). Their forces and gaps are pooled
 (:func:`athermal.certify.criticality.weak_forces_and_gaps`) and ``theta_e``, ``theta_l`` and
 ``gamma`` fitted over the default windows and over a scan of others, so that the dependence
 on the window is shown beside the value; ``gamma`` also a decade at a time along the gaps
@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from athermal.atomic import write_text
 from athermal.certify import certify
 from athermal.certify.bisection import bisect_jamming_point, float64_epsilon
 from athermal.certify.criticality import (
@@ -68,11 +69,15 @@ def packings(
 ) -> tuple[list[Path], list[str]]:
     """The certified packings of ``n`` particles in ``dim`` dimensions of seeds
     ``0 .. count-1``, made where missing (bracketed to ``epsilon`` in double-double below
-    float64's resolution); the refusals."""
+    float64's resolution); the refusals, each kept beside the packings as ``pNNNN.refused``
+    so that a rerun does not make it again."""
     cache.mkdir(parents=True, exist_ok=True)
     spec, files, refused = JamSpec(n=n, dim=dim, epsilon=float64_epsilon(epsilon)), [], []
     for seed in range(count):
-        path = cache / f"p{seed:04d}.gsd"
+        path, refusal = cache / f"p{seed:04d}.gsd", cache / f"p{seed:04d}.refused"
+        if refusal.exists():
+            refused.append(refusal.read_text())
+            continue
         if not path.exists():
             jammed = jam_packing(spec, seed)
             phi_c = jammed.phi_c
@@ -84,10 +89,12 @@ def packings(
                     done = certify(jammed.packing, spec.model)
             except (InputError, ConvergenceError) as exc:
                 refused.append(f"seed {seed}: {exc}")
+                write_text(refusal, refused[-1])
                 continue
             if not done.certificate.converged:
                 balance = done.certificate.relative_force_balance
                 refused.append(f"seed {seed}: not certified (force balance {balance:.1e})")
+                write_text(refusal, refused[-1])
                 continue
             write_gsd(
                 path,
