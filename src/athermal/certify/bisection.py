@@ -44,15 +44,6 @@ START_EPSILON = 1e-7
 --certify`` jams to it first): a hundred times float64's resolution, so that the march in
 double-double covers at most ~1e-7 (``docs/decisions.md``, "Three costs of the certified march
 removed", on why not closer)."""
-
-
-def float64_epsilon(epsilon: float) -> float:
-    """The bracket the float64 jam runs to for a jamming point wanted to ``epsilon``:
-    ``epsilon`` itself where float64 takes the verdict (at least :data:`~athermal.protocols.
-    RESOLUTION`), else :data:`START_EPSILON`, from which the double-double march goes on."""
-    return epsilon if epsilon >= RESOLUTION else START_EPSILON
-
-
 FIRST_STEP = 1e-9
 """The first step down in ``phi`` of :func:`bisect_jamming_point`'s march."""
 LARGEST_STEP = 1e-8
@@ -78,6 +69,13 @@ CHECKPOINT_TRIALS = 8
 """The march hands its state to ``on_checkpoint`` every this many trials, and starts its linear
 algebra afresh there (:class:`_KeptFactor`), so that a march resumed from that state takes the
 path of one that was not stopped, bit for bit."""
+
+
+def float64_epsilon(epsilon: float) -> float:
+    """The bracket the float64 jam runs to for a jamming point wanted to ``epsilon``:
+    ``epsilon`` itself where float64 takes the verdict (at least :data:`~athermal.protocols.
+    RESOLUTION`), else :data:`START_EPSILON`, from which the double-double march goes on."""
+    return epsilon if epsilon >= RESOLUTION else START_EPSILON
 
 
 @dataclass(frozen=True, eq=False)
