@@ -81,19 +81,20 @@ def packings(
         if not path.exists():
             jammed = jam_packing(spec, seed)
             phi_c = jammed.phi_c
+            reason = None
             try:
                 if epsilon < RESOLUTION:
                     point = bisect_jamming_point(jammed.packing, spec.model, epsilon)
                     done, phi_c = point.jammed, point.phi_high
                 else:
                     done = certify(jammed.packing, spec.model)
+                if not done.certificate.converged:
+                    balance = done.certificate.relative_force_balance
+                    reason = f"not certified (force balance {balance:.1e})"
             except (InputError, ConvergenceError) as exc:
-                refused.append(f"seed {seed}: {exc}")
-                write_text(refusal, refused[-1])
-                continue
-            if not done.certificate.converged:
-                balance = done.certificate.relative_force_balance
-                refused.append(f"seed {seed}: not certified (force balance {balance:.1e})")
+                reason = str(exc)
+            if reason is not None:
+                refused.append(f"seed {seed}: {reason}")
                 write_text(refusal, refused[-1])
                 continue
             write_gsd(
