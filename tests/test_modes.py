@@ -12,12 +12,16 @@ import scipy.sparse as sp
 
 from athermal.analysis.modes import (
     density_of_states,
-    lowest_eigenpairs,
     plateau_edge,
     plateau_frequency,
     vibrational_modes,
 )
-from athermal.analysis.moduli import nonrattler_contacts, nonrattler_hessian, stiffness_matrix
+from athermal.analysis.moduli import (
+    lowest_eigenpairs,
+    nonrattler_contacts,
+    nonrattler_hessian,
+    stiffness_matrix,
+)
 from athermal.cli import main
 from athermal.errors import InputError
 from athermal.io import write_gsd

@@ -336,13 +336,15 @@ def test_bad_input_is_rejected():
         finite_strain_shear(p, model, minimizer=Minimizer("bfgs"))  # type: ignore[arg-type]
 
 
-def _square_lattice(radius=0.13):
-    """16 equal disks on a 4 x 4 square lattice in the unit cell, overlapping their four
-    neighbours (spacing 0.25, overlap 2 r - 0.25): a force-balanced saddle, whose transverse
-    modes have the negative stiffness -f/l of the compressed bonds."""
-    g = (np.arange(4) + 0.5) / 4
+def _square_lattice(radius=0.13, side=4):
+    """``side`` x ``side`` equal disks (16 by default) on a square lattice in the unit cell,
+    overlapping their four neighbours (spacing ``1 / side``, overlap ``2 r - 1 / side``): a
+    force-balanced saddle, whose transverse modes have the negative stiffness -f/l of the
+    compressed bonds (lowest eigenvalue ``-4 f / l`` for an even ``side``: a row displaced
+    along itself, alternating from row to row)."""
+    g = (np.arange(side) + 0.5) / side
     positions = np.stack(np.meshgrid(g, g), -1).reshape(-1, 2)
-    return Packing(positions, np.full(16, radius), Cell.box([1.0, 1.0]))
+    return Packing(positions, np.full(side * side, radius), Cell.box([1.0, 1.0]))
 
 
 def test_stability_finds_the_negative_mode_of_a_constructed_saddle():
@@ -357,6 +359,24 @@ def test_stability_finds_the_negative_mode_of_a_constructed_saddle():
     h = hessian(find_contacts(square, model), 16).toarray()
     np.testing.assert_allclose(mode.ravel() @ h @ mode.ravel(), -4 * f / length, rtol=1e-9)
     assert np.linalg.norm(mode) == pytest.approx(1.0)
+
+
+def test_stability_finds_the_negative_mode_of_a_saddle_too_large_for_a_dense_solve():
+    """Above :data:`DENSE_EIGEN_DOFS` the lowest eigenpair comes from shift-invert below the
+    contacts' bound (``docs/decisions.md``, "A saddle test that took longer than the march"):
+    the lattice's analytic one."""
+    from athermal.analysis.moduli import DENSE_EIGEN_DOFS, stability
+
+    side, spacing = 40, 1.0 / 40
+    square, model = _square_lattice(0.51 * spacing, side), ContactModel(2.0)
+    assert 2 * side * side > DENSE_EIGEN_DOFS
+    f = 1.02 * spacing - spacing
+    check = stability(square, model)
+    assert not check.stable
+    assert check.lowest_eigenvalue == pytest.approx(-4 * f / spacing, rel=1e-9)
+    mode = check.mode.ravel()
+    h = hessian(find_contacts(square, model), side * side)
+    assert mode @ (h @ mode) == pytest.approx(-4 * f / spacing, rel=1e-9)
 
 
 def test_a_relaxed_packing_is_stable():

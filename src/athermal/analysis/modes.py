@@ -32,10 +32,15 @@ from numpy.typing import NDArray
 from .._portable import vdot, vnorm
 from ..atomic import replacing
 from ..errors import InputError
-from ..linalg import Factor, arpack_start, cholesky
+from ..linalg import Factor, arpack_start
 from ..model.contact import ContactModel, hessian_floor
 from ..model.packing import Packing
-from .moduli import STABILITY_TOL, nonrattler_contacts, nonrattler_hessian
+from .moduli import (
+    lowest_eigenpairs,
+    nonrattler_contacts,
+    nonrattler_hessian,
+    zero_tolerance,
+)
 
 DENSE_MODES_DOFS = 12_288
 """Largest stiffness matrix (``N' d`` rows, N = 4096 spheres) whose full spectrum is computed
@@ -93,60 +98,6 @@ class Modes:
         """``(M',)`` ``omega = sqrt(lambda)`` of the vibrations (the eigenvalues above the
         tolerance)."""
         return np.sqrt(self.eigenvalues[self.eigenvalues > self.tolerance])
-
-
-def zero_tolerance(h: sp.spmatrix) -> float:
-    """Eigenvalues of the stiffness matrix ``h`` within this of zero are zero modes:
-    :data:`~athermal.analysis.moduli.STABILITY_TOL` x its mean diagonal entry."""
-    return STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
-
-
-def lowest_eigenpairs(
-    h: sp.spmatrix, k: int, floor: float | None = None, *, saddle: bool = False
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
-    symmetric ``h``, none of whose eigenvalues lies below ``floor``
-    (:func:`~athermal.model.contact.hessian_floor` of its contacts; None: Gershgorin's bound,
-    the least diagonal entry less the absolute sum of its row's others, looser).
-
-    ARPACK in shift-invert mode about ``sigma``, from a fixed start vector
-    (:func:`~athermal.linalg.arpack_start`): the eigenvalues nearest ``sigma`` are the lowest
-    only where none lies below it, so ``sigma = -zero_tolerance(h)`` where ``h - sigma I`` is
-    positive definite (a minimum: the shift that separates its soft modes best), else ``floor -
-    zero_tolerance(h)``, below every eigenvalue (a saddle's negative ones included), straight
-    away where the caller knows ``h`` not positive definite (``saddle``: a factorization that
-    fails costs its time and, in CHOLMOD, its memory). ``h - sigma I`` is factored by CHOLMOD
-    (:func:`~athermal.linalg.cholesky`), or by SuperLU where that fails at the floor
-    (round-off).
-    """
-    tolerance = zero_tolerance(h)
-    if floor is None:
-        diagonal = h.diagonal()
-        others = np.asarray(abs(h).sum(axis=1)).ravel() - np.abs(diagonal)
-        floor = float(np.min(diagonal - others))
-    identity = sp.identity(h.shape[0], format="csr")
-    shifts = () if saddle else (-tolerance,)
-    for sigma in dict.fromkeys((*shifts, min(floor, 0.0) - tolerance)):
-        factor = cholesky((h - sigma * identity).tocsr())
-        if factor is not None:
-            break
-    inverse = None
-    if factor is not None:
-        solve = factor.solve
-        inverse = spla.LinearOperator(
-            h.shape, matvec=lambda v: solve(v.reshape(-1, 1)).ravel(), dtype=np.float64
-        )
-    values, vecs = spla.eigsh(
-        h.tocsc(),
-        k=k,
-        sigma=sigma,
-        which="LM",
-        OPinv=inverse,
-        tol=1e-12,
-        v0=arpack_start(h.shape[0]),
-    )
-    order = np.argsort(values)
-    return values[order], vecs[:, order]
 
 
 def lowest_eigenpair_near(

@@ -47,7 +47,7 @@ from .._validate import float_array
 from ..errors import InputError
 from ..linalg import arpack_start, cholesky
 from ..model.cell import AXES, pure_shear_derivatives, simple_shear, tilted_wall
-from ..model.contact import ContactModel, Contacts, find_contacts, hessian
+from ..model.contact import ContactModel, Contacts, find_contacts, hessian, hessian_floor
 from ..model.packing import Packing
 from .observables import pressure, rattlers, stress
 
@@ -59,7 +59,8 @@ lengths (``f / l`` ~ ``delta / l``, ~1e-7 of the stiffness 1e-6 above jamming); 
 minimum relaxed to force balance can show a slightly negative one (``docs/decisions.md``,
 "Measured behind the code")."""
 DENSE_EIGEN_DOFS = 3000
-"""Largest pinned Hessian whose lowest eigenpair is found by a dense solve (ARPACK above it)."""
+"""Largest pinned Hessian whose lowest eigenpair is found by a dense solve (ARPACK in
+shift-invert mode above it)."""
 
 RESIDUAL_TOL = 1e-8
 """Relative residual ``|H y - Xi| / |Xi|`` above which the direct solve is refined by MINRES."""
@@ -270,6 +271,60 @@ def linear_response(packing: Packing, model: ContactModel) -> LinearResponse:
     )
 
 
+def zero_tolerance(h: sp.spmatrix) -> float:
+    """Eigenvalues of the stiffness matrix ``h`` within this of zero are zero modes:
+    :data:`STABILITY_TOL` x its mean diagonal entry."""
+    return STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
+
+
+def lowest_eigenpairs(
+    h: sp.spmatrix, k: int, floor: float | None = None, *, saddle: bool = False
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
+    symmetric ``h``, none of whose eigenvalues lies below ``floor``
+    (:func:`~athermal.model.contact.hessian_floor` of its contacts; None: Gershgorin's bound,
+    the least diagonal entry less the absolute sum of its row's others, looser).
+
+    ARPACK in shift-invert mode about ``sigma``, from a fixed start vector
+    (:func:`~athermal.linalg.arpack_start`): the eigenvalues nearest ``sigma`` are the lowest
+    only where none lies below it, so ``sigma = -zero_tolerance(h)`` where ``h - sigma I`` is
+    positive definite (a minimum: the shift that separates its soft modes best), else ``floor -
+    zero_tolerance(h)``, below every eigenvalue (a saddle's negative ones included), straight
+    away where the caller knows ``h`` not positive definite (``saddle``: a factorization that
+    fails costs its time and, in CHOLMOD, its memory). ``h - sigma I`` is factored by CHOLMOD
+    (:func:`~athermal.linalg.cholesky`), or by SuperLU where that fails at the floor
+    (round-off).
+    """
+    tolerance = zero_tolerance(h)
+    if floor is None:
+        diagonal = h.diagonal()
+        others = np.asarray(abs(h).sum(axis=1)).ravel() - np.abs(diagonal)
+        floor = float(np.min(diagonal - others))
+    identity = sp.identity(h.shape[0], format="csr")
+    shifts = () if saddle else (-tolerance,)
+    for sigma in dict.fromkeys((*shifts, min(floor, 0.0) - tolerance)):
+        factor = cholesky((h - sigma * identity).tocsr())
+        if factor is not None:
+            break
+    inverse = None
+    if factor is not None:
+        solve = factor.solve
+        inverse = spla.LinearOperator(
+            h.shape, matvec=lambda v: solve(v.reshape(-1, 1)).ravel(), dtype=np.float64
+        )
+    values, vecs = spla.eigsh(
+        h.tocsc(),
+        k=k,
+        sigma=sigma,
+        which="LM",
+        OPinv=inverse,
+        tol=1e-12,
+        v0=arpack_start(h.shape[0]),
+    )
+    order = np.argsort(values)
+    return values[order], vecs[:, order]
+
+
 @dataclass(frozen=True)
 class Stability:
     """Whether a packing is at a local minimum of its energy (positions free, cell fixed).
@@ -300,7 +355,9 @@ def stability(
 
     One Cholesky factorization of ``H + s I`` (``s``: :data:`STABILITY_TOL`) decides; when it
     fails, the lowest eigenpair is computed (dense up to :data:`DENSE_EIGEN_DOFS` degrees of
-    freedom, ARPACK above) to tell a saddle (eigenvalue below ``-s``) from a marginal minimum.
+    freedom, above it by :func:`lowest_eigenpairs` shift-inverted below the contacts' bound
+    :func:`~athermal.model.contact.hessian_floor`) to tell a saddle (eigenvalue below ``-s``)
+    from a marginal minimum.
 
     Examples
     --------
@@ -314,7 +371,8 @@ def stability(
     (False, -0.16)
     """
     dim = packing.dim
-    h, dofs, _ = stiffness_matrix(packing, model, frozen)
+    contacts, rattler = nonrattler_contacts(packing, model, frozen)
+    h, dofs = nonrattler_hessian(contacts, rattler, dim)
     if frozen is not None:  # the frozen particles pin the rest: no translation is left
         free = np.flatnonzero(~frozen[dofs // dim])
         h, dofs = h[free][:, free].tocsr(), dofs[free]
@@ -324,7 +382,7 @@ def stability(
     if frozen is None:
         keep = unpinned(dofs.size, dim, packing.cell.walls)
         pinned = h[keep][:, keep]
-    shift = STABILITY_TOL * float(np.mean(np.abs(h.diagonal())))
+    shift = zero_tolerance(h)
     test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
     if _cholesky_solve(test, np.zeros((pinned.shape[0], 1))) is not None:
         return Stability(True, None, None, shift)
@@ -333,9 +391,7 @@ def stability(
     if h.shape[0] <= DENSE_EIGEN_DOFS:
         values, vectors = np.linalg.eigh(h.toarray())
     else:
-        values, vectors = spla.eigsh(
-            h, k=1, which="SA", tol=1e-10, maxiter=100 * h.shape[0], v0=arpack_start(h.shape[0])
-        )
+        values, vectors = lowest_eigenpairs(h, 1, hessian_floor(contacts, packing.n), saddle=True)
     value = float(values[0])
     if value >= -shift:
         return Stability(True, value, None, shift)

@@ -19,8 +19,7 @@ from numpy.typing import NDArray
 from ..linalg import Factor, arpack_start, cholesky
 from ..model.contact import Contacts, hessian_floor
 from ..model.packing import Packing
-from .modes import lowest_eigenpairs
-from .moduli import nonrattler_hessian, unit_translations, unpinned
+from .moduli import lowest_eigenpairs, nonrattler_hessian, unit_translations, unpinned
 
 DENSE_SOFT_MODE_DOFS = 400
 """Largest free Hessian whose soft mode is found by a dense ``eigh``; above it ARPACK on
@@ -67,7 +66,7 @@ class NetworkHessian:
         component); infinity and a zero mode where nothing is stiff (no network). A dense
         ``eigh`` up to :data:`DENSE_SOFT_MODE_DOFS` rows; above, ARPACK on ``H^+`` (the
         eigenvalue ``1 / mu`` of its largest ``mu``), or in shift-invert mode
-        (:func:`~athermal.analysis.modes.lowest_eigenpairs`) where the factor failed."""
+        (:func:`~athermal.analysis.moduli.lowest_eigenpairs`) where the factor failed."""
         n, dim = self.packing.n, self.packing.dim
         if self.dofs.size <= self.translations:
             return float("inf"), np.zeros((n, dim))

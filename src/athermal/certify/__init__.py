@@ -34,8 +34,13 @@ from numpy.typing import NDArray
 
 from .._double import two_sum
 from .._portable import row_dots, transform
-from ..analysis.modes import lowest_eigenpairs, zero_tolerance
-from ..analysis.moduli import nonrattler_hessian, pinned_solve, relaxing_displacement
+from ..analysis.moduli import (
+    lowest_eigenpairs,
+    nonrattler_hessian,
+    pinned_solve,
+    relaxing_displacement,
+    zero_tolerance,
+)
 from ..analysis.observables import isostatic_contacts, rattlers
 from ..errors import ConvergenceError, InputError
 from ..model.contact import ContactModel, Contacts, hessian_floor

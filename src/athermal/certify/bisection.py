@@ -12,13 +12,15 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 
 from .._portable import root, row_dots, vnorm
-from ..analysis.modes import lowest_eigenpair_near, lowest_eigenpairs, zero_tolerance
+from ..analysis.modes import lowest_eigenpair_near
 from ..analysis.moduli import (
+    lowest_eigenpairs,
     nonrattler_hessian,
     pinned_hessian,
     pinned_solve,
     unit_translations,
     unpinned,
+    zero_tolerance,
 )
 from ..analysis.observables import rattlers
 from ..errors import ConvergenceError, InputError
@@ -369,7 +371,7 @@ class _KeptFactor:
         where it is of these non-rattlers (:func:`~athermal.analysis.modes.
         lowest_eigenpair_near`, to a residual of the zero tolerance), else, or where that does
         not converge in :data:`MODE_ITERATIONS`, by shift-invert below the contacts' floor
-        (:func:`~athermal.analysis.modes.lowest_eigenpairs`)."""
+        (:func:`~athermal.analysis.moduli.lowest_eigenpairs`)."""
         n, dim = shape
         h, dofs = nonrattler_hessian(contacts, rattler, dim)
         tolerance = zero_tolerance(h)
