@@ -148,9 +148,9 @@ def vibrational_modes(
     """The lowest ``k`` eigenpairs of the stiffness matrix of ``packing``, or all of them
     (``k`` None: dense, up to :data:`DENSE_MODES_DOFS` rows).
 
-    The lowest ``k`` come from ARPACK in shift-invert mode (:func:`lowest_eigenpairs`: about
-    ``-tolerance`` at a minimum, below the contacts' floor at a saddle), from a fixed start
-    vector (reproducible).
+    The lowest ``k`` come from ARPACK in shift-invert mode
+    (:func:`~athermal.analysis.moduli.lowest_eigenpairs`: about ``-tolerance`` at a minimum,
+    below the contacts' floor at a saddle), from a fixed start vector (reproducible).
     ``vectors`` keeps the eigenvectors of that many of the lowest modes that are not zero modes
     (None: of every mode computed); participation ratios are computed for all.
     """
