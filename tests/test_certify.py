@@ -2,6 +2,7 @@
 independently (decimal at 60 digits), and what cannot be certified is refused."""
 
 import json
+from dataclasses import replace
 from decimal import Decimal
 from pathlib import Path
 
@@ -9,7 +10,9 @@ import numpy as np
 import pytest
 
 import athermal as at
+import athermal.certify.bisection as bisection
 import athermal.cli.analysis as analysis
+from athermal._portable import root
 from athermal.analysis.observables import rattlers
 from athermal.certify import (
     GAP_REACH,
@@ -22,13 +25,14 @@ from athermal.certify import (
 from athermal.certify.bisection import (
     START_EPSILON,
     _KeptFactor,
+    _landing,
     _trial,
     bisect_jamming_point,
     float64_epsilon,
 )
 from athermal.certify.extended import NearPairs
 from athermal.cli import main
-from athermal.errors import InputError
+from athermal.errors import ConvergenceError, InputError
 from athermal.model.neighbors import build_neighbor_list
 from athermal.protocols import RESOLUTION
 from decimal_reference import decimal_sums
@@ -387,7 +391,8 @@ def test_a_march_resumed_from_any_checkpoint_ends_where_an_uninterrupted_one_doe
     assert [s.counts[0] for s in states] == [8 * (k + 1) for k in range(len(states))]
     after = next(s for s in states if s.counts[5] > 0)
     before = [s for s in states if s.counts[5] == 0][-1]
-    for state in (before, after):
+    written_before_lifts = replace(before, counts=before.counts[:6])  # six counts: none lifted
+    for state in (before, after, written_before_lifts):
         again = bisect_jamming_point(packing, model, 1e-12, resume=state)
         assert (again.phi_low, again.phi_high) == (whole.phi_low, whole.phi_high)
         assert again.march() == whole.march()
@@ -395,6 +400,50 @@ def test_a_march_resumed_from_any_checkpoint_ends_where_an_uninterrupted_one_doe
             again.jammed.packing.positions, whole.jammed.packing.positions
         )
         np.testing.assert_array_equal(again.jammed.position_lo, whole.jammed.position_lo)
+
+
+def test_a_rearrangement_float64_cannot_resolve_lands_jammed_higher():
+    """A rearrangement that lands within float64's resolution of its own jamming point (stored:
+    3D N = 1024, seed 74 of the criticality study, where the network of the last jammed trial
+    gave way): float64 finds no minimum there (a saddle it cannot leave, held by pairs that
+    touch with no force); ``START_EPSILON`` higher the same start lands jammed, its network
+    balanced in double-double."""
+    data = np.load(DATA / "rearranged_d3_n1024_seed74.npz")
+    phi = float(data["phi"])
+    start = at.Packing(data["positions"], data["radii"], at.Cell(data["h"]))
+    model = at.ContactModel(2.0)
+    with pytest.raises(ConvergenceError, match="found no minimum"):
+        _landing(start, model, phi, _KeptFactor())
+    up = phi + START_EPSILON
+    lifted = at.Packing(start.positions, start.radii * root(up / phi, 3), start.cell)
+    landing = _landing(lifted, model, up, _KeptFactor())
+    assert landing is not None and landing.trial[0] is True
+
+
+def test_a_march_takes_a_rearrangement_it_cannot_resolve_higher_once(monkeypatch):
+    """The march's first rearrangement made unresolvable (its landing raises, as float64's does
+    at the rearranged packing's own jamming point): the march lands it ``START_EPSILON``
+    higher and brackets the packing from there; with no lift allowed, it refuses."""
+    packing, _, _ = stored("n1024_seed108")
+    model = at.ContactModel(2.0)
+    real, calls = bisection._landing, []
+
+    def unresolved_first(start, model, phi, kept):
+        calls.append(phi)
+        if len(calls) == 1:
+            raise ConvergenceError("unresolved")
+        return real(start, model, phi, kept)
+
+    monkeypatch.setattr(bisection, "_landing", unresolved_first)
+    point = bisect_jamming_point(packing, model, 1e-12)
+    assert calls[1] == calls[0] + START_EPSILON
+    assert point.lifted == 1 and point.rearrangements >= 1
+    assert 0.0 < point.phi_high - point.phi_low <= 1e-12
+    assert point.jammed.certificate.converged and point.jammed.certificate.pressure < 1e-11
+    calls.clear()
+    monkeypatch.setattr(bisection, "MAX_LIFTS", 0)
+    with pytest.raises(ConvergenceError, match="unresolved; the march took 0"):
+        bisect_jamming_point(packing, model, 1e-12)
 
 
 def test_jam_certify_killed_in_its_march_resumes_to_the_same_packing(tmp_path, capsys, monkeypatch):

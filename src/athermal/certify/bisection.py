@@ -52,6 +52,11 @@ LARGEST_STEP = 1e-8
 """Its largest step (``docs/decisions.md``, "Jamming below float64's resolution")."""
 MAX_TRIALS = 2000
 """Its trials at most."""
+MAX_LIFTS = 1
+"""How often a march takes a rearrangement that float64 cannot resolve :data:`START_EPSILON`
+higher (:func:`_landing`): the packing compressed may return to the network that gave way, and
+give way again where it did (``docs/decisions.md``, "A rearrangement that lands at its own
+jamming point")."""
 TRIAL_ITERATIONS = 30
 """Newton steps, and network changes, of one trial at most."""
 BLOCKED_MOVE = 1e-3
@@ -95,7 +100,7 @@ class MarchState:
     radii : ``(N,)`` its radii.
     high, low, step : the bracket (``low`` -1: none yet) and the next step down.
     counts : trials, contacts shed, contacts formed, rattlers readmitted, instabilities,
-        rearrangements so far.
+        rearrangements, rearrangements lifted so far (a state of six counts: none lifted).
     """
 
     source_positions: NDArray[np.float64]
@@ -109,7 +114,7 @@ class MarchState:
     high: float
     low: float
     step: float
-    counts: tuple[int, int, int, int, int, int]
+    counts: tuple[int, ...]
 
 
 @dataclass(frozen=True, eq=False)
@@ -119,8 +124,9 @@ class CertifiedJamming:
     trials, the contacts the network shed on the way (a hyperstatic network loses the contacts
     whose forces vanish first) and formed, the rattlers readmitted (squeezed by their cage), and
     the instabilities: how often a network that a parted contact left unstable was held by a
-    gap that closed along its unstable mode, and the rearrangements: trials relaxed in float64
-    because their network gave way at any step."""
+    gap that closed along its unstable mode, the rearrangements: trials relaxed in float64
+    because their network gave way at any step, and of them those lifted: relaxed
+    :data:`START_EPSILON` higher, where float64 resolves them (:func:`_landing`)."""
 
     jammed: CertifiedPacking
     phi_low: float
@@ -131,12 +137,13 @@ class CertifiedJamming:
     rattlers_readmitted: int
     instabilities: int
     rearrangements: int
+    lifted: int
 
     def march(self) -> dict[str, int]:
         """The trials and what happened on the way, by name (``jam --json``'s
         ``bisected_in_double_double``)."""
         names = ("trials", "contacts_shed", "contacts_formed", "rattlers_readmitted")
-        return {n: getattr(self, n) for n in (*names, "instabilities", "rearrangements")}
+        return {n: getattr(self, n) for n in (*names, "instabilities", "rearrangements", "lifted")}
 
 
 def bisect_jamming_point(
@@ -171,7 +178,9 @@ def bisect_jamming_point(
     verdict at any step (a network that turns floppy and collapses, or comes apart into rattlers
     while it bears load: not unjammed, ``docs/decisions.md``) is relaxed in float64 from where
     it first moved along an unstable mode, the packing rearranging, and the march goes on from
-    its network.
+    its network; where the rearranged packing lands within float64's resolution of its own
+    jamming point (no minimum found, or its network gives no verdict), it is relaxed
+    :data:`START_EPSILON` higher instead, and the march starts again from there.
     The trials march down from the certified packing, each from the last jammed one and at
     most a step away (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered
     after one that gives no verdict: the network's response runs along its soft modes), then
@@ -182,8 +191,8 @@ def bisect_jamming_point(
     sum of the radii, which bounds the epsilon this resolves (``docs/decisions.md``).
 
     Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
-    :class:`ConvergenceError` when a trial that gives no verdict at a step of ``epsilon / 4``
-    cannot be relaxed, or its relaxed network balanced, or ``max_trials`` run out (never a
+    :class:`ConvergenceError` when a packing rearranged is not jammed :data:`START_EPSILON`
+    above where its network gave way, or ``max_trials`` run out (never a
     verdict on an unbalanced state, a saddle, or a rattler with no room); what :func:`certify`
     raises for the start and the jammed bound. The returned certificate states the force
     balance reached: at a pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean
@@ -208,21 +217,22 @@ def bisect_jamming_point(
         first = bonds.copy()
         hi, lo = source.positions.copy(), start.position_lo.copy()
         high, low, step, radii = phi0, -1.0, FIRST_STEP, radii0
-        trials, shed, formed, readmitted, instabilities, rearranged = 0, 0, 0, 0, 0, 0
+        trials, shed, formed, readmitted, instabilities, rearranged, lifted = 0, 0, 0, 0, 0, 0, 0
     else:
         source = Packing(resume.source_positions, resume.source_radii, packing.cell)
         pairs = NearPairs(source, model, GAP_REACH)
         first, bonds, rattler = resume.first, resume.bonds, resume.rattler
         hi, lo, radii = resume.hi.copy(), resume.lo.copy(), resume.radii
         high, low, step = resume.high, resume.low, resume.step
-        trials, shed, formed, readmitted, instabilities, rearranged = resume.counts
+        counts = (*resume.counts, 0)[:7]  # a state of six counts was written before lifts
+        trials, shed, formed, readmitted, instabilities, rearranged, lifted = counts
     stiffness = pairs.stiffness
     kept, saved = _KeptFactor(), trials
     while low < 0.0 or high - low > epsilon:
         if trials % CHECKPOINT_TRIALS == 0 and trials != saved:
             kept, saved = _KeptFactor(), trials
             if on_checkpoint is not None:
-                counts = (trials, shed, formed, readmitted, instabilities, rearranged)
+                counts = (trials, shed, formed, readmitted, instabilities, rearranged, lifted)
                 on_checkpoint(
                     MarchState(
                         source.positions.copy(),
@@ -264,40 +274,37 @@ def bisect_jamming_point(
                 kept,
                 escape=True,
             )
-            start_moved = Packing(trial_hi + trial_lo, trial_radii, packing.cell)
-            relaxed = _rearranged(start_moved, model, phi)
+            moved_from = trial_hi + trial_lo
             rearranged += 1
-            if relaxed is None:
+            try:
+                landing = _landing(Packing(moved_from, trial_radii, packing.cell), model, phi, kept)
+            except ConvergenceError as exc:  # unresolved this near its jamming point: lift it
+                if lifted == MAX_LIFTS:
+                    raise ConvergenceError(
+                        f"{exc}; the march took {lifted} such rearrangement {START_EPSILON:g} "
+                        "higher already"
+                    ) from exc
+                lifted += 1
+                phi += START_EPSILON
+                trial_radii = radii0 * root(phi / phi0, dim)
+                landing = _landing(Packing(moved_from, trial_radii, packing.cell), model, phi, kept)
+                if landing is None or not landing.trial[0]:
+                    raise ConvergenceError(
+                        f"certify: the packing rearranged at phi = {phi - START_EPSILON:.15f} "
+                        f"is not jammed {START_EPSILON:g} above it"
+                    ) from None
+                step = FIRST_STEP / 2.0  # a march from a new start: doubled below to FIRST_STEP
+            if landing is None:
                 low = phi
                 continue
-            moved = NearPairs(relaxed, model, GAP_REACH)
-            trial_hi, trial_lo = relaxed.positions.copy(), np.zeros_like(relaxed.positions)
-            sums = moved.sums(trial_hi, trial_lo)
-            _, start_rattler = contact_network(moved, trial_hi, sums)
-            live = ~(start_rattler[moved.first] | start_rattler[moved.second])
-            start_bonds = live & (sums.overlap[0] > 0.0)
-            full = moved.stiffness.copy()
-            verdict, trial_bonds, trial_rattler, held = _trial(
-                moved,
-                full,
-                trial_hi,
-                trial_lo,
-                trial_radii,
-                start_bonds,
-                start_rattler,
-                kept,
-            )
-            moved.stiffness = full
-            if verdict is None:
-                raise ConvergenceError(
-                    f"certify: at phi = {phi:.15f} the network gives way, and the network of the "
-                    "packing relaxed there does not balance"
-                )
+            verdict, trial_bonds, trial_rattler, held = landing.trial
+            trial_hi, trial_lo = landing.hi, landing.lo
             if verdict:  # another packing from here on: it may stay jammed below the old bound
                 shed += int(np.sum(first & ~bonds))
                 formed += int(np.sum(bonds & ~first))
-                pairs, stiffness, first, rattler = moved, full, start_bonds, start_rattler
-                source = relaxed
+                pairs, stiffness = landing.pairs, landing.pairs.stiffness
+                first, rattler = landing.bonds, landing.rattler
+                source = landing.relaxed
                 low = -1.0
         if verdict:
             readmitted += int(np.sum(rattler & ~trial_rattler))
@@ -320,6 +327,7 @@ def bisect_jamming_point(
         readmitted,
         instabilities,
         rearranged,
+        lifted,
     )
 
 
@@ -449,6 +457,52 @@ def _rearranged(start: Packing, model: ContactModel, phi: float) -> Packing | No
             f"found no minimum ({exc})"
         ) from exc
     return None if result.energy <= floor else result.packing
+
+
+@dataclass(frozen=True, eq=False)
+class _Landing:
+    """Where a rearrangement lands (:func:`_landing`): the packing relaxed in float64, its near
+    pairs (with their stiffness), the network it starts the trial from (bonds, rattlers), and
+    the trial of that network at the relaxed radii (:func:`_trial`'s verdict, bonds, rattlers
+    and instabilities held) with its positions ``hi + lo``."""
+
+    relaxed: Packing
+    pairs: NearPairs
+    bonds: NDArray[np.bool_]
+    rattler: NDArray[np.bool_]
+    trial: tuple[bool | None, NDArray[np.bool_], NDArray[np.bool_], int]
+    hi: NDArray[np.float64]
+    lo: NDArray[np.float64]
+
+
+def _landing(start: Packing, model: ContactModel, phi: float, kept: _KeptFactor) -> _Landing | None:
+    """A rearrangement from ``start`` at ``phi`` relaxed in float64 (:func:`_rearranged`) and its
+    network balanced in double-double (:func:`_trial`): None when the relaxed packing is
+    unjammed. Raises :class:`ConvergenceError` when the relaxation finds no minimum or the trial
+    gives no verdict. Where a rearrangement ends within float64's resolution of its new jamming
+    point, its float64 minimum balances the forces only to the round-off floor, above the
+    smallest of them: which contacts bear load is undecided there, the relaxation may stop at a
+    saddle held by pairs that touch with no force, and the network may come apart in
+    double-double (``docs/decisions.md``, "A rearrangement that lands at its own jamming
+    point"); the march then lands the rearrangement :data:`START_EPSILON` higher, where float64
+    resolves it as it resolves the march's start."""
+    relaxed = _rearranged(start, model, phi)
+    if relaxed is None:
+        return None
+    moved = NearPairs(relaxed, model, GAP_REACH)
+    hi, lo = relaxed.positions.copy(), np.zeros_like(relaxed.positions)
+    sums = moved.sums(hi, lo)
+    _, rattler = contact_network(moved, hi, sums)
+    bonds = ~(rattler[moved.first] | rattler[moved.second]) & (sums.overlap[0] > 0.0)
+    full = moved.stiffness.copy()
+    trial = _trial(moved, full, hi, lo, start.radii, bonds, rattler, kept)
+    moved.stiffness = full
+    if trial[0] is None:
+        raise ConvergenceError(
+            f"certify: at phi = {phi:.15f} the network gives way, and the network of the packing "
+            "relaxed there does not balance"
+        )
+    return _Landing(relaxed, moved, bonds, rattler, trial, hi, lo)
 
 
 def _blocking_pair(

@@ -73,7 +73,6 @@ def load_march(path: str | os.PathLike[str], key: str) -> MarchState | None:
         if str(data["key"]) != key:
             return None
         a = {name: np.array(data[name]) for name in data.files}
-    trials, shed, formed, readmitted, instabilities, rearranged = (int(c) for c in a["counts"])
     return MarchState(
         a["source_positions"],
         a["source_radii"],
@@ -86,7 +85,7 @@ def load_march(path: str | os.PathLike[str], key: str) -> MarchState | None:
         float(a["high"]),
         float(a["low"]),
         float(a["step"]),
-        (trials, shed, formed, readmitted, instabilities, rearranged),
+        tuple(int(c) for c in a["counts"]),
     )
 
 
