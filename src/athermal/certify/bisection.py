@@ -180,7 +180,8 @@ def bisect_jamming_point(
     it first moved along an unstable mode, the packing rearranging, and the march goes on from
     its network; where the rearranged packing lands within float64's resolution of its own
     jamming point (no minimum found, or its network gives no verdict), it is relaxed
-    :data:`START_EPSILON` higher instead, and the march starts again from there.
+    :data:`START_EPSILON` higher instead, at most :data:`MAX_LIFTS` times a march, and the
+    march starts again from there.
     The trials march down from the certified packing, each from the last jammed one and at
     most a step away (doubled after a balanced trial up to :data:`LARGEST_STEP`, quartered
     after one that gives no verdict: the network's response runs along its soft modes), then
@@ -192,7 +193,8 @@ def bisect_jamming_point(
 
     Raises :class:`InputError` for another alpha or an ``epsilon`` outside ``[1e-15, 1e-6]``;
     :class:`ConvergenceError` when a packing rearranged is not jammed :data:`START_EPSILON`
-    above where its network gave way, or ``max_trials`` run out (never a
+    above where its network gave way, or lands unresolved after :data:`MAX_LIFTS` lifts, or
+    ``max_trials`` run out (never a
     verdict on an unbalanced state, a saddle, or a rattler with no room); what :func:`certify`
     raises for the start and the jammed bound. The returned certificate states the force
     balance reached: at a pressure ~1e-13, double-double's ~1e-32 is ~1e-18 of the mean
