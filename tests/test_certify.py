@@ -245,7 +245,9 @@ def test_below_the_bracket_the_network_holds_only_in_tension(bisected):
     bonds = ~(rattler[pairs.first] | rattler[pairs.second]) & (sums.overlap[0] > 0.0)
     radii = packing.radii * (point.phi_low / point.phi_high) ** 0.5
     stiffness = pairs.stiffness.copy()
-    verdict, _, _, _ = _trial(pairs, stiffness, hi, lo, radii, bonds, rattler, _KeptFactor())
+    verdict, _, _, _ = _trial(
+        pairs, stiffness, hi, lo, radii, bonds, rattler, _KeptFactor(packing, model)
+    )
     assert verdict is False
 
 
@@ -413,10 +415,10 @@ def test_a_rearrangement_float64_cannot_resolve_lands_jammed_higher():
     start = at.Packing(data["positions"], data["radii"], at.Cell(data["h"]))
     model = at.ContactModel(2.0)
     with pytest.raises(ConvergenceError, match="found no minimum"):
-        _landing(start, model, phi, _KeptFactor())
+        _landing(start, model, phi, _KeptFactor(start, model))
     up = phi + START_EPSILON
     lifted = at.Packing(start.positions, start.radii * root(up / phi, 3), start.cell)
-    landing = _landing(lifted, model, up, _KeptFactor())
+    landing = _landing(lifted, model, up, _KeptFactor(lifted, model))
     assert landing is not None and landing.trial[0] is True
 
 

@@ -107,3 +107,71 @@ def test_cg_with_a_nearby_factor_solves_in_a_few_iterations_and_finds_indefinite
         linalg.factor_cg(laplacian_2d(20, -0.05), b, factor, 1e-12, 50)
     zero, residual = linalg.factor_cg(matrix, np.zeros_like(b), factor, 1e-12, 8)
     assert residual == 0.0 and not zero.any()
+
+
+def lattice_3d(side):
+    """The points of a periodic simple cubic lattice of ``side^3`` sites (spacing 1) and its
+    nearest-neighbour edges, each once."""
+    grid = np.indices((side, side, side)).reshape(3, -1).T
+    index = np.arange(side**3).reshape(side, side, side)
+    first, second = [], []
+    for axis in range(3):
+        first.append(index.ravel())
+        second.append(np.roll(index, -1, axis=axis).ravel())
+    return grid.astype(float), np.concatenate(first), np.concatenate(second)
+
+
+def test_the_supernodal_factor_solves_as_cholmod_does_and_refuses_indefinite_matrices():
+    """cvxopt's CHOLMOD (the machine's BLAS) against cholespy's, in any row order; an
+    indefinite matrix raises (``supernodal_cholesky``: None); cvxopt missing, cholespy's."""
+    spd = laplacian_2d(20, 1e-3)
+    b = np.random.default_rng(2).normal(size=(spd.shape[0], 3))
+    expected = linalg.CholeskyFactor(spd).solve(b)
+    for order in (None, np.random.default_rng(3).permutation(spd.shape[0])):
+        factor = linalg.SupernodalFactor(spd, order)
+        assert factor.backend == "cvxopt"
+        np.testing.assert_allclose(factor.solve(b), expected, rtol=1e-9)
+        np.testing.assert_allclose(factor.solve(b[:, :1]), expected[:, :1], rtol=1e-9)
+    with pytest.raises(linalg.NotPositiveDefinite):
+        linalg.SupernodalFactor(laplacian_2d(20, -0.05))
+    assert linalg.supernodal_cholesky(laplacian_2d(20, -0.05)) is None
+
+
+def test_supernodal_cholesky_without_cvxopt_is_cholespys(monkeypatch):
+    monkeypatch.setattr(linalg, "available", lambda module: module != "cvxopt")
+    factor = linalg.supernodal_cholesky(laplacian_1d(30, 0.01))
+    assert factor is not None and factor.backend == "cholespy"
+
+
+def test_nested_dissection_orders_a_periodic_lattice_with_less_fill():
+    """On the Laplacian of a periodic 24^3 lattice, factored in exactly that order (CHOLMOD's
+    own AMD turned off), the dissection's order fills in less than 0.4 times what the
+    lexicographic order does and at most 1.2 times what AMD's does (AMD's best case: a lattice;
+    on the networks of large 3D packings the dissection does better, ``docs/decisions.md``);
+    each particle's coordinates come together in ``row_order``."""
+    from cvxopt import cholmod
+
+    side = 24
+    points, first, second = lattice_3d(side)
+    rank = linalg.dissection_order(points + 0.5, np.full(3, float(side)), first, second)
+    assert np.array_equal(np.sort(rank), np.arange(side**3))
+    n = side**3
+    adjacency = sp.coo_matrix((np.ones(first.size), (first, second)), shape=(n, n))
+    matrix = (sp.identity(n) * 6.1 - adjacency - adjacency.T).tocsr()
+
+    def fill(order, only=True):
+        saved = dict(cholmod.options)
+        if only:
+            cholmod.options["nmethods"] = 1  # the order given, no other
+        try:
+            return linalg.SupernodalFactor(matrix, order).nonzeros
+        finally:
+            cholmod.options.clear()
+            cholmod.options.update(saved)
+
+    dissected = fill(np.argsort(rank))
+    assert dissected < 0.4 * fill(np.arange(n))
+    assert dissected <= 1.2 * fill(None, only=False)
+    dofs = np.array([0, 1, 2, 6, 7, 8, 9, 10, 11])  # particles 0, 2 and 3 of a 3D packing
+    rows = linalg.row_order(np.array([2, 9, 0, 1]), dofs, 3)
+    assert np.array_equal(dofs[rows], [6, 7, 8, 9, 10, 11, 0, 1, 2])

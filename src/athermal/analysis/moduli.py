@@ -34,6 +34,7 @@ Energies are in units of ``k`` x length^alpha, moduli and stresses in ``k`` x le
 from __future__ import annotations
 
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Literal
 
@@ -45,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 from .._portable import row_dots, transform
 from .._validate import float_array
 from ..errors import InputError
-from ..linalg import arpack_start, cholesky
+from ..linalg import Factor, arpack_start, cholesky, supernodal_cholesky
 from ..model.cell import AXES, pure_shear_derivatives, simple_shear, tilted_wall
 from ..model.contact import ContactModel, Contacts, find_contacts, hessian, hessian_floor
 from ..model.packing import Packing
@@ -207,13 +208,16 @@ def relaxing_displacement(
     rattler: NDArray[np.bool_],
     d1: NDArray[np.float64],
     walls: tuple[int, ...] = (),
+    *,
+    portable: bool = True,
 ) -> NDArray[np.float64]:
     """:func:`nonaffine_displacement` on given ``contacts`` between the non-rattlers (those of
     a certified packing, found in double-double): ``u = -H^+ Xi`` ``(N, d)``, zero on the
-    ``rattler`` particles. A ``RuntimeWarning`` reports a poor solve."""
+    ``rattler`` particles (``portable`` as :func:`pinned_solve` takes it). A ``RuntimeWarning``
+    reports a poor solve."""
     n, dim = rattler.size, d1.shape[0]
     _, xi = strain_terms(contacts, n, d1)
-    y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None], walls)
+    y, residual, _ = pinned_solve(contacts, rattler, xi[:, :, None], walls, portable=portable)
     _warn_if_poor(residual, "the linear response to a deformation")
     return -y[:, 0].reshape(n, dim)
 
@@ -278,7 +282,12 @@ def zero_tolerance(h: sp.spmatrix) -> float:
 
 
 def lowest_eigenpairs(
-    h: sp.spmatrix, k: int, floor: float | None = None, *, saddle: bool = False
+    h: sp.spmatrix,
+    k: int,
+    floor: float | None = None,
+    *,
+    saddle: bool = False,
+    factor: Callable[[sp.csr_matrix], Factor | None] = cholesky,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """The ``k`` lowest eigenvalues ``(k,)``, ascending, and eigenvectors ``(M, k)`` of the
     symmetric ``h``, none of whose eigenvalues lies below ``floor``
@@ -291,9 +300,9 @@ def lowest_eigenpairs(
     positive definite (a minimum: the shift that separates its soft modes best), else ``floor -
     zero_tolerance(h)``, below every eigenvalue (a saddle's negative ones included), straight
     away where the caller knows ``h`` not positive definite (``saddle``: a factorization that
-    fails costs its time and, in CHOLMOD, its memory). ``h - sigma I`` is factored by CHOLMOD
-    (:func:`~athermal.linalg.cholesky`), or by SuperLU where that fails at the floor
-    (round-off).
+    fails costs its time and, in CHOLMOD, its memory). ``h - sigma I`` is factored by
+    ``factor`` (default CHOLMOD, :func:`~athermal.linalg.cholesky`), or by SuperLU where that
+    fails at the floor (round-off).
     """
     tolerance = zero_tolerance(h)
     if floor is None:
@@ -303,12 +312,12 @@ def lowest_eigenpairs(
     identity = sp.identity(h.shape[0], format="csr")
     shifts = () if saddle else (-tolerance,)
     for sigma in dict.fromkeys((*shifts, min(floor, 0.0) - tolerance)):
-        factor = cholesky((h - sigma * identity).tocsr())
-        if factor is not None:
+        shifted = factor((h - sigma * identity).tocsr())
+        if shifted is not None:
             break
     inverse = None
-    if factor is not None:
-        solve = factor.solve
+    if shifted is not None:
+        solve = shifted.solve
         inverse = spla.LinearOperator(
             h.shape, matvec=lambda v: solve(v.reshape(-1, 1)).ravel(), dtype=np.float64
         )
@@ -384,14 +393,17 @@ def stability(
         pinned = h[keep][:, keep]
     shift = zero_tolerance(h)
     test = pinned + shift * sp.identity(pinned.shape[0], format="csr")
-    if _cholesky_solve(test, np.zeros((pinned.shape[0], 1))) is not None:
+    # a verdict and, for a saddle, a mode to leave it along: on the machine's BLAS (ARPACK's
+    # eigenvector is the machine's anyway), many times faster on large 3D networks
+    if supernodal_cholesky(test) is not None:
         return Stability(True, None, None, shift)
     # the free Hessian of the non-rattlers: its translations (along the periodic axes) are exact
     # zero modes, so its lowest eigenpair is the packing's (pinning would shift the eigenvalues)
     if h.shape[0] <= DENSE_EIGEN_DOFS:
         values, vectors = np.linalg.eigh(h.toarray())
     else:
-        values, vectors = lowest_eigenpairs(h, 1, hessian_floor(contacts, packing.n), saddle=True)
+        floor = hessian_floor(contacts, packing.n)
+        values, vectors = lowest_eigenpairs(h, 1, floor, saddle=True, factor=supernodal_cholesky)
     value = float(values[0])
     if value >= -shift:
         return Stability(True, value, None, shift)
@@ -467,6 +479,7 @@ def pinned_solve(
     *,
     iterative: bool = True,
     cholmod: bool = True,
+    portable: bool = True,
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """``y = H^+ Xi`` ``(N d, m)`` for the ``m`` columns of ``xi`` ``(N, d, m)``, zero on the
     rattlers, with the largest relative residual and the solver used.
@@ -475,7 +488,9 @@ def pinned_solve(
     (those not in ``walls``, the walled axes of the cell), which takes out the translations,
     and factored once for all columns (:func:`_solve`; without MINRES unless ``iterative``: a
     residual of infinity then says that H is not positive definite; by SuperLU unless
-    ``cholmod``, :func:`~athermal.linalg.cholesky`).
+    ``cholmod``, :func:`~athermal.linalg.cholesky`; not ``portable``, by CHOLMOD on the
+    machine's BLAS, many times faster on large 3D networks, :func:`~athermal.linalg.
+    supernodal_cholesky`).
     """
     n, dim, m = xi.shape
     y = np.zeros((n * dim, m))
@@ -483,7 +498,7 @@ def pinned_solve(
         return y, 0.0, "none"
     h, dofs = pinned_hessian(contacts, rattler, dim, walls)
     b = np.ascontiguousarray(xi.reshape(n * dim, m)[dofs])
-    y[dofs], residual, solver = _solve(h, b, iterative, cholmod)
+    y[dofs], residual, solver = _solve(h, b, iterative, cholmod, portable)
     return y, residual, solver
 
 
@@ -527,7 +542,11 @@ def unpinned(size: int, dim: int, walls: tuple[int, ...]) -> NDArray[np.intp]:
 
 
 def _solve(
-    h: sp.csr_matrix, b: NDArray[np.float64], iterative: bool = True, cholmod: bool = True
+    h: sp.csr_matrix,
+    b: NDArray[np.float64],
+    iterative: bool = True,
+    cholmod: bool = True,
+    portable: bool = True,
 ) -> tuple[NDArray[np.float64], float, SolverUsed]:
     """A solution ``y`` ``(n, m)`` of ``h y = b`` for symmetric ``h`` ``(n, n)``, the largest
     relative residual ``|h y - b| / |b|`` over the columns and the solver that gave it.
@@ -539,7 +558,7 @@ def _solve(
     where ``h`` is not positive definite.
     """
     norms = np.linalg.norm(b, axis=0)
-    y = _cholesky_solve(h, b, cholmod)
+    y = _cholesky_solve(h, b, cholmod, portable)
     if y is None and not iterative:
         return np.zeros_like(b), np.inf, "none"
     if y is None:
@@ -554,11 +573,11 @@ def _solve(
 
 
 def _cholesky_solve(
-    h: sp.csr_matrix, b: NDArray[np.float64], cholmod: bool = True
+    h: sp.csr_matrix, b: NDArray[np.float64], cholmod: bool = True, portable: bool = True
 ) -> NDArray[np.float64] | None:
-    """``h^-1 b`` by CHOLMOD (SuperLU unless ``cholmod``); None when ``h`` is not positive
-    definite."""
-    factor = cholesky(h, cholmod=cholmod)
+    """``h^-1 b`` by CHOLMOD (SuperLU unless ``cholmod``; on the machine's BLAS unless
+    ``portable``); None when ``h`` is not positive definite."""
+    factor = cholesky(h, cholmod=cholmod) if portable else supernodal_cholesky(h)
     return None if factor is None else factor.solve(b)
 
 

@@ -43,6 +43,7 @@ from ..analysis.moduli import (
 )
 from ..analysis.observables import isostatic_contacts, rattlers
 from ..errors import ConvergenceError, InputError
+from ..linalg import supernodal_cholesky
 from ..model.contact import ContactModel, Contacts, hessian_floor
 from ..model.packing import Packing
 from ..relaxation import round_off_floor
@@ -154,6 +155,7 @@ def certify(
     *,
     target: float = TARGET,
     max_iterations: int = MAX_ITERATIONS,
+    portable: bool = True,
 ) -> CertifiedPacking:
     """Refine a jammed packing to force balance ``target`` x its mean contact force in
     double-double, and certify it (module docstring).
@@ -166,6 +168,10 @@ def certify(
         ``position_lo``); default zeros.
     target : relative force balance to reach, > 0.
     max_iterations : Newton steps at most.
+    portable : the Newton corrections and the linear response solved by cholespy's CHOLMOD, the
+        same bits on every CPU; False: by CHOLMOD on the machine's BLAS (cvxopt), many times
+        faster on large 3D packings (``docs/decisions.md``, "Factorizations on the machine's
+        BLAS"), the bits this machine's.
 
     Returns
     -------
@@ -223,7 +229,7 @@ def certify(
     enough = max(target * mean_force, precision_floor(packing, model))
     while force > enough and iterations < max_iterations:
         _same_network(pairs, network, live_pair & (sums.overlap[0] > 0.0))
-        step = _newton_step(pairs, hi, sums, network, rattler)
+        step = _newton_step(pairs, hi, sums, network, rattler, portable)
         carry_rattlers(pairs, step, rattler)
         displace(hi, lo, step)
         sums, previous = _freed(pairs, hi, lo, rattler), force
@@ -237,7 +243,9 @@ def certify(
     force, hi, lo, sums = best
     _same_network(pairs, network, live_pair & (sums.overlap[0] > 0.0))
     refined = packing.with_positions(hi)
-    certificate = _certificate(refined, model, pairs, sums, rattler, start, iterations, target)
+    certificate = _certificate(
+        refined, model, pairs, sums, rattler, start, iterations, target, portable
+    )
     return CertifiedPacking(refined, lo, certificate)
 
 
@@ -263,10 +271,13 @@ def contact_network(
 
 def _lowest_eigenvalue(contacts: Contacts, rattler: NDArray[np.bool_], dim: int) -> float:
     """The smallest eigenvalue of the non-rattlers' Hessian beyond its ``d`` translations (NaN
-    when there is none)."""
+    when there is none); the shifted Hessian factored on the machine's BLAS (a number reported,
+    never fed back: :func:`~athermal.linalg.supernodal_cholesky`)."""
     h, _ = nonrattler_hessian(contacts, rattler, dim)
     floor = hessian_floor(contacts, rattler.size)
-    values, _ = lowest_eigenpairs(h, min(dim + 2, h.shape[0] - 2), floor)
+    values, _ = lowest_eigenpairs(
+        h, min(dim + 2, h.shape[0] - 2), floor, factor=supernodal_cholesky
+    )
     values = values[np.abs(values) > zero_tolerance(h)]
     return float(values[0]) if values.size else float("nan")
 
@@ -277,12 +288,15 @@ def _newton_step(
     sums: PairSums,
     network: NDArray[np.bool_],
     rattler: NDArray[np.bool_],
+    portable: bool,
 ) -> NDArray[np.float64]:
     """``-H^+ g`` ``(N, d)`` on the non-rattlers (first one pinned), zero on the rattlers, with
-    ``H`` the float64 Hessian of the contacts ``network`` at ``hi``."""
+    ``H`` the float64 Hessian of the contacts ``network`` at ``hi`` (``portable``:
+    :func:`certify`)."""
     n, dim = hi.shape
     contacts = pairs.contacts(hi, sums.overlap[0], network)
-    y, residual, _ = pinned_solve(contacts, rattler, sums.gradient[0].reshape(n, dim, 1))
+    gradient = sums.gradient[0].reshape(n, dim, 1)
+    y, residual, _ = pinned_solve(contacts, rattler, gradient, portable=portable)
     if not np.all(np.isfinite(y)) or residual > 1e-6:
         raise ConvergenceError(
             f"certify: the Newton correction did not solve (relative residual {residual:.1e}): "
@@ -436,6 +450,7 @@ def _certificate(
     start: float,
     iterations: int,
     target: float,
+    portable: bool,
 ) -> Certificate:
     overlap = sums.overlap[0] + sums.overlap[1]
     live = ~(rattler[pairs.first] | rattler[pairs.second])
@@ -445,7 +460,9 @@ def _certificate(
     n_live = int((~rattler).sum())
     network, _ = contact_network(pairs, packing.positions, sums)
     lowest = _lowest_eigenvalue(network, rattler, packing.dim)
-    strain, _, linearity = toward_jamming(pairs, packing.positions, overlap, network, rattler, live)
+    strain, _, linearity = toward_jamming(
+        pairs, packing.positions, overlap, network, rattler, live, portable=portable
+    )
     balance = sums.largest_force()
     mean_force = float(force.mean())
     volume = packing.cell.volume
@@ -479,6 +496,8 @@ def toward_jamming(
     contacts: Contacts,
     rattler: NDArray[np.bool_],
     live: NDArray[np.bool_],
+    *,
+    portable: bool = True,
 ) -> tuple[float, NDArray[np.float64], float]:
     """The jamming point of a jammed packing by its linear response, to first order in its
     distance from it.
@@ -493,9 +512,9 @@ def toward_jamming(
     ``(P,)`` of the ``pairs`` at positions ``hi`` (``overlap`` their double-double overlaps,
     ``live`` those between non-rattlers; ``contacts``, found at ``hi``, are the pairs of ``live``
     that overlap) and the largest ``|overlap / (e_c rate) - 1|`` over the contacts (infinite
-    where a contact does not open).
+    where a contact does not open; ``portable``: :func:`certify`).
     """
-    u = relaxing_displacement(contacts, rattler, np.eye(hi.shape[1]))
+    u = relaxing_displacement(contacts, rattler, np.eye(hi.shape[1]), portable=portable)
     every = slice(None)  # the affine part stretches each pair by its length
     rate = np.linalg.norm(pairs.separations(hi), axis=1) + pair_rates(pairs, hi, u, every)
     touch = live & (overlap > 0.0)

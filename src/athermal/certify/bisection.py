@@ -24,8 +24,15 @@ from ..analysis.moduli import (
 )
 from ..analysis.observables import rattlers
 from ..errors import ConvergenceError, InputError
-from ..linalg import Factor, NotPositiveDefinite, cholesky, factor_cg
-from ..model.contact import ContactModel, Contacts, hessian_floor
+from ..linalg import (
+    Factor,
+    NotPositiveDefinite,
+    dissection_order,
+    factor_cg,
+    row_order,
+    supernodal_cholesky,
+)
+from ..model.contact import ContactModel, Contacts, find_contacts, hessian_floor
 from ..model.objective import Objective
 from ..model.packing import Packing
 from ..protocols.jamming import FINAL_RTOL, JAMMING_MINIMIZER, RESOLUTION, energy_threshold
@@ -57,6 +64,12 @@ MAX_LIFTS = 1
 higher (:func:`_landing`): the packing compressed may return to the network that gave way, and
 give way again where it did (``docs/decisions.md``, "A rearrangement that lands at its own
 jamming point")."""
+MARCH_BITS = (
+    "this machine's: the march factors on cvxopt's BLAS, and ARPACK finds its unstable modes"
+)
+"""What ``jam`` prints as ``bits`` when a march ran: its factorizations are CHOLMOD's supernodal
+ones on the machine's BLAS (:func:`~athermal.linalg.supernodal_cholesky`), and its unstable
+modes ARPACK's and LOBPCG's (BLAS inside)."""
 TRIAL_ITERATIONS = 30
 """Newton steps, and network changes, of one trial at most."""
 BLOCKED_MOVE = 1e-3
@@ -210,7 +223,7 @@ def bisect_jamming_point(
         raise InputError(f"epsilon: must lie in [1e-15, 1e-6], got {epsilon}")
     phi0, radii0, dim = packing.phi, packing.radii, packing.dim
     if resume is None:
-        start = certify(packing, model)
+        start = certify(packing, model, portable=False)
         source = start.packing
         pairs = NearPairs(source, model, GAP_REACH)
         sums = pairs.sums(source.positions, start.position_lo)
@@ -229,10 +242,10 @@ def bisect_jamming_point(
         counts = (*resume.counts, 0)[:7]  # a state of six counts was written before lifts
         trials, shed, formed, readmitted, instabilities, rearranged, lifted = counts
     stiffness = pairs.stiffness
-    kept, saved = _KeptFactor(), trials
+    kept, saved = _KeptFactor(packing, model), trials
     while low < 0.0 or high - low > epsilon:
         if trials % CHECKPOINT_TRIALS == 0 and trials != saved:
-            kept, saved = _KeptFactor(), trials
+            kept, saved = _KeptFactor(packing, model), trials
             if on_checkpoint is not None:
                 counts = (trials, shed, formed, readmitted, instabilities, rearranged, lifted)
                 on_checkpoint(
@@ -318,7 +331,7 @@ def bisect_jamming_point(
             low = phi
     pairs.stiffness = stiffness
     final = Packing(hi, radii, packing.cell)
-    jammed = certify(final, model, lo)
+    jammed = certify(final, model, lo, portable=False)
     return CertifiedJamming(
         jammed,
         low,
@@ -341,9 +354,18 @@ class _KeptFactor:
     ``H^-1 force`` by conjugate gradients preconditioned with it (:func:`~athermal.linalg.
     factor_cg`), else, or when they do not reach :data:`CORRECTION_RTOL` in
     :data:`CORRECTION_ITERATIONS`, by a fresh factor, kept; unstable modes by LOBPCG
-    preconditioned with it; positive definiteness by a fresh factor, kept."""
+    preconditioned with it; positive definiteness by a fresh factor, kept. Every factor is
+    CHOLMOD's supernodal one on the machine's BLAS (:func:`~athermal.linalg.
+    supernodal_cholesky`), its rows in the order of :func:`~athermal.linalg.dissection_order`
+    of the contact network of ``packing`` (the march's start: its particles move by far less
+    than a diameter)."""
 
-    def __init__(self) -> None:
+    def __init__(self, packing: Packing, model: ContactModel) -> None:
+        contacts = find_contacts(packing, model)
+        widths = packing.cell.widths
+        points = np.mod(packing.cell.fractional(packing.positions), 1.0) * widths
+        self._rank = dissection_order(points, widths, contacts.i, contacts.j)
+        self._dim = packing.dim
         self._kept: tuple[NDArray[np.intp], Factor] | None = None  # its rows' dofs, factor
 
     def solve(
@@ -392,7 +414,13 @@ class _KeptFactor:
             null = unit_translations(dofs, dim)
             found = lowest_eigenpair_near(h, near, tolerance, MODE_ITERATIONS, rows=rows, null=null)
         if found is None:
-            values, vectors = lowest_eigenpairs(h, 1, hessian_floor(contacts, n), saddle=True)
+            values, vectors = lowest_eigenpairs(
+                h,
+                1,
+                hessian_floor(contacts, n),
+                saddle=True,
+                factor=lambda shifted: self._cholesky(shifted, dofs),
+            )
             found = float(values[0]), vectors[:, 0]
         if not found[0] < -tolerance:
             return None
@@ -407,10 +435,15 @@ class _KeptFactor:
     def _factor(self, h: sp.csr_matrix, dofs: NDArray[np.intp]) -> Factor | None:
         """The factor of ``h`` (a pinned Hessian, its rows those of ``dofs``), kept; None when
         ``h`` is not positive definite."""
-        factor = cholesky(h)
+        factor = self._cholesky(h, dofs)
         if factor is not None:
             self._kept = dofs, factor
         return factor
+
+    def _cholesky(self, h: sp.csr_matrix, dofs: NDArray[np.intp]) -> Factor | None:
+        """A factor of ``h`` (its rows those of ``dofs``) in the kept rank, or None when ``h``
+        is not positive definite."""
+        return supernodal_cholesky(h, row_order(self._rank, dofs, self._dim))
 
     def _near(self, dofs: NDArray[np.intp]) -> Factor | None:
         """The kept factor where it is of a pinned Hessian on the rows ``dofs``, else None."""

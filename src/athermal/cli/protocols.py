@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import engines
-from ..certify.bisection import float64_epsilon
+from ..certify.bisection import MARCH_BITS, float64_epsilon
 from ..errors import InputError
 from ..io import Frame, count_frames, read_gsd
 from ..model.contact import ContactModel, find_contacts
@@ -240,7 +240,11 @@ def jam(args: argparse.Namespace) -> None:
             "seconds": round(time.perf_counter() - t0, 3),
             "seed": args.seed,
             "method": spec.minimizer.label,
-            "bits": bits(spec.minimizer, args.n, args.dim),
+            "bits": (
+                f"{MARCH_BITS}; its float64 jam: {bits(spec.minimizer, args.n, args.dim)}"
+                if kept.bisected
+                else bits(spec.minimizer, args.n, args.dim)
+            ),
             "output": args.output,
             "trajectory": trajectory_path,
             "table": record.table,
