@@ -23,6 +23,7 @@ from athermal.certify import (
     toward_jamming,
 )
 from athermal.certify.bisection import (
+    MARCH_BITS,
     START_EPSILON,
     _KeptFactor,
     _landing,
@@ -93,6 +94,21 @@ def test_certifying_a_certified_packing_changes_nothing(jammed):
     assert again.certificate.iterations == 0
     np.testing.assert_array_equal(again.packing.positions, done.packing.positions)
     np.testing.assert_array_equal(again.position_lo, done.position_lo)
+
+
+def test_certify_on_the_machines_blas_reaches_the_same_certificate(jammed):
+    """``portable=False`` (CHOLMOD on cvxopt's BLAS) refines to the same state as cholespy's
+    factor does, within the round-off of the double-double positions, and certifies it alike."""
+    packing, model = jammed
+    portable, fast = certify(packing, model), certify(packing, model, portable=False)
+    a, b = portable.certificate, fast.certificate
+    assert b.converged and b.contacts == a.contacts and b.n_rattlers == a.n_rattlers
+    assert b.relative_force_balance <= TARGET
+    exact = (portable.packing.positions - fast.packing.positions) + (
+        portable.position_lo - fast.position_lo
+    )
+    assert np.abs(exact).max() <= 1e-20 * float(packing.radii.mean())
+    assert b.lowest_eigenvalue == pytest.approx(a.lowest_eigenvalue, rel=1e-6)
 
 
 def test_the_certified_state_is_read_back_exactly(jammed, tmp_path):
@@ -339,6 +355,7 @@ def test_jam_certify_bisects_below_float64_and_refuses_it_otherwise(tmp_path, ca
     assert march["float64_phi_high"] >= result["phi_high"] >= march["float64_phi_low"]
     assert march["float64_phi_high"] - march["float64_phi_low"] <= START_EPSILON  # float64 first
     assert result["pressure"] == result["certificate"]["pressure"] < 1e-11
+    assert result["bits"] == f"{MARCH_BITS}; its float64 jam: portable"
     frame = at.read_gsd(out)
     assert frame.packing.phi == result["phi_high"] and frame.position_lo is not None
 
