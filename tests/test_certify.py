@@ -161,7 +161,11 @@ def test_the_command_certifies_a_file_and_jam_certifies_its_packing(tmp_path, ca
     assert frame.position_lo is not None and "certificate_force_balance" in frame.log
     assert main(["certify", str(tmp_path / "j.gsd"), "-o", str(tmp_path / "c.gsd"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["iterations"] == 0 and out["converged"]
+    assert out["iterations"] == 0 and out["converged"] and out["bits"] == "portable"
+    fast = ["certify", str(tmp_path / "j.gsd"), "-o", str(tmp_path / "f.gsd"), "--fast", "--json"]
+    assert main(fast) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["converged"] and out["bits"].startswith("this machine's")
     assert main(["jam", "--n", "64", "-o", str(tmp_path / "p.gsd"), "--certify", "--pressure",
                  "1e-3"]) == 2  # fmt: skip
     assert "drop --pressure or --certify" in capsys.readouterr().err

@@ -160,6 +160,12 @@ def _certify_command(sub: argparse._SubParsersAction) -> None:
         default=TARGET,
         help="force balance to reach, x the mean contact force",
     )
+    cer.add_argument(
+        "--fast",
+        action="store_true",
+        help="factor on cvxopt's optimized BLAS: many times faster for large 3D packings, the "
+        "bits this machine's (docs/decisions.md, 'Factorizations on the machine's BLAS')",
+    )
     cer.add_argument("--overwrite", action="store_true", help="replace an existing output")
     add_model(cer, from_file=True)
 
