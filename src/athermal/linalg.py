@@ -6,9 +6,10 @@ preconditioners (:mod:`athermal.engines.precon`) and the moduli (:mod:`athermal.
 * :class:`SpluFactor`: SciPy's SuperLU with a symmetric ordering and no pivoting, when cholespy
   is missing;
 * :class:`SupernodalFactor`: CHOLMOD's supernodal factor through cvxopt, on the machine's own
-  BLAS (OpenBLAS): about ten times cholespy's speed on the networks of 3D packings of thousands
-  of particles, its bits the machine's (cholespy's reference BLAS gives the same bits on every
-  CPU); ordered for less fill by :func:`dissection_order` where the caller knows the points;
+  BLAS (OpenBLAS): many times cholespy's speed on large 3D networks, its bits the machine's
+  (cholespy's reference BLAS gives the same bits on every CPU; ``docs/decisions.md``,
+  "Factorizations on the machine's BLAS"); ordered for less fill by :func:`dissection_order`
+  where the caller knows the points;
 * :class:`AmgFactor`: a fixed number of smoothed-aggregation V-cycles from a zero start
   (pyamg), a fixed symmetric linear operator;
 * :class:`IncompleteCholeskyFactor`: the zero-fill incomplete Cholesky factor ``L L^T ~ A``
@@ -198,11 +199,14 @@ def dissection_order(
     def halve(
         members: NDArray[np.intp], low: NDArray[np.float64], high: NDArray[np.float64]
     ) -> None:
+        if members.size <= DISSECTION_LEAF:
+            parts.append(members)
+            return
         axis = int(np.argmax(high - low))
         coordinate = points[members, axis]
         middle = float(np.median(coordinate))
         lower, upper = members[coordinate < middle], members[coordinate >= middle]
-        if members.size <= DISSECTION_LEAF or not lower.size or not upper.size:
+        if not lower.size or not upper.size:  # all at one coordinate: no halves
             parts.append(members)
             return
         in_upper = np.zeros(n)

@@ -35,8 +35,9 @@ from .common import check_certified, model_from
 from .printer import emit
 
 MODES_BITS = "this machine's: LAPACK's and ARPACK's eigensolvers sum in their BLAS's order"
-FAST_BITS = "this machine's: CHOLMOD factors on cvxopt's BLAS (--fast)"
 """The ``bits`` of ``modes`` (docs/decisions.md, "Same input, same bits")."""
+FAST_BITS = "this machine's: CHOLMOD factors on cvxopt's BLAS (--fast)"
+"""The ``bits`` of ``certify --fast`` (``portable`` without it)."""
 
 
 def modes(args: argparse.Namespace) -> None:
