@@ -145,7 +145,6 @@ class SupernodalFactor:
             lower.col.tolist(),
             size=matrix.shape,
         )
-        self._cholmod, self._dense = cholmod, dense
         ordered = {} if order is None else {"p": dense(order.tolist(), tc="i")}
         self._factor = cholmod.symbolic(a, **ordered)
         try:
@@ -154,14 +153,19 @@ class SupernodalFactor:
             raise NotPositiveDefinite(f"not positive definite at column {error}") from None
 
     def solve(self, rhs: NDArray[np.float64]) -> NDArray[np.float64]:
-        b = self._dense(np.asfortranarray(rhs, dtype=np.float64))
-        self._cholmod.solve(self._factor, b)
+        from cvxopt import cholmod
+        from cvxopt import matrix as dense
+
+        b = dense(np.asfortranarray(rhs, dtype=np.float64))
+        cholmod.solve(self._factor, b)
         return np.asarray(b, dtype=np.float64).reshape(rhs.shape)
 
     @property
     def nonzeros(self) -> int:
         """The nonzeros of ``L`` (the fill: what a solve reads), from a copy of it."""
-        return len(self._cholmod.getfactor(self._factor))
+        from cvxopt import cholmod
+
+        return len(cholmod.getfactor(self._factor))
 
 
 def supernodal_cholesky(

@@ -4,6 +4,7 @@ every verdict is taken in double-double on the packing's contact network
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -245,7 +246,7 @@ def bisect_jamming_point(
     kept, saved = _KeptFactor(packing, model), trials
     while low < 0.0 or high - low > epsilon:
         if trials % CHECKPOINT_TRIALS == 0 and trials != saved:
-            kept, saved = _KeptFactor(packing, model), trials
+            kept, saved = kept.afresh(), trials
             if on_checkpoint is not None:
                 counts = (trials, shed, formed, readmitted, instabilities, rearranged, lifted)
                 on_checkpoint(
@@ -367,6 +368,12 @@ class _KeptFactor:
         self._rank = dissection_order(points, widths, contacts.i, contacts.j)
         self._dim = packing.dim
         self._kept: tuple[NDArray[np.intp], Factor] | None = None  # its rows' dofs, factor
+
+    def afresh(self) -> _KeptFactor:
+        """The same order, no factor kept (the march's linear algebra started again)."""
+        fresh = copy.copy(self)
+        fresh._kept = None
+        return fresh
 
     def solve(
         self, contacts: Contacts, rattler: NDArray[np.bool_], force: NDArray[np.float64]

@@ -216,6 +216,7 @@ def jam(args: argparse.Namespace) -> None:
         )
         save(packing_figure(final, model, title=title), picture)
     bound = (lambda phi: phi) if args.json else (lambda phi: f"{phi:.{_digits(width) + 2}f}")
+    relaxed = bits(spec.minimizer, args.n, args.dim)  # the float64 jam's
     emit(
         {
             "phi_c": phi_c if args.json else phi_text,
@@ -240,11 +241,7 @@ def jam(args: argparse.Namespace) -> None:
             "seconds": round(time.perf_counter() - t0, 3),
             "seed": args.seed,
             "method": spec.minimizer.label,
-            "bits": (
-                f"{MARCH_BITS}; its float64 jam: {bits(spec.minimizer, args.n, args.dim)}"
-                if kept.bisected
-                else bits(spec.minimizer, args.n, args.dim)
-            ),
+            "bits": f"{MARCH_BITS}; its float64 jam: {relaxed}" if kept.bisected else relaxed,
             "output": args.output,
             "trajectory": trajectory_path,
             "table": record.table,
