@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 import athermal as at
+import athermal.certify as certify_package
 import athermal.certify.bisection as bisection
 import athermal.cli.analysis as analysis
 from athermal._portable import root
@@ -441,6 +442,28 @@ def test_a_rearrangement_float64_cannot_resolve_lands_jammed_higher():
     lifted = at.Packing(start.positions, start.radii * root(up / phi, 3), start.cell)
     landing = _landing(lifted, model, up, _KeptFactor(lifted, model))
     assert landing is not None and landing.trial[0] is True
+
+
+def test_rattlers_boxed_in_by_rattlers_move_with_them(monkeypatch):
+    """3D N = 256, seed 173 of the criticality study (stored: its float64 jam to 1e-7): a cluster
+    of four rattlers whose cage closes as ``phi`` falls. Moved with only their direct rattler
+    neighbours, two of them found no room (the other two held them in), were readmitted with
+    fewer than d + 1 contacts, and every such trial gave no verdict: the march crept down
+    ~2e-13 a trial through spurious rearrangements and was refused after 2000 trials. With the
+    rattler neighbours of those moved too (``TOGETHER_DEPTH``), it brackets the jamming point
+    with no rearrangement, inside the float64 bracket."""
+    packing, low, high = stored("d3_n256_seed173")
+    model = at.ContactModel(2.0)
+    point = bisect_jamming_point(packing, model, 1e-12, max_trials=60)
+    assert point.rearrangements == point.rattlers_readmitted == 0
+    assert 0.0 < point.phi_high - point.phi_low <= 1e-12
+    assert low < point.phi_high < high
+    assert abs(point.phi_high - 0.6389814840386967) < 2e-12  # measured on two CPUs
+    certificate = point.jammed.certificate
+    assert certificate.converged and certificate.excess_contacts == 0
+    monkeypatch.setattr(certify_package, "TOGETHER_DEPTH", 1)  # the direct neighbours only
+    with pytest.raises(ConvergenceError, match="no bracket of 1e-12 in 60 trials"):
+        bisect_jamming_point(packing, model, 1e-12, max_trials=60)
 
 
 def test_a_march_takes_a_rearrangement_it_cannot_resolve_higher_once(monkeypatch):

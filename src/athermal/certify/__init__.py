@@ -72,6 +72,10 @@ LOG_PREFIX = "certificate_"
 """The certificate's fields in a GSD frame's log are ``log/athermal/certificate_<name>``."""
 RATTLER_PASSES = 20
 """Rounds of moving overlapping rattlers out at most."""
+TOGETHER_DEPTH = 3
+"""Rattlers with no room alone move with their rattler neighbours, and where those have no room
+either, with the neighbours' rattler neighbours, this many rings deep at most
+(:func:`_place_together`)."""
 GAP_REACH = 0.2
 """Pairs up to this many mean diameters apart (surface to surface) are the near neighbours whose
 gaps the certificate and the gap statistics take."""
@@ -400,30 +404,45 @@ def _place_together(
     stuck: NDArray[np.int64],
 ) -> NDArray[np.int64]:
     """Move the rattlers ``stuck`` and their rattler neighbours (``free``) together to places
-    clear of every neighbour (:func:`athermal.certify.cage.free_places`), or where they overlap
-    least; returns those that still overlap there."""
-    near = np.isin(pairs.first, stuck) | np.isin(pairs.second, stuck)
-    ends = np.concatenate([pairs.first[near], pairs.second[near]])
-    movers = np.unique(ends[free[ends]])
-    which = np.flatnonzero(np.isin(pairs.first, movers) | np.isin(pairs.second, movers))
-    one, two = pairs.first[which], pairs.second[which]
-    first_moves = np.isin(one, movers)
-    index = np.full(hi.shape[0], -1)
-    index[movers] = np.arange(movers.size)
-    mover, partner = index[np.where(first_moves, one, two)], index[np.where(first_moves, two, one)]
-    offsets = _offsets(pairs, hi, lo, which, movers)
-    found = free_places(mover, partner, offsets, reach[which], movers.size)
+    clear of every neighbour (:func:`athermal.certify.cage.free_places`); where they have no
+    room so, with the rattler neighbours of those too, up to :data:`TOGETHER_DEPTH` deep (rattlers
+    held fixed may box the movers in); else where the first group overlaps least. Returns those
+    that still overlap there."""
+    movers, first = stuck, None
+    for _ in range(TOGETHER_DEPTH):
+        near = np.isin(pairs.first, movers) | np.isin(pairs.second, movers)
+        ends = np.concatenate([pairs.first[near], pairs.second[near]])
+        grown = np.union1d(movers, ends[free[ends]])
+        if first is not None and grown.size == movers.size:
+            break  # no more rattlers near
+        movers = grown
+        which = np.flatnonzero(np.isin(pairs.first, movers) | np.isin(pairs.second, movers))
+        one, two = pairs.first[which], pairs.second[which]
+        first_moves = np.isin(one, movers)
+        index = np.full(hi.shape[0], -1)
+        index[movers] = np.arange(movers.size)
+        mover = index[np.where(first_moves, one, two)]
+        partner = index[np.where(first_moves, two, one)]
+        offsets = _offsets(pairs, hi, lo, which, movers)
+        found = free_places(mover, partner, offsets, reach[which], movers.size)
+        if found is not None and found[1]:
+            step = np.zeros_like(hi)
+            step[movers] = found[0]
+            displace(hi, lo, step)
+            return np.empty(0, dtype=np.int64)
+        if first is None:
+            first = (found, movers, which, mover, partner, offsets)
+    assert first is not None
+    found, movers, which, mover, partner, offsets = first
     if found is None:
         raise ConvergenceError(
             f"certify: rattler(s) {', '.join(map(str, stuck))} cannot be moved in their cage "
             "without passing through a neighbour"
         )
-    moves, clear = found
+    moves = found[0]
     step = np.zeros_like(hi)
     step[movers] = moves
     displace(hi, lo, step)
-    if clear:
-        return np.empty(0, dtype=np.int64)
     sep = offsets + np.where((partner < 0)[:, None], 0.0, moves[partner]) - moves[mover]
     touching = np.linalg.norm(sep, axis=1) < reach[which]
     return np.unique(movers[np.concatenate([mover[touching], partner[touching & (partner >= 0)]])])
