@@ -405,9 +405,9 @@ def _place_together(
 ) -> NDArray[np.int64]:
     """Move the rattlers ``stuck`` and their rattler neighbours (``free``) together to places
     clear of every neighbour (:func:`athermal.certify.cage.free_places`); where they have no
-    room so, with the rattler neighbours of those too, up to :data:`TOGETHER_DEPTH` deep (rattlers
-    held fixed may box the movers in); else where the first group overlaps least. Returns those
-    that still overlap there."""
+    room so, with the rattler neighbours of those too, up to :data:`TOGETHER_DEPTH` rings
+    (rattlers held fixed may box the movers in); else where the first ring overlaps least.
+    Returns those that still overlap there."""
     movers, first = stuck, None
     for _ in range(TOGETHER_DEPTH):
         near = np.isin(pairs.first, movers) | np.isin(pairs.second, movers)
@@ -416,36 +416,61 @@ def _place_together(
         if first is not None and grown.size == movers.size:
             break  # no more rattlers near
         movers = grown
-        which = np.flatnonzero(np.isin(pairs.first, movers) | np.isin(pairs.second, movers))
-        one, two = pairs.first[which], pairs.second[which]
-        first_moves = np.isin(one, movers)
-        index = np.full(hi.shape[0], -1)
-        index[movers] = np.arange(movers.size)
-        mover = index[np.where(first_moves, one, two)]
-        partner = index[np.where(first_moves, two, one)]
-        offsets = _offsets(pairs, hi, lo, which, movers)
-        found = free_places(mover, partner, offsets, reach[which], movers.size)
-        if found is not None and found[1]:
-            step = np.zeros_like(hi)
-            step[movers] = found[0]
-            displace(hi, lo, step)
+        group = _Group(pairs, hi, lo, reach, movers)
+        if group.found is not None and group.found[1]:
+            group.move(hi, lo)
             return np.empty(0, dtype=np.int64)
         if first is None:
-            first = (found, movers, which, mover, partner, offsets)
+            first = group
     assert first is not None
-    found, movers, which, mover, partner, offsets = first
-    if found is None:
+    if first.found is None:
         raise ConvergenceError(
             f"certify: rattler(s) {', '.join(map(str, stuck))} cannot be moved in their cage "
             "without passing through a neighbour"
         )
-    moves = found[0]
-    step = np.zeros_like(hi)
-    step[movers] = moves
-    displace(hi, lo, step)
-    sep = offsets + np.where((partner < 0)[:, None], 0.0, moves[partner]) - moves[mover]
-    touching = np.linalg.norm(sep, axis=1) < reach[which]
-    return np.unique(movers[np.concatenate([mover[touching], partner[touching & (partner >= 0)]])])
+    return first.move(hi, lo)
+
+
+class _Group:
+    """Rattlers ``movers`` moved together (:func:`athermal.certify.cage.free_places`): their
+    pairs ``which``, each pair's mover and partner (-1: a fixed neighbour) by index among the
+    movers, the pairs' offsets, and the moves found with whether they clear every pair."""
+
+    def __init__(
+        self,
+        pairs: NearPairs,
+        hi: NDArray[np.float64],
+        lo: NDArray[np.float64],
+        reach: NDArray[np.float64],
+        movers: NDArray[np.int64],
+    ) -> None:
+        self.movers = movers
+        self.which = np.flatnonzero(np.isin(pairs.first, movers) | np.isin(pairs.second, movers))
+        one, two = pairs.first[self.which], pairs.second[self.which]
+        first_moves = np.isin(one, movers)
+        index = np.full(hi.shape[0], -1)
+        index[movers] = np.arange(movers.size)
+        self.mover = index[np.where(first_moves, one, two)]
+        self.partner = index[np.where(first_moves, two, one)]
+        self.offsets = _offsets(pairs, hi, lo, self.which, movers)
+        self.reach = reach[self.which]
+        self.found = free_places(self.mover, self.partner, self.offsets, self.reach, movers.size)
+
+    def move(self, hi: NDArray[np.float64], lo: NDArray[np.float64]) -> NDArray[np.int64]:
+        """Displace the movers (``hi + lo`` updated) by the moves found; the movers that still
+        overlap a neighbour there."""
+        assert self.found is not None
+        moves, clear = self.found
+        step = np.zeros_like(hi)
+        step[self.movers] = moves
+        displace(hi, lo, step)
+        if clear:
+            return np.empty(0, dtype=np.int64)
+        partner, mover = self.partner, self.mover
+        sep = self.offsets + np.where((partner < 0)[:, None], 0.0, moves[partner]) - moves[mover]
+        touching = np.linalg.norm(sep, axis=1) < self.reach
+        ends = np.concatenate([mover[touching], partner[touching & (partner >= 0)]])
+        return np.unique(self.movers[ends])
 
 
 def _same_network(pairs: NearPairs, before: NDArray[np.bool_], after: NDArray[np.bool_]) -> None:
