@@ -100,7 +100,13 @@ def one(dim: int, n: int, seed: int, folder: Path) -> dict[str, Any]:
         [sys.executable, "-c", CHILD, json.dumps(args)], capture_output=True, text=True, check=False
     )
     seconds = time.perf_counter() - start
-    child = json.loads(done.stderr.strip().splitlines()[-1])
+    lines = done.stderr.strip().splitlines()
+    if done.returncode != 0 or not lines:
+        raise SystemExit(
+            f"certified_scale: the run of d = {dim}, N = {n}, seed {seed} ended with code "
+            f"{done.returncode} after {seconds:.0f} s (stopped?): {lines[-1] if lines else ''}"
+        )
+    child = json.loads(lines[-1])
     row: dict[str, Any] = {"dim": dim, "n": n, "seed": seed, "seconds": seconds}
     row["cpu"] = cpu_model()
     row["commit"] = commit()
